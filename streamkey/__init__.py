@@ -1,0 +1,16 @@
+"""streamkey: find the keyframes of human motion while it is being captured."""
+
+from __future__ import annotations
+
+from .bvh import parse_bvh, read_bvh, write_bvh
+from .errors import AMCError, BVHError, InputError, RoleError, StreamkeyError, UsageError
+from .keyframes import GapEvent, KeyframeEvent, Keyframes, StatusEvent
+from .motion import Frame, Motion, Skeleton
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AMCError", "BVHError", "Frame", "GapEvent", "InputError", "KeyframeEvent", "Keyframes",
+    "Motion", "RoleError", "Skeleton", "StatusEvent", "StreamkeyError", "UsageError",
+    "parse_bvh", "read_bvh", "write_bvh", "__version__",
+]

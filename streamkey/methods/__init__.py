@@ -1,0 +1,1 @@
+"""Keyframe extraction methods: one module per method, offline `extract` + online `Online`."""
