@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .motion import ROTATION_CHANNELS, Motion, Skeleton
+from .motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 
 __all__ = ["euler_matrices", "local_rotations", "forward_kinematics", "FKResult", "body_height",
            "pelvis_frame", "point_names"]
@@ -36,30 +36,78 @@ def euler_matrices(degrees: np.ndarray, order: list[str]) -> np.ndarray:
     return out
 
 
-def local_rotations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
-    """Local rotation matrices (n_frames, n_joints, 3, 3) from channel values."""
-    n = channels.shape[0]
-    out = np.empty((n, skeleton.n_joints, 3, 3))
-    assert skeleton.rotation_order is not None and skeleton.pre_rotations is not None
-    groups: dict[tuple[str, ...], list[int]] = {}
-    for j, order in enumerate(skeleton.rotation_order):
-        groups.setdefault(tuple(order), []).append(j)
-    for order, joints in groups.items():
-        cols = [[skeleton.channel_start[j] + skeleton.channels[j].index(c) for c in order]
-                for j in joints]
-        angles = channels[:, np.array(cols, dtype=int)] if order else np.zeros((n, len(joints), 0))
-        out[:, joints] = euler_matrices(angles, list(order))
-    for j, pre in enumerate(skeleton.pre_rotations):
-        if pre is not None:
-            out[:, j] = pre @ out[:, j] @ pre.T
-    return out
-
-
 def _depth_levels(parents: list[int]) -> list[np.ndarray]:
     depth = [0] * len(parents)
     for j, p in enumerate(parents):
         depth[j] = 0 if p < 0 else depth[p] + 1
     return [np.flatnonzero(np.array(depth) == d) for d in range(max(depth) + 1)]
+
+
+class _RotationPlan:
+    """Index patterns that turn a skeleton's Euler channels into matrices with few numpy ops."""
+
+    def __init__(self, skeleton: Skeleton) -> None:
+        assert skeleton.rotation_order is not None and skeleton.pre_rotations is not None
+        j = skeleton.n_joints
+        self.columns = np.zeros((j, 3), dtype=np.int64)
+        self.mask = np.zeros((j, 3))
+        axes = np.zeros((j, 3), dtype=np.int64)
+        for joint, order in enumerate(skeleton.rotation_order):
+            for k, name in enumerate(order):
+                self.columns[joint, k] = skeleton.channel_start[joint] + skeleton.channels[
+                    joint].index(name)
+                self.mask[joint, k] = 1.0
+                axes[joint, k] = _AXIS[name]
+        eye = _axis_matrices(0, np.zeros(3)) * 0 + np.eye(3)
+        ones, cos, sin = (np.zeros((3, 3, 3)) for _ in range(3))
+        for a in range(3):
+            i, k = [(1, 2), (2, 0), (0, 1)][a]
+            ones[a] = eye[a]
+            ones[a, i, i] = ones[a, k, k] = 0.0
+            cos[a, i, i] = cos[a, k, k] = 1.0
+            sin[a, i, k], sin[a, k, i] = -1.0, 1.0
+        self.ones, self.cos, self.sin = ones[axes], cos[axes], sin[axes]
+        pre = [p if p is not None else np.eye(3) for p in skeleton.pre_rotations]
+        self.pre = np.array(pre) if any(p is not None for p in skeleton.pre_rotations) else None
+        parents = np.array(skeleton.parents)
+        self.levels = [(lv, parents[lv], skeleton.offsets[lv][..., None])
+                       for lv in _depth_levels(skeleton.parents)[1:]]
+        ends = sorted(skeleton.end_sites)
+        self.n_points = j + len(ends)
+
+        self.ends = np.array(ends, dtype=np.int64) if ends else None
+        self.end_offsets = np.array([skeleton.end_sites[e] for e in ends]).reshape(-1, 3, 1)
+        self.root_offset = skeleton.offsets[0]
+        pos = [(a, skeleton.channel_index(0, c)) for a, c in enumerate(POSITION_CHANNELS)]
+        self.root_axes = np.array([a for a, c in pos if c is not None], dtype=np.int64)
+        self.root_columns = np.array([c for _, c in pos if c is not None], dtype=np.int64)
+
+    def matrices(self, channels: np.ndarray) -> np.ndarray:
+        """Local rotation matrices (n, J, 3, 3) of channel rows (n, C)."""
+        rad = np.deg2rad(channels[:, self.columns]) * self.mask
+        c = np.cos(rad)[..., None, None]
+        s = np.sin(rad)[..., None, None]
+        e = self.ones + c * self.cos + s * self.sin
+        out = e[:, :, 0] @ e[:, :, 1] @ e[:, :, 2]
+        if self.pre is not None:
+            out = self.pre @ out @ self.pre.transpose(0, 2, 1)
+        return out
+
+
+_PLANS: dict[int, tuple[Skeleton, _RotationPlan]] = {}
+
+
+def _plan(skeleton: Skeleton) -> _RotationPlan:
+    cached = _PLANS.get(id(skeleton))
+    if cached is None or cached[0] is not skeleton:
+        cached = (skeleton, _RotationPlan(skeleton))
+        _PLANS[id(skeleton)] = cached
+    return cached[1]
+
+
+def local_rotations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+    """Local rotation matrices (n_frames, n_joints, 3, 3) from channel values."""
+    return _plan(skeleton).matrices(np.atleast_2d(np.asarray(channels, dtype=np.float64)))
 
 
 def point_names(skeleton: Skeleton) -> list[str]:
@@ -76,37 +124,31 @@ class FKResult:
         self.names = names
 
 
-def forward_kinematics(skeleton: Skeleton, channels: np.ndarray,
-                       chunk: int = 8192) -> FKResult:
-    """World positions of every joint and end site for every frame (chunked to bound memory)."""
+def forward_kinematics(skeleton: Skeleton, channels: np.ndarray, chunk: int = 4096) -> FKResult:
+    """World positions of every joint and end site for every frame (chunked to bound memory).
+
+    Frames are independent and always go through the same arithmetic, so any split of a
+    stream into blocks gives bit-identical results: offline and online features agree exactly.
+    """
     channels = np.atleast_2d(np.asarray(channels, dtype=np.float64))
+    plan = _plan(skeleton)
     n = channels.shape[0]
-    ends = sorted(skeleton.end_sites)
-    positions = np.empty((n, skeleton.n_joints + len(ends), 3))
+    positions = np.empty((n, plan.n_points, 3))
     root_rotation = np.empty((n, 3, 3))
-    levels = _depth_levels(skeleton.parents)
-    parents = np.array(skeleton.parents)
-    pos_cols = [skeleton.channel_index(0, c) for c in ("Xposition", "Yposition", "Zposition")]
-    end_offsets = np.array([skeleton.end_sites[j] for j in ends]).reshape(-1, 3)
     for lo in range(0, n, chunk):
         block = channels[lo : lo + chunk]
-        local = local_rotations(skeleton, block)
-        world = np.empty_like(local)
         pos = positions[lo : lo + chunk]
-        root = skeleton.offsets[0] + np.zeros((len(block), 3))
-        for axis, col in enumerate(pos_cols):
-            if col is not None:
-                root[:, axis] += block[:, col]
-        world[:, 0] = local[:, 0]
-        pos[:, 0] = root
-        for level in levels[1:]:
-            par = parents[level]
-            world[:, level] = world[:, par] @ local[:, level]
-            pos[:, level] = pos[:, par] + np.einsum("fjab,jb->fja", world[:, par],
-                                                    skeleton.offsets[level])
-        if ends:
-            pos[:, skeleton.n_joints :] = pos[:, ends] + np.einsum(
-                "fjab,jb->fja", world[:, ends], end_offsets)
+        world = plan.matrices(block)
+        pos[:, 0] = plan.root_offset
+        pos[:, 0, plan.root_axes] += block[:, plan.root_columns]
+        for level, par, off in plan.levels:
+            # world[level] = world[parent] @ local[level]; levels run root-down.
+            wpar = world[:, par]
+            pos[:, level] = pos[:, par] + (wpar @ off)[..., 0]
+            world[:, level] = wpar @ world[:, level]
+        if plan.ends is not None:
+            pos[:, skeleton.n_joints :] = pos[:, plan.ends] + (
+                world[:, plan.ends] @ plan.end_offsets)[..., 0]
         root_rotation[lo : lo + chunk] = world[:, 0]
     return FKResult(positions, root_rotation, point_names(skeleton))
 
@@ -118,7 +160,7 @@ def pelvis_frame(fk: FKResult, pelvis: int = 0) -> np.ndarray:
 
 
 def body_height(skeleton: Skeleton) -> float:
-    """Height of the skeleton in its zero pose (offsets only): top minus bottom point, file units."""
+    """Height of the skeleton in its zero pose (offsets only): top minus bottom, file units."""
     zero = np.zeros((1, skeleton.n_channels))
     pts = forward_kinematics(skeleton, zero).positions[0]
     return float(pts[:, 1].max() - pts[:, 1].min())

@@ -53,7 +53,8 @@ class Skeleton:
             if p >= j:
                 raise UsageError(f"joint {self.names[j]!r}: parent must come before the child")
         if self.rotation_order is None:
-            self.rotation_order = [[c for c in ch if c in ROTATION_CHANNELS] for ch in self.channels]
+            self.rotation_order = [[c for c in ch if c in ROTATION_CHANNELS]
+                                   for ch in self.channels]
         if self.pre_rotations is None:
             self.pre_rotations = [None] * n
         starts = np.cumsum([0] + [len(c) for c in self.channels])
@@ -71,7 +72,8 @@ class Skeleton:
 
     def channel_labels(self) -> list[str]:
         """One `joint.channel` label per column of `Motion.channels`."""
-        return [f"{n}.{c}" for n, chans in zip(self.names, self.channels) for c in chans]
+        pairs = zip(self.names, self.channels, strict=True)
+        return [f"{n}.{c}" for n, chans in pairs for c in chans]
 
     def channel_index(self, joint: int, channel: str) -> int | None:
         """Column of `channel` of joint `joint`, or None if the joint has no such channel."""

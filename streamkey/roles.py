@@ -37,9 +37,9 @@ def _table(pelvis: str, neck: str, head: str, arm: tuple[str, str, str, str],
            leg: tuple[str, str, str, str], left: str, right: str) -> dict[str, str]:
     t = {"pelvis": pelvis, "neck": neck, "head": head}
     for side, fmt in (("left", left), ("right", right)):
-        for role, name in zip(("shoulder", "elbow", "wrist", "hand"), arm):
+        for role, name in zip(("shoulder", "elbow", "wrist", "hand"), arm, strict=True):
             t[f"{side}_{role}"] = fmt.format(name)
-        for role, name in zip(("hip", "knee", "ankle", "toe"), leg):
+        for role, name in zip(("hip", "knee", "ankle", "toe"), leg, strict=True):
             t[f"{side}_{role}"] = fmt.format(name)
     return t
 
@@ -88,7 +88,8 @@ def load_role_mapping(path: str | os.PathLike[str]) -> dict[str, str]:
     except FileNotFoundError:
         raise RoleError(f"{p}: no such role mapping file") from None
     except json.JSONDecodeError as exc:
-        raise RoleError(f"{p}:{exc.lineno}: expected JSON {{role: joint name}}: {exc.msg}") from None
+        raise RoleError(
+            f"{p}:{exc.lineno}: expected JSON {{role: joint name}}: {exc.msg}") from None
     if not isinstance(data, dict) or not all(isinstance(v, str) for v in data.values()):
         raise RoleError(f"{p}: expected a JSON object mapping role names to joint names")
     unknown = sorted(set(data) - set(ROLES))

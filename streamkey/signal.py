@@ -10,7 +10,7 @@ from scipy.linalg import solveh_banded
 
 from .errors import UsageError
 
-__all__ = ["hp_lambda", "hp_filter", "hp_banded", "unwrap_degrees", "local_minima",
+__all__ = ["hp_lambda", "hp_filter", "hp_banded", "unwrap_degrees", "unwrap_step", "local_minima",
            "local_maxima"]
 
 
@@ -49,9 +49,31 @@ def hp_filter(y: np.ndarray, lam: float) -> np.ndarray:
     return solveh_banded(hp_banded(n, lam), y, check_finite=False)
 
 
+def unwrap_step(raw: np.ndarray, prev_raw: np.ndarray | None,
+                offset: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unwrap a block of angle rows (degrees) continuing from the previous block's state.
+
+    State is `(prev_raw, offset)`: the last raw row and the correction (a multiple of 360)
+    applied to it. Returns `(unwrapped, prev_raw, offset)`. Same arithmetic as `np.unwrap`,
+    accumulated in one sequence, so any split of a stream into blocks gives identical bits.
+    """
+    raw = np.asarray(raw, dtype=np.float64)
+    if len(raw) == 0:
+        return raw.copy(), prev_raw, offset  # type: ignore[return-value]
+    if prev_raw is None or offset is None:
+        prev_raw, offset = raw[0], np.zeros(raw.shape[1:])
+    dd = np.diff(np.concatenate([prev_raw[None], raw]), axis=0)
+    ddmod = np.mod(dd + 180.0, 360.0) - 180.0
+    np.copyto(ddmod, 180.0, where=(ddmod == -180.0) & (dd > 0))
+    correction = ddmod - dd
+    np.copyto(correction, 0.0, where=np.abs(dd) < 180.0)
+    acc = np.add.accumulate(np.concatenate([offset[None], correction]), axis=0)[1:]
+    return raw + acc, raw[-1].copy(), acc[-1].copy()
+
+
 def unwrap_degrees(angles: np.ndarray) -> np.ndarray:
-    """Euler angle channels (frames along axis 0) without ±180° jumps."""
-    return np.unwrap(np.asarray(angles, dtype=np.float64), period=360.0, axis=0)
+    """Euler angle channels (frames along axis 0) without ±180° jumps (as `np.unwrap`)."""
+    return unwrap_step(angles, None, None)[0]
 
 
 def local_minima(v: np.ndarray) -> np.ndarray:

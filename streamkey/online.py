@@ -1,0 +1,284 @@
+"""The online (streaming) side shared by every keyframer: stream hygiene, the per-stream
+feature stage, the `OnlineKeyframer` base class and the `Pipeline` that runs several
+keyframers on one stream while computing features once (DESIGN §2, §5).
+
+Sans-I/O: nothing here reads clocks, files or sockets. Frames come in through `push`,
+events go out as return values.
+
+Flow of one frame::
+
+    Frame -> StreamGuard.accept -> [clean frames] -> FeatureStage.compute -> FeatureBlock
+          -> keyframer.process(block) -> [KeyframeEvent ...]
+
+Stream hygiene (`StreamGuard`): a frame whose `seq` is not greater than the last accepted one
+is dropped (counted as duplicate or out-of-order); a frame with the wrong channel count or a
+NaN/Inf value is dropped (counted as invalid); a frame whose `seq` skips ahead by at most
+`max_bridge_frames` missing frames is preceded by linearly interpolated frames (a bridged
+`GapEvent`); a longer gap ends the current window: the keyframers flush what they hold and
+restart, and a `GapEvent` with `bridged=False` is emitted. Nothing in this path raises.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .errors import UsageError
+from .keyframes import Event, GapEvent, KeyframeEvent, params_digest
+from .kinematics import body_height, forward_kinematics, pelvis_frame
+from .motion import Frame, Skeleton
+from .roles import resolve_roles
+from .signal import unwrap_step
+
+__all__ = ["StreamGuard", "GuardCounters", "FeatureStage", "FeatureBlock", "OnlineKeyframer",
+           "Pipeline", "DEFAULT_MAX_BRIDGE_FRAMES"]
+
+DEFAULT_MAX_BRIDGE_FRAMES = 12  # 0.1 s at 120 Hz: short enough that a straight line is honest
+
+
+@dataclass
+class GuardCounters:
+    """What the guard did to the stream so far."""
+
+    accepted: int = 0
+    duplicates: int = 0
+    out_of_order: int = 0
+    invalid: int = 0
+    gaps: int = 0
+    bridged_frames: int = 0
+    restarts: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """Counters as a plain dict (for summaries and status events)."""
+        return dict(self.__dict__)
+
+
+@dataclass
+class StreamGuard:
+    """Stream hygiene at the keyframer boundary: never raises, counts everything it drops."""
+
+    n_channels: int
+    stream: str = "default"
+    method: str = "*"
+    max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES
+    counters: GuardCounters = field(default_factory=GuardCounters)
+    last: Frame | None = None
+
+    def accept(self, frame: Frame) -> tuple[list[Frame], list[Event], bool]:
+        """Check one frame. Returns (frames to process, gap events, restart-before-them)."""
+        channels = np.asarray(frame.channels, dtype=np.float64)
+        if channels.shape != (self.n_channels,) or not np.all(np.isfinite(channels)):
+            self.counters.invalid += 1
+            return [], [], False
+        clean = Frame(int(frame.seq), float(frame.time), channels)
+        last = self.last
+        if last is not None and clean.seq <= last.seq:
+            if clean.seq == last.seq:
+                self.counters.duplicates += 1
+            else:
+                self.counters.out_of_order += 1
+            return [], [], False
+        self.counters.accepted += 1
+        self.last = clean
+        if last is None or clean.seq == last.seq + 1:
+            return [clean], [], False
+        missing = clean.seq - last.seq - 1
+        self.counters.gaps += 1
+        bridged = missing <= self.max_bridge_frames
+        gap = GapEvent(self.stream, self.method, last.seq + 1, clean.seq - 1, bridged)
+        if not bridged:
+            self.counters.restarts += 1
+            return [clean], [gap], True
+        self.counters.bridged_frames += missing
+        w = (np.arange(1, missing + 1) / (missing + 1))[:, None]
+        values = last.channels + w * (clean.channels - last.channels)
+        times = last.time + w[:, 0] * (clean.time - last.time)
+        filled = [Frame(last.seq + 1 + i, float(times[i]), values[i]) for i in range(missing)]
+        return filled + [clean], [gap], False
+
+    def reset(self) -> None:
+        """Forget the last frame (a new stream starts); counters are kept."""
+        self.last = None
+
+
+@dataclass
+class FeatureBlock:
+    """Features of consecutive clean frames, computed once and shared by every keyframer.
+
+    `rotations` are the unwrapped rotation channels (columns `rotation_columns`),
+    `positions` world FK points, `pelvis_positions` the same in the pelvis frame,
+    `foot_heights` the world Y of the left and right ankle.
+    """
+
+    seq: np.ndarray
+    time: np.ndarray
+    channels: np.ndarray
+    rotations: np.ndarray
+    positions: np.ndarray
+    pelvis_positions: np.ndarray
+    foot_heights: np.ndarray
+
+    def __len__(self) -> int:
+        return int(len(self.seq))
+
+    def slice(self, lo: int, hi: int) -> FeatureBlock:
+        """Rows lo..hi-1 of every array (views)."""
+        return FeatureBlock(*(getattr(self, f)[lo:hi] for f in self.__dataclass_fields__))
+
+
+class FeatureStage:
+    """Per-stream feature computation: FK and derived signals, once per frame.
+
+    State carried between blocks: the unwrap state of the rotation channels only.
+    """
+
+    def __init__(self, skeleton: Skeleton, fps: float,
+                 role_mapping: dict[str, str] | None = None) -> None:
+        self.skeleton = skeleton
+        self.fps = float(fps)
+        self.roles = resolve_roles(skeleton, role_mapping)
+        self.body_height = body_height(skeleton)
+        self.rotation_columns = skeleton.rotation_columns()
+        self.unwrap_prev: np.ndarray | None = None
+        self.unwrap_offset: np.ndarray | None = None
+
+    def compute(self, frames: Sequence[Frame]) -> FeatureBlock:
+        """Features of consecutive clean frames (vectorised over the block)."""
+        channels = np.array([f.channels for f in frames], dtype=np.float64).reshape(
+            len(frames), self.skeleton.n_channels)
+        rotations, self.unwrap_prev, self.unwrap_offset = unwrap_step(
+            channels[:, self.rotation_columns], self.unwrap_prev, self.unwrap_offset)
+        fk = forward_kinematics(self.skeleton, channels)
+        feet = fk.positions[:, [self.roles["left_ankle"], self.roles["right_ankle"]], 1]
+        return FeatureBlock(
+            seq=np.array([f.seq for f in frames], dtype=np.int64),
+            time=np.array([f.time for f in frames], dtype=np.float64),
+            channels=channels, rotations=rotations, positions=fk.positions,
+            pelvis_positions=pelvis_frame(fk, self.roles["pelvis"]), foot_heights=feet)
+
+    def reset(self) -> None:
+        """Start a new stream (after a long gap): forget the unwrap state."""
+        self.unwrap_prev = None
+        self.unwrap_offset = None
+
+
+class OnlineKeyframer:
+    """Base of every online keyframer: hygiene and features here, the method in subclasses.
+
+    Subclasses set `method`, call `super().__init__`, and implement `process(block)` (advance
+    over clean consecutive frames; must give the same events whatever the block split, with
+    `decided_at` the seq of the frame whose arrival decided each key), `finish()` (decide
+    everything pending at end of stream) and `reset()` (forget the window, keep parameters).
+    """
+
+    method: ClassVar[str] = "?"
+
+    def __init__(self, skeleton: Skeleton, fps: float, *, lookahead: int, stream: str = "default",
+                 role_mapping: dict[str, str] | None = None,
+                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES,
+                 params: dict[str, Any] | None = None) -> None:
+        if lookahead < 1:
+            raise UsageError(f"lookahead must be at least 1 frame, got {lookahead}")
+        self.skeleton = skeleton
+        self.fps = float(fps)
+        self.lookahead = int(lookahead)
+        self.stream = stream
+        self.params = dict(params or {})
+        self.params["lookahead"] = self.lookahead
+        self.params_digest = params_digest({"method": self.method, **self.params})
+        self.guard = StreamGuard(skeleton.n_channels, stream, self.method, max_bridge_frames)
+        self.features = FeatureStage(skeleton, fps, role_mapping)
+
+    def push(self, frame: Frame) -> list[Event]:
+        """Feed one frame; returns the events it decided (each final)."""
+        return self.push_block([frame])
+
+    def push_block(self, frames: Iterable[Frame]) -> list[Event]:
+        """Feed many frames; same events as pushing them one by one."""
+        return _drive(self.guard, self.features, [self], frames)
+
+    def flush(self) -> list[Event]:
+        """End of stream: decide everything still pending, then restart the window."""
+        events: list[Event] = list(self.finish())
+        self.reset()
+        self.guard.reset()
+        self.features.reset()
+        return events
+
+    def event(self, frame: int, time: float, score: float, decided_at: int) -> KeyframeEvent:
+        """Build a `KeyframeEvent` carrying this keyframer's identity and parameters."""
+        return KeyframeEvent(self.stream, self.method, int(frame), float(time), float(score),
+                             int(decided_at), self.lookahead, self.params_digest)
+
+    def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
+        """Advance over clean consecutive frames (subclass hook)."""
+        raise NotImplementedError
+
+    def finish(self) -> list[KeyframeEvent]:
+        """Decide everything pending at end of stream or before a restart (subclass hook)."""
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        """Forget the window and running state; keep parameters (subclass hook)."""
+        raise NotImplementedError
+
+
+def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
+           frames: Iterable[Frame]) -> list[Event]:
+    events: list[Event] = []
+    pending: list[Frame] = []
+
+    def run_pending() -> None:
+        if pending:
+            block = stage.compute(pending)
+            for kf in keyframers:
+                events.extend(kf.process(block))
+            pending.clear()
+
+    for frame in frames:
+        clean, gaps, restart = guard.accept(frame)
+        if gaps:
+            run_pending()
+        if restart:
+            for kf in keyframers:
+                events.extend(kf.finish())
+                kf.reset()
+            stage.reset()
+        events.extend(gaps)
+        pending.extend(clean)
+    run_pending()
+    return events
+
+
+class Pipeline:
+    """Several keyframers on one stream: one guard, one feature stage, features computed once."""
+
+    def __init__(self, keyframers: Sequence[OnlineKeyframer], stream: str = "default",
+                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+        if not keyframers:
+            raise UsageError("a pipeline needs at least one keyframer")
+        first = keyframers[0]
+        self.keyframers = list(keyframers)
+        self.guard = StreamGuard(first.skeleton.n_channels, stream, "*", max_bridge_frames)
+        self.features = first.features
+
+    def push(self, frame: Frame) -> list[Event]:
+        """Feed one frame to every keyframer."""
+        return _drive(self.guard, self.features, self.keyframers, [frame])
+
+    def push_block(self, frames: Iterable[Frame]) -> list[Event]:
+        """Feed many frames; same events as pushing them one by one."""
+        return _drive(self.guard, self.features, self.keyframers, frames)
+
+    def flush(self) -> list[Event]:
+        """End of stream for every keyframer."""
+        events: list[Event] = []
+        for kf in self.keyframers:
+            events.extend(kf.finish())
+            kf.reset()
+        self.guard.reset()
+        self.features.reset()
+        return events
