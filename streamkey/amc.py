@@ -238,7 +238,7 @@ def _build_skeleton(asf: _Asf, last_line: int) -> Skeleton:
         raise _err(asf.source, last_line, f"expected every bone in :hierarchy under root,"
                    f" missing {', '.join(lost)}")
     bones = [asf.bones[n] for n in names[1:]]
-    vectors = [np.zeros(3)] + [b.direction * b.length for b in bones]  # type: ignore[operator]
+    vectors = [np.zeros(3)] + [np.asarray(b.direction) * float(b.length or 0.0) for b in bones]
     offsets = np.array([vectors[p] if p >= 0 else np.zeros(3) for p in parents])
     channels = [list(asf.root_order)] + [[_DOF[d] for d in b.dof] for b in bones]
     order = [[c for c in ch if c.endswith("rotation")][::-1] for ch in channels]

@@ -46,17 +46,18 @@ def _table(pelvis: str, neck: str, head: str, arm: tuple[str, str, str, str],
 
 ROLE_TABLES: dict[str, dict[str, str]] = {
     "cgspeed-motionbuilder": _table("Hips", "Neck", "Head",
-                                    ("Arm", "ForeArm", "Hand", "FingerBase"),
+                                    ("Arm", "ForeArm", "Hand", "HandIndex1"),
                                     ("UpLeg", "Leg", "Foot", "ToeBase"), "Left{}", "Right{}"),
     "cgspeed-3dsmax": _table("Hips", "lowerneck", "Head",
-                             ("Shoulder", "Elbow", "Wrist", "hand"),
+                             ("Shoulder", "Elbow", "Wrist", "Fingers"),
                              ("Hip", "Knee", "Ankle", "Toe"), "Left{}", "Right{}"),
     "asf": _table("root", "lowerneck", "head", ("humerus", "radius", "wrist", "hand"),
                   ("femur", "tibia", "foot", "toes"), "l{}", "r{}"),
 }
-# The 3dsMax release spells the hands in lower case with a side prefix.
-for _side, _p in (("left", "l"), ("right", "r")):
-    ROLE_TABLES["cgspeed-3dsmax"][f"{_side}_hand"] = f"{_p}hand"
+# cgspeed puts the hand base (FingerBase / lhand) at the wrist (offset 0), so the hand role
+# is the finger joint, as the ASF `lhand` bone starts beyond the wrist.
+for _side, _p in (("left", "L"), ("right", "R")):
+    ROLE_TABLES["cgspeed-3dsmax"][f"{_side}_hand"] = f"{_p}Fingers"
 
 
 def resolve_roles(skeleton: Skeleton, mapping: dict[str, str] | None = None,
