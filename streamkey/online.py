@@ -11,8 +11,10 @@ Flow of one frame::
           -> keyframer.process(block) -> [KeyframeEvent ...]
 
 Stream hygiene (`StreamGuard`): a frame whose `seq` is not greater than the last accepted one
-is dropped (counted as duplicate or out-of-order); a frame with the wrong channel count or a
-NaN/Inf value is dropped (counted as invalid); a frame whose `seq` skips ahead by at most
+is dropped (counted as duplicate or out-of-order) unless it lies more than
+`max_reorder_frames` back, which means the source started over (a restart and a
+`StatusEvent`); a frame with the wrong channel count or a NaN/Inf value is dropped (counted
+as invalid); a frame whose `seq` skips ahead by at most
 `max_bridge_frames` missing frames is preceded by linearly interpolated frames (a bridged
 `GapEvent`); a longer gap ends the current window: the keyframers flush what they hold and
 restart, and a `GapEvent` with `bridged=False` is emitted. Nothing in this path raises.
@@ -27,16 +29,17 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .errors import UsageError
-from .keyframes import Event, GapEvent, KeyframeEvent, params_digest
+from .keyframes import Event, GapEvent, KeyframeEvent, StatusEvent, params_digest
 from .kinematics import body_height, forward_kinematics, pelvis_frame
 from .motion import Frame, Skeleton
 from .roles import resolve_roles
 from .signal import unwrap_step
 
 __all__ = ["StreamGuard", "GuardCounters", "FeatureStage", "FeatureBlock", "OnlineKeyframer",
-           "Pipeline", "DEFAULT_MAX_BRIDGE_FRAMES"]
+           "Pipeline", "DEFAULT_MAX_BRIDGE_FRAMES", "DEFAULT_MAX_REORDER_FRAMES"]
 
 DEFAULT_MAX_BRIDGE_FRAMES = 12  # 0.1 s at 120 Hz: short enough that a straight line is honest
+DEFAULT_MAX_REORDER_FRAMES = 120  # a seq further back than this means the source restarted
 
 
 @dataclass
@@ -64,17 +67,30 @@ class StreamGuard:
     stream: str = "default"
     method: str = "*"
     max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES
+    max_reorder_frames: int = DEFAULT_MAX_REORDER_FRAMES
     counters: GuardCounters = field(default_factory=GuardCounters)
     last: Frame | None = None
 
     def accept(self, frame: Frame) -> tuple[list[Frame], list[Event], bool]:
-        """Check one frame. Returns (frames to process, gap events, restart-before-them)."""
-        channels = np.asarray(frame.channels, dtype=np.float64)
+        """Check one frame. Returns (frames to process, gap/status events, restart-before-them)."""
+        try:
+            channels = np.asarray(frame.channels, dtype=np.float64)
+            seq, time = int(frame.seq), float(frame.time)
+        except (TypeError, ValueError):
+            self.counters.invalid += 1
+            return [], [], False
         if channels.shape != (self.n_channels,) or not np.all(np.isfinite(channels)):
             self.counters.invalid += 1
             return [], [], False
-        clean = Frame(int(frame.seq), float(frame.time), channels)
+        clean = Frame(seq, time, channels)
         last = self.last
+        if last is not None and clean.seq < last.seq - self.max_reorder_frames:
+            # The source started over (a replay restarted, a publisher came back).
+            self.counters.accepted += 1
+            self.counters.restarts += 1
+            self.last = clean
+            return [clean], [StatusEvent(self.stream, self.method, "restart",
+                                         {"last_seq": last.seq, "seq": clean.seq})], True
         if last is not None and clean.seq <= last.seq:
             if clean.seq == last.seq:
                 self.counters.duplicates += 1

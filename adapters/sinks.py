@@ -1,0 +1,64 @@
+"""Local sinks: the JSON Lines session log (never drops) and stdout."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any, TextIO
+
+from streamkey.errors import InputError
+
+from .base import Address, Sink
+
+__all__ = ["JsonlSink", "StdoutSink"]
+
+
+class JsonlSink(Sink):
+    """Append every event as one JSON line, flushed before any network sink sees it.
+
+    The file is fsynced on close. It never drops: a write error stops the run with a clear
+    message rather than losing the log silently.
+    """
+
+    name = "jsonl"
+    live = False
+
+    def __init__(self, address: Address) -> None:
+        super().__init__()
+        self.path = Path(address.path)
+        try:
+            self.file: TextIO = open(self.path, "a", encoding="utf-8")  # noqa: SIM115
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot open the log for appending: "
+                             f"{exc.strerror}") from None
+
+    async def start(self) -> str:
+        return f"jsonl:{self.path}"
+
+    def offer(self, event: dict[str, Any]) -> None:
+        self.file.write(json.dumps(event, separators=(",", ":")) + "\n")
+        self.file.flush()
+        self.stats.sent += 1
+
+    async def close(self) -> None:
+        if not self.file.closed:
+            self.file.flush()
+            os.fsync(self.file.fileno())
+            self.file.close()
+
+
+class StdoutSink(Sink):
+    """Events as JSON lines on stdout (`-`)."""
+
+    name = "stdout"
+    live = False
+
+    def offer(self, event: dict[str, Any]) -> None:
+        try:
+            sys.stdout.write(json.dumps(event, separators=(",", ":")) + "\n")
+            sys.stdout.flush()
+            self.stats.sent += 1
+        except BrokenPipeError:
+            self.stats.dropped += 1

@@ -1,0 +1,118 @@
+"""WebSocket server sink: every event as JSON text to every connected client.
+
+Each client has its own bounded queue and sender task: a client that stops reading fills its
+own queue and loses its oldest events (counted), never slowing the engine or other clients
+(websockets' `broadcast()` has no backpressure, notes/ecosystem.md). Compression is off.
+Messages from clients go to an optional `on_message` callback, whose reply (if any) is sent
+back to that client only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import Callable
+from typing import Any
+
+from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.exceptions import ConnectionClosed
+
+from .base import MAX_MESSAGE_BYTES, Address, Sink, bind_host
+
+__all__ = ["WebSocketSink"]
+
+CLIENT_QUEUE = 256
+
+
+class _Client:
+    def __init__(self, connection: ServerConnection) -> None:
+        self.connection = connection
+        self.queue: asyncio.Queue[str] = asyncio.Queue(CLIENT_QUEUE)
+        self.dropped = 0
+
+    def put(self, text: str) -> None:
+        while True:
+            try:
+                self.queue.put_nowait(text)
+                return
+            except asyncio.QueueFull:
+                self.queue.get_nowait()
+                self.dropped += 1
+
+
+class WebSocketSink(Sink):
+    """Broadcast events (JSON) to every client of a WebSocket server bound to loopback."""
+
+    name = "ws"
+
+    def __init__(self, address: Address, listen: str | None = None,
+                 on_message: Callable[[str], dict[str, Any] | None] | None = None,
+                 origins: list[str | None] | None = None) -> None:
+        super().__init__()
+        self.address = address
+        self.host = bind_host(address, listen)
+        self.on_message = on_message
+        self.origins = origins
+        self.clients: set[_Client] = set()
+        self.server: Server | None = None
+        self.client_drops = 0
+
+    async def start(self) -> str:
+        self.server = await serve(self._handle, self.host, self.address.port, compression=None,
+                                  max_size=MAX_MESSAGE_BYTES, origins=self.origins,
+                                  ping_interval=5, ping_timeout=10)
+        port = self.server.sockets[0].getsockname()[1]
+        return f"ws://{self.host}:{port}"
+
+    @property
+    def port(self) -> int:
+        """The bound port (useful when the address asked for port 0)."""
+        assert self.server is not None
+        return int(self.server.sockets[0].getsockname()[1])
+
+    async def _handle(self, connection: ServerConnection) -> None:
+        client = _Client(connection)
+        self.clients.add(client)
+        sender = asyncio.create_task(self._send_loop(client))
+        try:
+            async for message in connection:
+                self._reply(client, message)
+        except ConnectionClosed:
+            pass
+        finally:
+            sender.cancel()
+            self.clients.discard(client)
+            self.client_drops += client.dropped
+
+    def _reply(self, client: _Client, message: str | bytes) -> None:
+        if self.on_message is None:
+            return
+        text = message if isinstance(message, str) else message.decode("utf-8", "replace")
+        reply = self.on_message(text)
+        if reply is not None:
+            client.put(json.dumps(reply))
+
+    async def _send_loop(self, client: _Client) -> None:
+        try:
+            while True:
+                await client.connection.send(await client.queue.get())
+        except ConnectionClosed:
+            pass
+
+    def offer(self, event: dict[str, Any]) -> None:
+        text = json.dumps(event, separators=(",", ":"))
+        for client in list(self.clients):
+            before = client.dropped
+            client.put(text)
+            self.stats.dropped += client.dropped - before
+        self.stats.sent += 1
+
+    async def close(self) -> None:
+        deadline = asyncio.get_running_loop().time() + 1.0
+        while any(not c.queue.empty() for c in self.clients):
+            if asyncio.get_running_loop().time() > deadline:
+                break
+            await asyncio.sleep(0.01)
+        if self.server is not None:
+            self.server.close()
+            await self.server.wait_closed()

@@ -1,0 +1,3 @@
+from streamkey.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,191 @@
+"""`streamkey bench`: speed and memory of the methods, written to JSON and Markdown files.
+
+Offline: each method on a long motion (shared CMU clips concatenated, or the demo motion
+tiled when the data is absent), features timed apart. Online: per-frame cost of `push`
+(mean, p50, p99, max; frames per second) for each keyframer with its own feature stage, and
+for all three on one pipeline; peak memory growth over a long looped stream.
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import platform
+import time
+import tracemalloc
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .bvh import read_bvh
+from .motion import Motion
+
+__all__ = ["run_bench", "long_motion", "default_data_dir"]
+
+
+def default_data_dir() -> Path | None:
+    """../shared/data/cmu relative to the working directory, if it exists."""
+    p = Path("..") / "shared" / "data" / "cmu"
+    return p if p.is_dir() else None
+
+
+def long_motion(frames: int, data: Path | None) -> tuple[Motion, str]:
+    """A motion of `frames` frames: cgspeed clips of the data folder looped, or the demo."""
+    clips: list[Motion] = []
+    if data is not None:
+        for path in sorted(data.glob("*.bvh")):
+            m = read_bvh(path)
+            if m.first_frame == 1:  # cgspeed MotionBuilder release: one skeleton layout
+                clips.append(m.captured())
+    if clips:
+        source = f"{len(clips)} cgspeed clips from {data}, looped"
+    else:
+        from .replay.demo import demo_motion
+
+        clips = [demo_motion()]
+        source = "embedded demo motion, looped"
+    rows, total = [], 0
+    while total < frames:
+        for m in clips:
+            rows.append(m.channels[: frames - total])
+            total += len(rows[-1])
+            if total >= frames:
+                break
+    return Motion(clips[0].skeleton, np.concatenate(rows), clips[0].fps, 0, "bench"), source
+
+
+def _measure(fn: Callable[[], Any]) -> tuple[float, float, Any]:
+    gc.collect()
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    result = fn()
+    seconds = time.perf_counter() - t0
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return seconds, peak / 2**20, result
+
+
+def bench_offline(frames: int, data: Path | None) -> dict[str, Any]:
+    """Time and peak memory of every offline method on one long motion."""
+    from .features import compute_features
+    from .methods import offline_method
+
+    motion, source = long_motion(frames, data)
+    seconds, peak, feats = _measure(lambda: compute_features(motion))
+    rows = [{"method": "features (FK, once)", "seconds": seconds, "peak_mb": peak}]
+    count = None
+    for name in ("saliency", "speed", "simplify", "uniform", "decimate"):
+        fn = offline_method(name)
+        kwargs: dict[str, Any] = ({"count": count} if name in ("uniform", "decimate")
+                                  else {"features": feats})
+        seconds, peak, keys = _measure(lambda fn=fn, kwargs=kwargs: fn(motion, **kwargs))
+        if name == "saliency":
+            count = len(keys)
+        rows.append({"method": name, "seconds": seconds, "peak_mb": peak, "keyframes": len(keys)})
+    return {"frames": motion.n_frames, "source": source, "rows": rows}
+
+
+def _push_costs(make: Callable[[], Any], frames: list[Any]) -> dict[str, float]:
+    target = make()
+    costs = np.empty(len(frames))
+    clock = time.perf_counter_ns
+    for i, frame in enumerate(frames):
+        t0 = clock()
+        target.push(frame)
+        costs[i] = clock() - t0
+    target.flush()
+    us = costs / 1000.0
+    return {"mean_us": float(us.mean()), "p50_us": float(np.percentile(us, 50)),
+            "p99_us": float(np.percentile(us, 99)), "max_us": float(us.max()),
+            "frames_per_s": float(1e6 / us.mean())}
+
+
+def bench_online(data: Path | None, stream_frames: int = 432_000) -> dict[str, Any]:
+    """Per-frame push cost of each online keyframer and memory over a long looped stream."""
+    from .methods import ONLINE_METHODS, online_class
+    from .online import Pipeline
+
+    clip_path = data / "05_06.bvh" if data is not None else None
+    if clip_path is not None and clip_path.exists():
+        motion, source = read_bvh(clip_path), str(clip_path)
+    else:
+        from .replay.demo import demo_motion
+
+        motion, source = demo_motion(), "embedded demo motion"
+    frames = motion.frames()
+    rows = []
+    for name in ONLINE_METHODS:
+        cls = online_class(name)
+        row = _push_costs(lambda cls=cls: cls(motion.skeleton, motion.fps), frames)
+        rows.append({"method": name, **row})
+
+    def pipeline() -> Pipeline:
+        return Pipeline([online_class(m)(motion.skeleton, motion.fps) for m in ONLINE_METHODS])
+
+    rows.append({"method": "all three (one pipeline)", **_push_costs(pipeline, frames)})
+    memory = _stream_memory(pipeline, motion, stream_frames)
+    return {"clip": source, "frames": len(frames), "rows": rows, "memory": memory}
+
+
+def _stream_memory(make: Callable[[], Any], motion: Motion, total: int) -> dict[str, Any]:
+    from .motion import Frame
+
+    target = make()
+    rows = motion.captured().channels
+    warmup = min(total // 10, 12_000)
+    gc.collect()
+    tracemalloc.start()
+    samples = []
+    t0 = time.perf_counter()
+    for seq in range(total):
+        target.push(Frame(seq, seq / motion.fps, rows[seq % len(rows)]))
+        if seq == warmup:
+            tracemalloc.reset_peak()
+            base = tracemalloc.get_traced_memory()[0]
+        if seq > warmup and seq % 12_000 == 0:
+            samples.append((seq, tracemalloc.get_traced_memory()[0] / 2**20))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return {"stream_frames": total, "warmup_frames": warmup,
+            "seconds": time.perf_counter() - t0,
+            "growth_after_warmup_mb": (peak - base) / 2**20,
+            "current_mb_samples": samples}
+
+
+def _markdown(kind: str, result: dict[str, Any]) -> str:
+    lines = [f"# streamkey bench --{kind}", "", f"machine: {platform.machine()}, "
+             f"{platform.python_implementation()} {platform.python_version()}", ""]
+    rows = result["rows"]
+    keys = list(rows[0].keys())
+    for k in rows[1:]:
+        keys += [c for c in k if c not in keys]
+    lines += ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    for row in rows:
+        cells = [f"{row[k]:.4g}" if isinstance(row.get(k), float) else str(row.get(k, ""))
+                 for k in keys]
+        lines.append("| " + " | ".join(cells) + " |")
+    extra = {k: v for k, v in result.items() if k != "rows"}
+    lines += ["", "```", json.dumps(extra, indent=1), "```", ""]
+    return "\n".join(lines)
+
+
+def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
+              data: str | None = None, stream_frames: int = 432_000) -> list[Path]:
+    """Run the chosen benchmarks; write `bench_<kind>.json` and `.md` into `output`."""
+    data_dir = Path(data) if data else default_data_dir()
+    output.mkdir(parents=True, exist_ok=True)
+    written = []
+    for kind in kinds:
+        if kind == "offline":
+            result = bench_offline(frames, data_dir)
+        else:
+            result = bench_online(data_dir, stream_frames)
+        result["date"] = time.strftime("%Y-%m-%d %H:%M:%S")
+        for suffix, text in (("json", json.dumps(result, indent=1)),
+                             ("md", _markdown(kind, result))):
+            path = output / f"bench_{kind}.{suffix}"
+            path.write_text(text + "\n", encoding="utf-8")
+            written.append(path)
+    return written

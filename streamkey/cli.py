@@ -1,0 +1,246 @@
+"""The `streamkey` command line: a thin layer over the library (DESIGN §7).
+
+Every input error becomes one `error: ...` line on stderr and exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from . import __version__
+from .errors import StreamkeyError
+
+__all__ = ["main", "build_parser"]
+
+
+def _progress(quiet: bool):  # type: ignore[no-untyped-def]
+    def report(i: int, n: int, path: Path) -> None:
+        if not quiet and n > 1:
+            print(f"[{i + 1}/{n}] {path.name}", file=sys.stderr, flush=True)
+    return report
+
+
+def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    saliency: dict[str, Any] = {"contact": not args.no_contact}
+    if args.sigma is not None:
+        saliency["sigma"] = args.sigma
+    if args.k is not None:
+        saliency["k"] = args.k
+    simplify: dict[str, Any] = {"space": args.space}
+    for name in ("tolerance", "ratio", "count"):
+        if getattr(args, name) is not None:
+            simplify[name] = getattr(args, name)
+    counted = {"count": args.count} if args.count is not None else {}
+    return {"saliency": saliency, "simplify": simplify, "uniform": counted, "decimate": counted}
+
+
+def _write(text: str, output: str) -> None:
+    if output == "-":
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    else:
+        Path(output).write_text(text, encoding="utf-8")
+
+
+def cmd_extract(args: argparse.Namespace) -> int:
+    """`streamkey extract`: offline (or simulated online) keyframes of files and folders."""
+    from .batch import extract_files, find_motion_files, results_csv, results_json
+    from .methods import parse_methods
+
+    paths = find_motion_files(args.paths)
+    if args.online:
+        from .streaming import extract_files_online
+
+        methods = parse_methods(args.method, online=True)
+        results = list(extract_files_online(paths, methods, _method_params(args),
+                                            args.lookahead, _progress(args.quiet)))
+    else:
+        methods = parse_methods(args.method)
+        results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet)))
+    _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
+    failed = [r for r in results if r.error]
+    for r in failed:
+        print(f"error: {r.error}", file=sys.stderr)
+    return 2 if failed else 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """`streamkey demo`: the embedded demo motion through the keyframers, events printed."""
+    from .demo import run_demo
+
+    return run_demo(seconds=args.seconds, offline=args.offline, fast=args.fast, out=sys.stdout)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """`streamkey replay`: a recorded file as a paced frame stream."""
+    from .amc import read_motion
+    from .live import replay
+
+    motion = read_motion(args.file)
+    result = replay(motion, args.to, rate=args.rate, speed=args.speed, loop=args.loop,
+                    start=args.start, end=args.end, listen=args.listen,
+                    wait_subscribers=args.wait, count=args.frames)
+    print(f"sent {result['frames']} frames", file=sys.stderr)
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """`streamkey run`: live keyframes from a source to sinks until the source ends or Ctrl-C."""
+    import asyncio
+    import json
+
+    from .adapters import make_source, parse_address
+    from .amc import read_motion
+    from .live import run_live
+    from .methods import parse_methods
+
+    methods = parse_methods(args.method, online=True)
+    skeleton_motion = read_motion(args.skeleton) if args.skeleton else None
+    source: Any
+    if Path(args.source).suffix.lower() in (".bvh", ".amc"):
+        source = read_motion(args.source)
+    else:
+        source = make_source(parse_address(args.source), args.listen,
+                             skeleton_motion.skeleton if skeleton_motion else None,
+                             skeleton_motion.fps if skeleton_motion else None)
+    summary = asyncio.run(run_live(source, methods, args.to or ["-"], _method_params(args),
+                                   args.lookahead, args.listen, args.stream,
+                                   rate=0.0 if args.fast else None,
+                                   idle_exit=args.idle_exit))
+    print(summary.text(), file=sys.stderr)
+    if args.summary:
+        Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    """`streamkey eval`: the thesis-style tables (Markdown + CSV) for every clip of a folder."""
+    from .batch import find_motion_files
+    from .tables import evaluate_files
+
+    paths = find_motion_files([args.folder])
+    out = Path(args.output)
+    written = evaluate_files(paths, out, progress=_progress(args.quiet))
+    for p in written:
+        print(f"wrote {p}")
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    """`streamkey bench`: time and memory of the offline and/or online methods, to files."""
+    from .bench import run_bench
+
+    kinds = [k for k in ("offline", "online") if getattr(args, k)] or ["offline", "online"]
+    for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data):
+        print(f"wrote {path}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of every subcommand."""
+    parser = argparse.ArgumentParser(prog="streamkey", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"streamkey {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("extract", help="keyframes of BVH/AMC files or folders (JSON or CSV)")
+    p.add_argument("paths", nargs="+", metavar="FILE_OR_DIR")
+    p.add_argument("--method", default="saliency",
+                   help="saliency, speed, simplify, uniform, decimate, a comma list, or all")
+    p.add_argument("--format", choices=("json", "csv"), default="json")
+    p.add_argument("-o", "--output", default="-", help="output file (default: stdout)")
+    p.add_argument("--sigma", type=float, help="saliency: base scale in frames (default: auto)")
+    p.add_argument("--k", type=int, help="saliency: number of PCA curves (default: auto)")
+    p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
+    p.add_argument("--tolerance", type=float, help="simplify: absolute error tolerance")
+    p.add_argument("--ratio", type=float, help="simplify: error / chord length ratio (Önder)")
+    p.add_argument("--count", type=int,
+                   help="simplify, uniform, decimate: keyframe count (uniform and decimate "
+                        "default to the saliency count)")
+    p.add_argument("--space", choices=("channels", "positions"), default="channels",
+                   help="simplify: curve of channel values or of body-frame joint positions")
+    p.add_argument("--online", action="store_true",
+                   help="run the online keyframers over each file as if streamed")
+    p.add_argument("--lookahead", type=int, help="online: lookahead in frames (default: method's)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_extract)
+
+    p = sub.add_parser("replay", help="send a BVH/AMC file as a paced frame stream")
+    p.add_argument("file")
+    p.add_argument("--to", action="append", required=True, metavar="ADDR",
+                   help="osc://HOST:PORT, zmq+tcp://HOST:PORT (binds a publisher) or -")
+    p.add_argument("--rate", type=float, help="frames per second (default: the file's)")
+    p.add_argument("--speed", type=float, default=1.0, help="playback speed factor")
+    p.add_argument("--loop", action="store_true", help="start over at the end, seq continuing")
+    p.add_argument("--start", type=int, help="first frame (file numbering)")
+    p.add_argument("--end", type=int, help="frame to stop before (file numbering)")
+    p.add_argument("--frames", type=int, help="stop after sending this many frames")
+    p.add_argument("--listen", help="bind publishers to this host instead of 127.0.0.1")
+    p.add_argument("--wait", type=float, default=2.0,
+                   help="ZeroMQ: seconds to wait for a subscriber before sending")
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("run", help="live keyframes: a source -> keyframers -> sinks")
+    p.add_argument("--from", dest="source", required=True, metavar="ADDR",
+                   help="osc://HOST:PORT, zmq+tcp://HOST:PORT[?pattern=pull], or a file")
+    p.add_argument("--skeleton", help="BVH/AMC file with the stream's skeleton (else it comes "
+                   "from a /streamkey/skeleton message)")
+    p.add_argument("--method", default="all", help="saliency, speed, simplify, a list, or all")
+    p.add_argument("--to", action="append", metavar="ADDR",
+                   help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
+    p.add_argument("--listen", help="let listeners bind to this host instead of 127.0.0.1")
+    p.add_argument("--lookahead", type=int, help="lookahead in frames (default: method's)")
+    p.add_argument("--stream", default="default", help="stream name carried by every event")
+    p.add_argument("--summary", help="also write the run summary as JSON to this file")
+    p.add_argument("--fast", action="store_true", help="file source: as fast as possible")
+    p.add_argument("--idle-exit", type=float, metavar="SECONDS",
+                   help="stop once frames have flowed and then none came for SECONDS "
+                        "(default: run until Ctrl-C / SIGTERM)")
+    p.add_argument("--sigma", type=float, help=argparse.SUPPRESS)
+    p.add_argument("--k", type=int, help=argparse.SUPPRESS)
+    p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
+    p.add_argument("--tolerance", type=float, help=argparse.SUPPRESS)
+    p.add_argument("--ratio", type=float, help=argparse.SUPPRESS)
+    p.add_argument("--count", type=int, help=argparse.SUPPRESS)
+    p.add_argument("--space", choices=("channels", "positions"), default="channels",
+                   help=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("eval", help="evaluation tables (thesis Table 4.1/4.2) for a folder")
+    p.add_argument("folder")
+    p.add_argument("-o", "--output", default="results/eval", help="output folder")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("demo", help="run the keyframers live on the embedded demo motion")
+    p.add_argument("--seconds", type=float, default=20.0)
+    p.add_argument("--offline", action="store_true", help="offline methods instead of online")
+    p.add_argument("--fast", action="store_true", help="as fast as possible, not at 120 Hz")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("bench", help="benchmark speed and memory; results written to files")
+    p.add_argument("--offline", action="store_true")
+    p.add_argument("--online", action="store_true")
+    p.add_argument("--frames", type=int, default=100_000, help="offline motion length")
+    p.add_argument("--data", help="folder of CMU clips (default: ../shared/data/cmu if present)")
+    p.add_argument("-o", "--output", default="results", help="output folder")
+    p.set_defaults(func=cmd_bench)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (2 for input and usage errors)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except StreamkeyError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return 0

@@ -1,0 +1,140 @@
+"""The library side of `streamkey run`, `replay` and the live `demo`."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import signal
+import sys
+from collections.abc import Callable
+from typing import Any
+
+from .adapters import make_sink, parse_address
+from .adapters.base import Source
+from .engine import Engine, RunSummary
+from .errors import UsageError
+from .motion import Frame, Motion
+from .online import OnlineKeyframer
+from .replay.pacing import frame_stream, paced
+from .replay.source import MotionSource
+from .streaming import make_keyframers
+
+__all__ = ["run_live", "replay", "FRAME_TARGETS"]
+
+FRAME_TARGETS = ("osc", "zmq+tcp", "zmq+ipc", "-")
+
+
+def _ready(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+async def run_live(source: Source | Motion, methods: list[str], to: list[str],
+                   params: dict[str, dict[str, Any]] | None = None,
+                   lookahead: int | None = None, listen: str | None = None,
+                   stream: str = "default", rate: float | None = None,
+                   on_event: Callable[[dict[str, Any]], None] | None = None,
+                   on_ready: Callable[[str], None] = _ready,
+                   idle_exit: float | None = None) -> RunSummary:
+    """Run the engine until the source ends or SIGINT/SIGTERM; returns the summary."""
+    if isinstance(source, Motion):
+        source = MotionSource(source, rate=rate)
+    sinks = [make_sink(parse_address(a), listen) for a in to]
+
+    def keyframers(src: Source) -> list[OnlineKeyframer]:
+        assert src.skeleton is not None and src.fps is not None
+        motion = Motion(src.skeleton, _empty(src.skeleton.n_channels), src.fps)
+        return make_keyframers(motion, methods, params, lookahead, stream)
+
+    engine = Engine(source, keyframers, sinks, stream, on_ready, on_event, idle_exit)
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, engine.stop)
+        except (NotImplementedError, RuntimeError):  # not the main thread
+            pass
+    try:
+        return await engine.run()
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                loop.remove_signal_handler(sig)
+            except (NotImplementedError, RuntimeError):
+                pass
+
+
+def _empty(n: int) -> Any:
+    import numpy as np
+
+    return np.zeros((0, n))
+
+
+def replay(motion: Motion, to: list[str], rate: float | None = None, speed: float = 1.0,
+           loop: bool = False, start: int | None = None, end: int | None = None,
+           listen: str | None = None, wait_subscribers: float = 2.0,
+           count: int | None = None) -> dict[str, Any]:
+    """Send a motion as a paced frame stream to OSC / ZeroMQ / stdout; returns counters."""
+    targets = [parse_address(a) for a in to]
+    bad = [str(a) for a in targets if a.scheme not in FRAME_TARGETS]
+    if bad:
+        raise UsageError(f"replay sends frames to osc://, zmq+tcp://, zmq+ipc:// or -; "
+                         f"not {', '.join(bad)}")
+    if speed <= 0 or (rate is not None and rate <= 0):
+        raise UsageError("--rate and --speed must be positive")
+    senders = [_frame_sender(a, listen) for a in targets]
+    fps = motion.fps
+    for s in senders:
+        if hasattr(s, "subscribers") and wait_subscribers > 0:
+            s.subscribers(wait_subscribers)
+        s.send_skeleton(motion.skeleton, fps)
+    interval = 1.0 / ((rate or fps) * speed)
+    _ready(f"replaying {motion.name or 'motion'} to {', '.join(str(a) for a in targets)} "
+           f"at {1 / interval:g} frames/s")
+    sent = 0
+    frames = itertools.islice(frame_stream(motion, start, end, loop), count)
+    try:
+        for frame, _ in paced(frames, interval):
+            for s in senders:
+                if sent % round(fps) == 0 and sent:
+                    s.send_skeleton(motion.skeleton, fps)
+                s.send_frame(frame)
+            sent += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        for s in senders:
+            s.close()
+    return {"frames": sent, "senders": {s.name: s.stats.as_dict() for s in senders}}
+
+
+class _StdoutFrames:
+    name = "stdout"
+
+    def __init__(self) -> None:
+        from .adapters.base import SinkStats
+
+        self.stats = SinkStats()
+
+    def send_skeleton(self, skeleton: Any, fps: float) -> None:
+        pass
+
+    def send_frame(self, frame: Frame) -> None:
+        sys.stdout.write(json.dumps({"seq": frame.seq, "time": round(frame.time, 6),
+                                     "channels": [round(v, 6) for v in frame.channels.tolist()]})
+                         + "\n")
+        self.stats.sent += 1
+
+    def close(self) -> None:
+        sys.stdout.flush()
+
+
+def _frame_sender(address: Any, listen: str | None) -> Any:
+    if address.scheme == "osc":
+        from .adapters.osc import OscFrameSender
+
+        return OscFrameSender(address)
+    if address.scheme in ("zmq+tcp", "zmq+ipc"):
+        from .adapters.zmq import ZmqFrameSender
+
+        return ZmqFrameSender(address, listen)
+    return _StdoutFrames()

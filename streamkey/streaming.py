@@ -1,0 +1,71 @@
+"""Online keyframers run over recorded motion as if it were streamed (`extract --online`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .amc import read_motion
+from .batch import FileResult
+from .errors import StreamkeyError, UsageError
+from .keyframes import KeyframeEvent, Keyframes
+from .methods import online_class
+from .motion import Motion
+from .online import OnlineKeyframer, Pipeline
+
+__all__ = ["make_keyframers", "run_online", "extract_files_online"]
+
+
+def make_keyframers(motion: Motion, methods: list[str],
+                    params: dict[str, dict[str, Any]] | None = None,
+                    lookahead: int | None = None, stream: str = "default"
+                    ) -> list[OnlineKeyframer]:
+    """One online keyframer per method name, with its parameters and optional lookahead."""
+    params = params or {}
+    out = []
+    for name in methods:
+        kwargs = {k: v for k, v in params.get(name, {}).items() if v is not None}
+        if lookahead is not None:
+            kwargs["lookahead"] = lookahead
+        out.append(online_class(name)(motion.skeleton, motion.fps, stream=stream, **kwargs))
+    return out
+
+
+def run_online(motion: Motion, methods: list[str],
+               params: dict[str, dict[str, Any]] | None = None,
+               lookahead: int | None = None) -> dict[str, Keyframes]:
+    """Push every captured frame of `motion` through the online keyframers, then flush."""
+    keyframers = make_keyframers(motion, methods, params, lookahead)
+    pipeline = Pipeline(keyframers)
+    events = pipeline.push_block(motion.frames()) + pipeline.flush()
+    out = {}
+    for kf in keyframers:
+        mine = sorted((e for e in events if isinstance(e, KeyframeEvent) and e.method == kf.method),
+                      key=lambda e: e.frame)
+        latency = [e.latency_frames for e in mine]
+        out[kf.method] = Keyframes(
+            kf.method, np.array([e.frame for e in mine], dtype=np.int64),
+            np.array([e.score for e in mine]), {**kf.params, "online": True}, motion.n_frames,
+            info={"latency_frames_max": max(latency, default=0), "lookahead": kf.lookahead})
+    return out
+
+
+def extract_files_online(paths: list[Path], methods: list[str],
+                         params: dict[str, dict[str, Any]] | None = None,
+                         lookahead: int | None = None,
+                         progress: Callable[[int, int, Path], None] | None = None
+                         ) -> Iterator[FileResult]:
+    """`run_online` over files; a bad file yields its error and the rest go on."""
+    for i, path in enumerate(paths):
+        if progress:
+            progress(i, len(paths), path)
+        try:
+            motion = read_motion(path)
+            yield FileResult(path, motion, run_online(motion, methods, params, lookahead))
+        except UsageError:
+            raise
+        except StreamkeyError as exc:
+            yield FileResult(path, None, {}, str(exc))

@@ -1,0 +1,53 @@
+"""Helpers for tests that run streamkey processes on loopback."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+MS = float(os.environ.get("STREAMKEY_TEST_TIME_FACTOR", "1"))  # scale every timeout
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    """A port that is free on 127.0.0.1 right now."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def streamkey(*args: str, **kwargs) -> subprocess.Popen:
+    """Start `python -m streamkey ARGS` with stdout and stderr piped."""
+    return subprocess.Popen([sys.executable, "-m", "streamkey", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kwargs)
+
+
+def wait_ready(proc: subprocess.Popen, needle: str = "listening on",
+               timeout: float = 30.0) -> list[str]:
+    """Read stderr lines until one contains `needle` (the ready line); returns them."""
+    lines = []
+    deadline = time.monotonic() + timeout * MS
+    assert proc.stderr is not None
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        if not line:
+            raise AssertionError(f"process ended before ready: {''.join(lines)}")
+        lines.append(line)
+        if needle in line:
+            return lines
+    raise AssertionError(f"no ready line within {timeout} s: {''.join(lines)}")
+
+
+def read_jsonl(path: Path) -> list[dict]:
+    """Every event of a JSON Lines log."""
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def keyframes_of(events: list[dict]) -> list[tuple[str, int, int]]:
+    """(method, frame, decided_at) of every keyframe event, sorted."""
+    return sorted((e["method"], e["frame"], e["decided_at"]) for e in events
+                  if e["type"] == "keyframe")

@@ -1,0 +1,73 @@
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+
+from cmu import DATA
+
+from streamkey.cli import main
+
+
+def test_extract_writes_the_documented_json_schema(tmp_path, capsys):
+    out = tmp_path / "keys.json"
+    code = main(["extract", str(DATA / "07_01.bvh"), str(DATA / "07_05.amc"), "--method", "all",
+                 "-o", str(out), "-q"])
+    assert code == 0
+    doc = json.loads(out.read_text())
+    assert doc["schema"] == 1
+    assert [f["file"] for f in doc["files"]] == [str(DATA / "07_01.bvh"), str(DATA / "07_05.amc")]
+    for entry in doc["files"]:
+        assert set(entry["methods"]) == {"saliency", "speed", "simplify", "uniform", "decimate"}
+        for name, result in entry["methods"].items():
+            keys = result["keyframes"]
+            assert keys == sorted(set(keys)) and len(keys) == len(result["scores"]) > 0, name
+            assert all(entry["first_frame"] <= k < entry["frames"] for k in keys)
+            assert isinstance(result["params"], dict)
+        sal = len(entry["methods"]["saliency"]["keyframes"])
+        assert len(entry["methods"]["uniform"]["keyframes"]) == sal
+        assert len(entry["methods"]["decimate"]["keyframes"]) == sal
+
+
+def test_extract_csv_has_one_row_per_keyframe(tmp_path):
+    out = tmp_path / "keys.csv"
+    assert main(["extract", str(DATA / "07_01.bvh"), "--method", "speed", "--format", "csv",
+                 "-o", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    assert lines[0] == "file,method,frame,time,score"
+    assert 3 <= len(lines) - 1 <= 5
+
+
+def test_bad_bvh_prints_one_error_line_and_exits_2_without_traceback(tmp_path):
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 1 Xposition\n}\n")
+    result = subprocess.run([sys.executable, "-m", "streamkey", "extract", str(bad)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines()[-1].startswith(f"error: {bad}:")
+    assert "MOTION" in result.stderr
+
+
+def test_missing_input_and_unknown_method_exit_2(tmp_path, capsys):
+    assert main(["extract", str(tmp_path / "nope.bvh")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert main(["extract", str(DATA / "07_01.bvh"), "--method", "magic"]) == 2
+    assert "unknown method" in capsys.readouterr().err
+
+
+def test_demo_runs_on_the_embedded_motion_without_data(capsys):
+    assert main(["demo", "--seconds", "8"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("demo motion: 960 frames")
+    for method in ("saliency", "speed", "simplify"):
+        assert re.search(rf"^t=\s*[\d.]+s\s+{method}\s+keyframe\s+\d+", out, re.M), method
+    assert "done: 960 frames" in out
+
+
+def test_offline_demo_prints_every_method(capsys):
+    assert main(["demo", "--offline", "--seconds", "8"]) == 0
+    out = capsys.readouterr().out
+    for method in ("saliency", "speed", "simplify", "uniform", "decimate"):
+        assert f"{method}:" in out

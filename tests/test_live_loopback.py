@@ -1,0 +1,54 @@
+from __future__ import annotations
+
+import signal
+
+import numpy as np
+import pytest
+from cmu import DATA
+from live_helpers import MS, free_port, keyframes_of, read_jsonl, streamkey, wait_ready
+
+from streamkey.bvh import read_bvh
+from streamkey.keyframes import KeyframeEvent
+from streamkey.motion import Motion
+from streamkey.streaming import make_keyframers
+from streamkey.online import Pipeline
+
+CLIP = DATA / "07_01.bvh"
+
+
+def direct_events(float32: bool) -> list[tuple[str, int, int]]:
+    """The online keyframers on the file directly (channels as sent on the wire)."""
+    motion = read_bvh(CLIP)
+    if float32:
+        motion = Motion(motion.skeleton, motion.channels.astype(np.float32), motion.fps,
+                        motion.first_frame)
+    pipeline = Pipeline(make_keyframers(motion, ["saliency", "speed", "simplify"]))
+    events = pipeline.push_block(motion.frames()) + pipeline.flush()
+    return sorted((e.method, e.frame, e.decided_at) for e in events
+                  if isinstance(e, KeyframeEvent))
+
+
+@pytest.mark.parametrize("scheme", ["osc", "zmq+tcp"])
+def test_replay_and_run_as_two_processes_lose_no_event(tmp_path, scheme):
+    kind = "udp" if scheme == "osc" else "tcp"
+    port = free_port(2 if kind == "udp" else 1)
+    address = f"{scheme}://127.0.0.1:{port}"
+    log = tmp_path / "events.jsonl"
+    run = streamkey("run", "--from", address, "--skeleton", str(CLIP), "--to", f"jsonl:{log}",
+                    "--idle-exit", str(1.5 * MS))
+    try:
+        wait_ready(run)
+        replay = streamkey("replay", str(CLIP), "--to", address)
+        assert replay.wait(timeout=60 * MS) == 0, replay.communicate()[1]
+        replay.communicate()
+        _, err = run.communicate(timeout=60 * MS)
+    finally:
+        if run.poll() is None:
+            run.send_signal(signal.SIGINT)
+            run.communicate(timeout=30)
+    assert run.returncode == 0, err
+    got = keyframes_of(read_jsonl(log))
+    assert "frames in: 316" in err
+    assert got == direct_events(float32=(scheme == "osc" or scheme == "zmq+tcp"))
+    assert got == direct_events(float32=False), "float32 wire rounding changed a decision"
+    assert {m for m, _, _ in got} == {"saliency", "speed", "simplify"}
