@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import socket
 from collections.abc import Callable
 from typing import Any
 
@@ -25,9 +26,9 @@ CLIENT_QUEUE = 256
 
 
 class _Client:
-    def __init__(self, connection: ServerConnection) -> None:
+    def __init__(self, connection: ServerConnection, size: int) -> None:
         self.connection = connection
-        self.queue: asyncio.Queue[str] = asyncio.Queue(CLIENT_QUEUE)
+        self.queue: asyncio.Queue[str] = asyncio.Queue(size)
         self.dropped = 0
 
     def put(self, text: str) -> None:
@@ -47,8 +48,11 @@ class WebSocketSink(Sink):
 
     def __init__(self, address: Address, listen: str | None = None,
                  on_message: Callable[[str], dict[str, Any] | None] | None = None,
-                 origins: list[str | None] | None = None) -> None:
+                 origins: list[str | None] | None = None,
+                 client_queue: int = CLIENT_QUEUE, send_buffer: int = 65536) -> None:
         super().__init__()
+        self.client_queue = client_queue
+        self.send_buffer = send_buffer
         self.address = address
         self.host = bind_host(address, listen)
         self.on_message = on_message
@@ -60,7 +64,8 @@ class WebSocketSink(Sink):
     async def start(self) -> str:
         self.server = await serve(self._handle, self.host, self.address.port, compression=None,
                                   max_size=MAX_MESSAGE_BYTES, origins=self.origins,
-                                  ping_interval=5, ping_timeout=10)
+                                  ping_interval=5, ping_timeout=10, write_limit=4096,
+                                  close_timeout=1)
         port = self.server.sockets[0].getsockname()[1]
         return f"ws://{self.host}:{port}"
 
@@ -71,7 +76,10 @@ class WebSocketSink(Sink):
         return int(self.server.sockets[0].getsockname()[1])
 
     async def _handle(self, connection: ServerConnection) -> None:
-        client = _Client(connection)
+        client = _Client(connection, self.client_queue)
+        sock = connection.transport.get_extra_info("socket")
+        if sock is not None:  # a small kernel buffer: a stalled client shows up in seconds
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer)
         self.clients.add(client)
         sender = asyncio.create_task(self._send_loop(client))
         try:
@@ -113,6 +121,10 @@ class WebSocketSink(Sink):
             if asyncio.get_running_loop().time() > deadline:
                 break
             await asyncio.sleep(0.01)
+        for client in list(self.clients):
+            transport = client.connection.transport
+            if not client.queue.empty() or transport.get_write_buffer_size():
+                transport.abort()  # a stalled reader would hold the close handshake up
         if self.server is not None:
             self.server.close()
             await self.server.wait_closed()

@@ -1,0 +1,191 @@
+"""Faults at the engine level: the stream keeps running, counters report, nothing crashes,
+and the JSON Lines log loses no event that was emitted."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+
+import numpy as np
+import pytest
+import zmq
+from cmu import DATA
+from live_helpers import MS, free_port, read_jsonl
+from websockets.asyncio.client import connect
+
+from streamkey.adapters import make_sink, parse_address
+from streamkey.adapters.osc import OscSource, encode_frame
+from streamkey.adapters.zmq import ZmqFrameSender, ZmqSource
+from streamkey.bvh import read_bvh
+from streamkey.engine import Engine
+from streamkey.motion import Motion
+from streamkey.streaming import make_keyframers
+
+MOTION = read_bvh(DATA / "07_01.bvh")
+
+
+def keyframers(methods=("speed", "simplify")):
+    def make(source):
+        m = Motion(source.skeleton, np.zeros((0, source.skeleton.n_channels)), source.fps)
+        return make_keyframers(m, list(methods))
+    return make
+
+
+async def until(predicate, timeout=10.0):
+    deadline = asyncio.get_running_loop().time() + timeout * MS
+    while not predicate():
+        assert asyncio.get_running_loop().time() < deadline, "condition not reached in time"
+        await asyncio.sleep(0.01)
+
+
+def sender():
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    return s
+
+
+async def test_malformed_osc_packets_are_counted_and_the_stream_goes_on(tmp_path):
+    port = free_port()
+    source = OscSource(parse_address(f"osc://127.0.0.1:{port}"), skeleton=MOTION.skeleton,
+                       fps=MOTION.fps)
+    log = tmp_path / "log.jsonl"
+    engine = Engine(source, keyframers(), [make_sink(parse_address(f"jsonl:{log}"))])
+    task = asyncio.create_task(engine.run())
+    await until(lambda: source.transport is not None)
+    out = sender()
+    target = ("127.0.0.1", port)
+    good = [encode_frame(i, i / 120, MOTION.channels[i]) for i in range(1, MOTION.n_frames)]
+    nan = MOTION.channels[5].copy()
+    nan[7] = np.nan
+    bad = [b"", b"garbage", b"/wrong/address\x00\x00,i\x00\x00\x00\x00\x00\x01",
+           encode_frame(5, 0.0, nan), encode_frame(6, 0.0, MOTION.channels[6][:10]),
+           b"/streamkey/frame\x00\x00\x00\x00,ids\x00\x00\x00\x00" + b"\x00" * 16,
+           b"x" * 70_000]
+    for i, packet in enumerate(good):
+        out.sendto(packet, target)
+        if i < len(bad):
+            try:
+                out.sendto(bad[i], target)
+            except OSError:  # the kernel refuses the oversize datagram itself
+                pass
+        if i % 10 == 0:  # stay within what UDP buffers hold: wait for the engine
+            await until(lambda i=i: engine.summary.frames_in >= i - 10)
+    await until(lambda: engine.summary.frames_in == len(good) + 1)
+    out.close()
+    engine.stop()
+    summary = await task
+    assert summary.frames_in == len(good) + 1  # the wrong-channel-count frame reached the guard
+    assert summary.guard["invalid"] == 1
+    malformed = summary.source["malformed"]
+    assert malformed.get("nan") == 1 and malformed.get("address") == 1
+    assert sum(malformed.values()) >= 5
+    logged = [e for e in read_jsonl(log) if e["type"] == "keyframe"]
+    assert len(logged) == sum(v for k, v in summary.events.items() if k in ("speed", "simplify"))
+    assert len(logged) > 5
+
+
+async def test_duplicates_out_of_order_and_silence_do_not_stop_the_stream(tmp_path):
+    port = free_port()
+    source = OscSource(parse_address(f"osc://127.0.0.1:{port}"), skeleton=MOTION.skeleton,
+                       fps=MOTION.fps)
+    log = tmp_path / "log.jsonl"
+    engine = Engine(source, keyframers(), [make_sink(parse_address(f"jsonl:{log}"))])
+    task = asyncio.create_task(engine.run())
+    await until(lambda: source.transport is not None)
+    out = sender()
+    order = list(range(1, 150)) + [149, 148, 120] + list(range(150, 200))
+    for i, seq in enumerate(order):
+        out.sendto(encode_frame(seq, seq / 120, MOTION.channels[seq]), ("127.0.0.1", port))
+        await until(lambda i=i: engine.summary.frames_in >= i - 10)
+    await until(lambda: engine.summary.frames_in == len(order))
+    await asyncio.sleep(0.5 * MS)  # the source goes silent ...
+    for i, seq in enumerate(range(205, MOTION.n_frames)):  # ... and comes back after a gap
+        out.sendto(encode_frame(seq, seq / 120, MOTION.channels[seq]), ("127.0.0.1", port))
+        await until(lambda i=i: engine.summary.frames_in >= len(order) + i - 10)
+    await until(lambda: engine.summary.frames_in == len(order) + MOTION.n_frames - 205)
+    out.close()
+    engine.stop()
+    summary = await task
+    assert summary.guard["duplicates"] == 1 and summary.guard["out_of_order"] == 2
+    assert summary.guard["gaps"] == 1 and summary.guard["bridged_frames"] == 5
+    events = read_jsonl(log)
+    gaps = [e for e in events if e["type"] == "gap"]
+    assert [(g["first"], g["last"], g["bridged"]) for g in gaps] == [(200, 204, True)]
+    assert any(e["type"] == "keyframe" and e["frame"] > 205 for e in events)
+
+
+async def test_zmq_publisher_restart_is_survived(tmp_path):
+    port = free_port(socket.SOCK_STREAM)
+    address = parse_address(f"zmq+tcp://127.0.0.1:{port}")
+    source = ZmqSource(address)
+    log = tmp_path / "log.jsonl"
+    engine = Engine(source, keyframers(("speed",)), [make_sink(parse_address(f"jsonl:{log}"))])
+    task = asyncio.create_task(engine.run())
+    await until(lambda: source.socket is not None)
+    for attempt in range(2):  # the publisher starts, stops, and starts again from frame 1
+        pub = ZmqFrameSender(address)
+        assert await asyncio.to_thread(pub.subscribers, 5.0 * MS) >= 1
+        pub.send_skeleton(MOTION.skeleton, MOTION.fps)
+        for i, frame in enumerate(MOTION.frames()):
+            pub.send_frame(frame)
+            base = attempt * (MOTION.n_frames - 1)
+            await until(lambda i=i, base=base: engine.summary.frames_in >= base + i - 10)
+        want = (attempt + 1) * (MOTION.n_frames - 1)
+        await until(lambda want=want: engine.summary.frames_in >= want)
+        pub.close()
+    engine.stop()
+    summary = await task
+    assert summary.frames_in == 2 * (MOTION.n_frames - 1)
+    assert summary.guard["restarts"] == 1
+    events = read_jsonl(log)
+    assert any(e["type"] == "status" and e["status"] == "restart" for e in events)
+    speed = [e["frame"] for e in events if e["type"] == "keyframe"]
+    half = len(speed) // 2
+    assert len(speed) % 2 == 0 and speed[:half] == speed[half:]  # same keys on both takes
+
+
+async def test_absent_osc_receiver_and_a_websocket_client_that_stops_reading(tmp_path):
+    dead_port = free_port()  # nobody listens there
+    ws_port = free_port(socket.SOCK_STREAM)
+    log = tmp_path / "log.jsonl"
+    from streamkey.replay.source import MotionSource
+
+    source = MotionSource(MOTION, rate=0.0, loop=True, end=MOTION.n_frames)
+    sinks = [make_sink(parse_address(a)) for a in
+             (f"osc://127.0.0.1:{dead_port}", f"ws://127.0.0.1:{ws_port}", f"jsonl:{log}")]
+    sinks[1].client_queue = 16
+    sinks[1].send_buffer = 4096
+    engine = Engine(source, keyframers(("simplify",)), sinks)
+    task = asyncio.create_task(engine.run())
+    ws = sinks[1]
+    await until(lambda: ws.server is not None)
+    # A reader that stops reading after its first message, and a reader that keeps up.
+    small = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    small.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 2048)
+    small.connect(("127.0.0.1", ws_port))
+    async with connect(f"ws://127.0.0.1:{ws_port}", max_queue=1, sock=small,
+                       close_timeout=0.5) as lazy, \
+            connect(f"ws://127.0.0.1:{ws_port}", close_timeout=0.5) as keen:
+        first = json.loads(await lazy.recv())
+        assert first["type"] == "keyframe"
+        got = []
+        while (ws.stats.dropped == 0 or len(got) < 100) and len(got) < 3000:
+            got.append(json.loads(await asyncio.wait_for(keen.recv(), 10 * MS)))
+        engine.stop()
+        summary = await task
+    assert all(e["method"] == "simplify" for e in got if e["type"] == "keyframe")
+    assert summary.sinks["osc"]["sent"] + summary.sinks["osc"]["dropped"] == (
+        summary.events["simplify"])
+    assert summary.sinks["ws"]["dropped"] > 0  # the lazy client's oldest events went
+    logged = [e for e in read_jsonl(log) if e["type"] == "keyframe"]
+    assert len(logged) == summary.events["simplify"] >= len(got) >= 100
+
+
+def test_sink_addresses_bind_loopback_unless_listen_is_given():
+    from streamkey.errors import UsageError
+
+    with pytest.raises(UsageError, match="needs --listen"):
+        make_sink(parse_address("ws://0.0.0.0:9999"))
+    with pytest.raises(UsageError, match="needs --listen"):
+        OscSource(parse_address("osc://192.168.1.10:9000"))
+    assert zmq.zmq_version()
