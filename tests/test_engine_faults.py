@@ -32,16 +32,15 @@ def keyframers(methods=("speed", "simplify")):
     return make
 
 
-async def until(predicate, timeout=10.0):
-    deadline = asyncio.get_running_loop().time() + timeout * MS
+async def until(predicate, seconds=10.0):
+    deadline = asyncio.get_running_loop().time() + seconds * MS
     while not predicate():
         assert asyncio.get_running_loop().time() < deadline, "condition not reached in time"
-        await asyncio.sleep(0.01)
+        await asyncio.sleep(0.002)
 
 
 def sender():
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    return s
+    return socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
 
 async def test_malformed_osc_packets_are_counted_and_the_stream_goes_on(tmp_path):

@@ -10,8 +10,8 @@ from live_helpers import MS, free_port, keyframes_of, read_jsonl, streamkey, wai
 from streamkey.bvh import read_bvh
 from streamkey.keyframes import KeyframeEvent
 from streamkey.motion import Motion
-from streamkey.streaming import make_keyframers
 from streamkey.online import Pipeline
+from streamkey.streaming import make_keyframers
 
 CLIP = DATA / "07_01.bvh"
 
