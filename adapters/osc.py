@@ -6,7 +6,11 @@ Layouts (DESIGN §7; friendly to Pd, SuperCollider, Max):
     /streamkey/frame     i seq, d time, f... channels      (seq may be i/h/f, time d/f,
                                                            channels any mix of f/d/i)
     /streamkey/skeleton  s bvh_header [, d fps]            (BVH text up to MOTION; fps 120)
-    /streamkey/keyframe  s stream, s method, i frame, d time, f score, i latency_frames
+    /streamkey/keyframe  s stream, s method, i frame, f time, f score, i latency_frames
+
+The event time is `f` (float32), not DESIGN's `d`: Pd's `oscparse` (0.53) rejects `d` and
+garbles the rest of the message; `i frame` carries the exact frame. Receivers that want
+float64 ask for it with `osc://host:port?time=d`.
 
 Frames are encoded with a fixed-layout encoder (~100x faster than python-osc's builder,
 byte-for-byte equal to it: tested); everything else goes through python-osc.
@@ -26,7 +30,7 @@ from pythonosc.osc_message import OscMessage
 from pythonosc.osc_message_builder import OscMessageBuilder
 
 from streamkey.bvh import parse_bvh
-from streamkey.errors import BVHError, InputError
+from streamkey.errors import BVHError, InputError, UsageError
 from streamkey.motion import Frame, Skeleton
 
 from .base import MAX_CHANNELS, MAX_MESSAGE_BYTES, Address, Sink, Source, bind_host
@@ -81,13 +85,13 @@ def encode_skeleton(skeleton: Skeleton, fps: float) -> bytes:
     return builder.build().dgram
 
 
-def encode_event(event: dict[str, Any]) -> bytes:
-    """`/streamkey/keyframe s stream, s method, i frame, d time, f score, i latency_frames`."""
+def encode_event(event: dict[str, Any], time_type: str = "f") -> bytes:
+    """`/streamkey/keyframe s stream, s method, i frame, f time, f score, i latency_frames`."""
     builder = OscMessageBuilder(KEYFRAME_ADDRESS)
     builder.add_arg(str(event["stream"]), "s")
     builder.add_arg(str(event["method"]), "s")
     builder.add_arg(int(event["frame"]), "i")
-    builder.add_arg(float(event["time"]), "d")
+    builder.add_arg(float(event["time"]), time_type)
     builder.add_arg(float(event["score"]), "f")
     builder.add_arg(int(event["latency_frames"]), "i")
     return builder.build().dgram
@@ -262,6 +266,9 @@ class OscEventSink(Sink):
     def __init__(self, address: Address) -> None:
         super().__init__()
         self.address = address
+        self.time_type = address.options.get("time", "f")
+        if self.time_type not in ("f", "d"):
+            raise UsageError(f"{address}: time must be f or d")
         self.sender = _UdpSender(address, self.stats)
 
     async def start(self) -> str:
@@ -269,7 +276,7 @@ class OscEventSink(Sink):
 
     def offer(self, event: dict[str, Any]) -> None:
         if event.get("type") == "keyframe":
-            self.sender.send(encode_event(event))
+            self.sender.send(encode_event(event, self.time_type))
 
     async def close(self) -> None:
         self.sender.close()

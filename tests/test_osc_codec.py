@@ -84,5 +84,7 @@ def test_keyframe_event_layout_is_the_documented_one():
              "latency_frames": 60}
     msg = OscMessage(encode_event(event))
     assert msg.address == "/streamkey/keyframe"
-    assert msg.dgram[20:28] == b",ssidfi\x00"
-    assert msg.params == ["s1", "speed", 42, 0.35, 1.5, 60]
+    assert msg.dgram[20:28] == b",ssiffi\x00"
+    assert msg.params[:3] == ["s1", "speed", 42] and msg.params[4:] == [1.5, 60]
+    assert abs(msg.params[3] - 0.35) < 1e-7
+    assert OscMessage(encode_event(event, "d")).params[3] == 0.35

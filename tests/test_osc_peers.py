@@ -37,11 +37,11 @@ def wait_bound(port: int, timeout: float = 10.0) -> None:
 
 
 def parse_oscdump(text: str) -> list[dict]:
-    """`<timetag> /streamkey/keyframe ssidfi "stream" "method" frame time score latency`."""
+    """`<timetag> /streamkey/keyframe ssiffi "stream" "method" frame time score latency`."""
     events = []
     for line in text.splitlines():
         parts = shlex.split(line)
-        if len(parts) == 9 and parts[1] == "/streamkey/keyframe" and parts[2] == "ssidfi":
+        if len(parts) == 9 and parts[1] == "/streamkey/keyframe" and parts[2] == "ssiffi":
             events.append({"stream": parts[3], "method": parts[4], "frame": int(parts[5]),
                            "time": float(parts[6]), "score": float(parts[7]),
                            "latency_frames": int(parts[8])})
@@ -72,7 +72,7 @@ def test_oscdump_receives_keyframe_messages_that_parse_back_to_the_events(tmp_pa
                          sorted(logged, key=lambda e: (e["method"], e["frame"])), strict=True):
         assert (got["stream"], got["method"], got["frame"], got["latency_frames"]) == (
             want["stream"], want["method"], want["frame"], want["latency_frames"])
-        assert abs(got["time"] - want["time"]) <= 1e-6
+        assert abs(got["time"] - want["time"]) <= 1e-6 * max(1.0, want["time"])
         assert abs(got["score"] - want["score"]) <= 1e-6 * max(1.0, abs(want["score"]))
 
 
