@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import time
 
 from streamkey.adapters.base import Source
@@ -19,12 +20,13 @@ class MotionSource(Source):
     name = "replay"
 
     def __init__(self, motion: Motion, rate: float | None = None, speed: float = 1.0,
-                 loop: bool = False, start: int | None = None, end: int | None = None) -> None:
+                 loop: bool = False, start: int | None = None, end: int | None = None,
+                 count: int | None = None) -> None:
         super().__init__(motion.skeleton, motion.fps)
         self.motion = motion
         self.rate = motion.fps if rate is None else rate
         self.speed = speed
-        self.frames_iter = frame_stream(motion, start, end, loop)
+        self.frames_iter = itertools.islice(frame_stream(motion, start, end, loop), count)
         self.task: asyncio.Task[None] | None = None
         self.frames.queue = asyncio.Queue(8)  # in-process: backpressure instead of drops
 

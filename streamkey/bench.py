@@ -126,7 +126,27 @@ def bench_online(data: Path | None, stream_frames: int = 432_000) -> dict[str, A
 
     rows.append({"method": "all three (one pipeline)", **_push_costs(pipeline, frames)})
     memory = _stream_memory(pipeline, motion, stream_frames)
-    return {"clip": source, "frames": len(frames), "rows": rows, "memory": memory}
+    return {"clip": source, "frames": len(frames), "rows": rows, "memory": memory,
+            "engine_live": _engine_latency(motion)}
+
+
+def _engine_latency(motion: Motion, seconds: float = 10.0) -> dict[str, Any]:
+    """Wall latency inside the engine at the capture rate: arrival of the deciding frame to
+    the event leaving for the sinks (all three keyframers, a JSON Lines sink)."""
+    import asyncio
+    import tempfile
+
+    from .live import run_live
+    from .methods import ONLINE_METHODS
+    from .replay.source import MotionSource
+
+    with tempfile.TemporaryDirectory() as tmp:
+        source = MotionSource(motion, loop=True, count=int(seconds * motion.fps))
+        summary = asyncio.run(run_live(source, list(ONLINE_METHODS), [f"jsonl:{tmp}/e.jsonl"],
+                                       on_ready=lambda line: None))
+    lat = summary.latency_percentiles()
+    return {"seconds": seconds, "rate_hz": motion.fps, "frames": summary.frames_in,
+            "events": sum(summary.events.values()), "wall_latency_ms": lat}
 
 
 def _stream_memory(make: Callable[[], Any], motion: Motion, total: int) -> dict[str, Any]:
@@ -154,6 +174,25 @@ def _stream_memory(make: Callable[[], Any], motion: Motion, total: int) -> dict[
             "current_mb_samples": samples}
 
 
+def _bench_agreement(data: Path | None, output: Path) -> list[Path]:
+    """F1 of online against offline for each method and lookahead over every shared clip."""
+    import sys
+
+    from .agreement import LOOKAHEADS, lookahead_table, write_lookahead_table
+    from .amc import read_motion
+    from .errors import UsageError
+
+    if data is None:
+        raise UsageError("bench --agreement needs the CMU clips (--data DIR)")
+    motions = [read_motion(p) for p in sorted(data.iterdir()) if p.suffix in (".bvh", ".amc")]
+    rows = lookahead_table(motions, LOOKAHEADS,
+                           progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    md, js = output / "agreement_lookahead.md", output / "agreement_lookahead.json"
+    write_lookahead_table(rows, md)
+    js.write_text(json.dumps(rows, indent=1) + "\n", encoding="utf-8")
+    return [md, js]
+
+
 def _markdown(kind: str, result: dict[str, Any]) -> str:
     lines = [f"# streamkey bench --{kind}", "", f"machine: {platform.machine()}, "
              f"{platform.python_implementation()} {platform.python_version()}", ""]
@@ -178,6 +217,9 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
     output.mkdir(parents=True, exist_ok=True)
     written = []
     for kind in kinds:
+        if kind == "agreement":
+            written += _bench_agreement(data_dir, output)
+            continue
         if kind == "offline":
             result = bench_offline(frames, data_dir)
         else:

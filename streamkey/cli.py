@@ -134,7 +134,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """`streamkey bench`: time and memory of the offline and/or online methods, to files."""
     from .bench import run_bench
 
-    kinds = [k for k in ("offline", "online") if getattr(args, k)] or ["offline", "online"]
+    kinds = [k for k in ("offline", "online", "agreement") if getattr(args, k)] or [
+        "offline", "online"]
     for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data):
         print(f"wrote {path}")
     return 0
@@ -224,6 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="benchmark speed and memory; results written to files")
     p.add_argument("--offline", action="store_true")
     p.add_argument("--online", action="store_true")
+    p.add_argument("--agreement", action="store_true",
+                   help="online vs offline F1 against lookahead on every shared clip (slow)")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")
     p.add_argument("--data", help="folder of CMU clips (default: ../shared/data/cmu if present)")
     p.add_argument("-o", "--output", default="results", help="output folder")
