@@ -70,13 +70,15 @@ class _RotationPlan:
         pre = [p if p is not None else np.eye(3) for p in skeleton.pre_rotations]
         self.pre = np.array(pre) if any(p is not None for p in skeleton.pre_rotations) else None
         parents = np.array(skeleton.parents)
-        self.levels = [(lv, parents[lv], skeleton.offsets[lv][..., None])
-                       for lv in _depth_levels(skeleton.parents)[1:]]
+        self.levels = [(lv, parents[lv]) for lv in _depth_levels(skeleton.parents)[1:]]
+        self.offsets = skeleton.offsets.copy()
         ends = sorted(skeleton.end_sites)
         self.n_points = j + len(ends)
 
         self.ends = np.array(ends, dtype=np.int64) if ends else None
-        self.end_offsets = np.array([skeleton.end_sites[e] for e in ends]).reshape(-1, 3, 1)
+        self.end_offsets = np.concatenate(
+            [np.array([skeleton.end_sites[e] for e in ends]).reshape(-1, 3, 1),
+             np.ones((len(ends), 1, 1))], axis=1)
         self.root_offset = skeleton.offsets[0]
         pos = [(a, skeleton.channel_index(0, c)) for a, c in enumerate(POSITION_CHANNELS)]
         self.root_axes = np.array([a for a, c in pos if c is not None], dtype=np.int64)
@@ -135,21 +137,21 @@ def forward_kinematics(skeleton: Skeleton, channels: np.ndarray, chunk: int = 40
     n = channels.shape[0]
     positions = np.empty((n, plan.n_points, 3))
     root_rotation = np.empty((n, 3, 3))
+    j = skeleton.n_joints
     for lo in range(0, n, chunk):
         block = channels[lo : lo + chunk]
-        pos = positions[lo : lo + chunk]
-        world = plan.matrices(block)
-        pos[:, 0] = plan.root_offset
-        pos[:, 0, plan.root_axes] += block[:, plan.root_columns]
-        for level, par, off in plan.levels:
-            # world[level] = world[parent] @ local[level]; levels run root-down.
-            wpar = world[:, par]
-            pos[:, level] = pos[:, par] + (wpar @ off)[..., 0]
-            world[:, level] = wpar @ world[:, level]
+        # Homogeneous transforms: one matmul per tree level moves rotation and position.
+        world = np.zeros((len(block), j, 4, 4))
+        world[..., :3, :3] = plan.matrices(block)
+        world[..., :3, 3] = plan.offsets
+        world[..., 3, 3] = 1.0
+        world[:, 0, plan.root_axes, 3] += block[:, plan.root_columns]
+        for level, par in plan.levels:
+            world[:, level] = world[:, par] @ world[:, level]
+        positions[lo : lo + chunk, :j] = world[..., :3, 3]
         if plan.ends is not None:
-            pos[:, skeleton.n_joints :] = pos[:, plan.ends] + (
-                world[:, plan.ends] @ plan.end_offsets)[..., 0]
-        root_rotation[lo : lo + chunk] = world[:, 0]
+            positions[lo : lo + chunk, j:] = (world[:, plan.ends] @ plan.end_offsets)[..., :3, 0]
+        root_rotation[lo : lo + chunk] = world[:, 0, :3, :3]
     return FKResult(positions, root_rotation, point_names(skeleton))
 
 
