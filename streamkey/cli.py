@@ -35,7 +35,11 @@ def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         if getattr(args, name) is not None:
             simplify[name] = getattr(args, name)
     counted = {"count": args.count} if args.count is not None else {}
-    return {"saliency": saliency, "simplify": simplify, "uniform": counted, "decimate": counted}
+    isodata: dict[str, Any] = {}
+    if getattr(args, "verbose", False):
+        isodata = {"verbose": True, "log": lambda line: print(line, file=sys.stderr)}
+    return {"saliency": saliency, "simplify": simplify, "uniform": counted, "decimate": counted,
+            "isodata": isodata}
 
 
 def _write(text: str, output: str) -> None:
@@ -62,15 +66,54 @@ def cmd_extract(args: argparse.Namespace) -> int:
         methods = parse_methods(args.method)
         results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet)))
     _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
+    _export(results, args)
     failed = [r for r in results if r.error]
     for r in failed:
         print(f"error: {r.error}", file=sys.stderr)
     return 2 if failed else 0
 
 
+def _export(results: list[Any], args: argparse.Namespace) -> None:
+    """`extract --export-bvh / --export-reconstructed`: keyframes back out as BVH."""
+    from .export import export_results
+
+    for pattern, rebuilt in ((args.export_bvh, False), (args.export_reconstructed, True)):
+        if pattern:
+            for path in export_results(results, pattern, reconstructed=rebuilt):
+                print(f"wrote {path}", file=sys.stderr)
+
+
+def _dashboard(args: argparse.Namespace, source: Any, methods: list[str], to: list[str],
+               rate: float | None, loop: bool = False, stream: str = "default") -> int:
+    """`--dashboard [PORT]`: the engine with the live page; annotations into the session log."""
+    import asyncio
+    import json
+
+    from .dashboard import check_port, default_log, run_dashboard
+
+    port = check_port(args.dashboard)
+    log = args.log or (None if any(a.startswith("jsonl:") for a in to) else default_log())
+    summary, board = asyncio.run(run_dashboard(
+        source, methods, to, _method_params(args), getattr(args, "lookahead", None),
+        args.listen, stream, rate=rate, port=port, log=log, loop=loop,
+        idle_exit=getattr(args, "idle_exit", None)))
+    print(summary.text(), file=sys.stderr)
+    print(f"annotations: {len(board.annotations)}", file=sys.stderr)
+    if getattr(args, "summary", None):
+        Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     """`streamkey demo`: the embedded demo motion through the keyframers, events printed."""
     from .demo import run_demo
+
+    if args.dashboard is not None:
+        from .methods import ONLINE_METHODS
+        from .replay.demo import demo_motion
+
+        return _dashboard(args, demo_motion(args.seconds), list(ONLINE_METHODS), [],
+                          0.0 if args.fast else None, loop=True, stream="demo")
 
     return run_demo(seconds=args.seconds, offline=args.offline, fast=args.fast, out=sys.stdout)
 
@@ -107,6 +150,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         source = make_source(parse_address(args.source), args.listen,
                              skeleton_motion.skeleton if skeleton_motion else None,
                              skeleton_motion.fps if skeleton_motion else None)
+    if args.dashboard is not None:
+        return _dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
+                          stream=args.stream)
     summary = asyncio.run(run_live(source, methods, args.to or ["-"], _method_params(args),
                                    args.lookahead, args.listen, args.stream,
                                    rate=0.0 if args.fast else None,
@@ -141,6 +187,62 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _keyframes_of(path: str, method: str, args: argparse.Namespace) -> tuple[Any, Any]:
+    from .amc import read_motion
+    from .batch import extract_motion
+    from .methods import parse_methods
+
+    motion = read_motion(path)
+    names = parse_methods(method)
+    return motion, extract_motion(motion, names, _method_params(args))
+
+
+def cmd_sheet(args: argparse.Namespace) -> int:
+    """`streamkey sheet`: the keyposes of one clip as a contact sheet of stick figures."""
+    from .errors import UsageError
+    from .methods import parse_methods
+    from .sheet import contact_sheet
+
+    names = parse_methods(args.method)
+    if len(names) != 1:
+        raise UsageError("sheet: choose one method (--method saliency, speed, ...)")
+    motion, results = _keyframes_of(args.file, args.method, args)
+    keys = results[names[0]]
+    sheet = contact_sheet(motion, keys, args.output, columns=args.columns, view=args.view,
+                          title=f"{motion.name}: {len(keys)} {names[0]} keyposes")
+    print(f"wrote {sheet.path} ({sheet.figures} keyposes: {sheet.frames})", file=sys.stderr)
+    return 0
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    """`streamkey plot`: a clip's driving signals with the keyframes of each method marked."""
+    from .sheet import plot_signals
+
+    motion, results = _keyframes_of(args.file, args.method, args)
+    print(f"wrote {plot_signals(motion, results, args.output)}", file=sys.stderr)
+    return 0
+
+
+def _add_method_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sigma", type=float, help="saliency: base scale in frames (default: auto)")
+    p.add_argument("--k", type=int, help="saliency: number of PCA curves (default: auto)")
+    p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
+    p.add_argument("--tolerance", type=float, help="simplify: absolute error tolerance")
+    p.add_argument("--ratio", type=float, help="simplify: error / chord length ratio (Önder)")
+    p.add_argument("--count", type=int, help="simplify, uniform, decimate: keyframe count")
+    p.add_argument("--space", choices=("channels", "positions"), default="channels",
+                   help="simplify: curve of channel values or of body-frame joint positions")
+
+
+def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--dashboard", type=int, nargs="?", const=8765, metavar="PORT",
+                   help="serve the live page on http://127.0.0.1:PORT/ (default port 8765; "
+                        "0 picks a free one)")
+    p.add_argument("--log", metavar="PATH",
+                   help="dashboard: JSON Lines session log for events and annotations "
+                        "(default: the jsonl: sink, else session-<UTC time>.jsonl)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = argparse.ArgumentParser(prog="streamkey", description=__doc__)
@@ -150,7 +252,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("extract", help="keyframes of BVH/AMC files or folders (JSON or CSV)")
     p.add_argument("paths", nargs="+", metavar="FILE_OR_DIR")
     p.add_argument("--method", default="saliency",
-                   help="saliency, speed, simplify, uniform, decimate, a comma list, or all")
+                   help="saliency, speed, simplify, uniform, decimate, isodata, curvefit, "
+                        "a comma list, or all")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="print derived thresholds (isodata) to stderr")
     p.add_argument("--format", choices=("json", "csv"), default="json")
     p.add_argument("-o", "--output", default="-", help="output file (default: stdout)")
     p.add_argument("--sigma", type=float, help="saliency: base scale in frames (default: auto)")
@@ -167,6 +272,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run the online keyframers over each file as if streamed")
     p.add_argument("--lookahead", type=int, help="online: lookahead in frames (default: method's)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--export-bvh", metavar="OUT",
+                   help="write the keyposes-only BVH (+ OUT.keys.json with their original "
+                        "frames); several files/methods: a pattern with {stem} and {method}")
+    p.add_argument("--export-reconstructed", metavar="OUT",
+                   help="write the motion interpolated from the keyframes only (BVH); "
+                        "pattern as for --export-bvh")
     p.set_defaults(func=cmd_extract)
 
     p = sub.add_parser("replay", help="send a BVH/AMC file as a paced frame stream")
@@ -208,6 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--count", type=int, help=argparse.SUPPRESS)
     p.add_argument("--space", choices=("channels", "positions"), default="channels",
                    help=argparse.SUPPRESS)
+    _add_dashboard_options(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("eval", help="evaluation tables (thesis Table 4.1/4.2) for a folder")
@@ -220,7 +332,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seconds", type=float, default=20.0)
     p.add_argument("--offline", action="store_true", help="offline methods instead of online")
     p.add_argument("--fast", action="store_true", help="as fast as possible, not at 120 Hz")
-    p.set_defaults(func=cmd_demo)
+    _add_dashboard_options(p)
+    p.add_argument("--listen", help="dashboard: bind to this host instead of 127.0.0.1 (the "
+                   "page then needs the token printed in its URL)")
+    p.set_defaults(func=cmd_demo, lookahead=None, sigma=None, k=None, no_contact=False,
+                   tolerance=None, ratio=None, count=None, space="channels")
+
+    p = sub.add_parser("sheet", help="contact sheet: a clip's keyposes as stick figures (PNG)")
+    p.add_argument("file")
+    p.add_argument("--method", default="saliency", help="one method (default: saliency)")
+    p.add_argument("-o", "--output", default="sheet.png", help="PNG file (default: sheet.png)")
+    p.add_argument("--columns", type=int, default=10, help="figures per row (default: 10)")
+    p.add_argument("--view", choices=("front", "three-quarter", "side"),
+                   default="three-quarter", help="camera, body-aligned (default: three-quarter)")
+    _add_method_options(p)
+    p.set_defaults(func=cmd_sheet)
+
+    p = sub.add_parser("plot", help="a clip's driving signals with keyframes marked (PNG)")
+    p.add_argument("file")
+    p.add_argument("--method", default="saliency,speed",
+                   help="methods to mark, a comma list or all (default: saliency,speed)")
+    p.add_argument("-o", "--output", default="plot.png", help="PNG file (default: plot.png)")
+    _add_method_options(p)
+    p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("bench", help="benchmark speed and memory; results written to files")
     p.add_argument("--offline", action="store_true")

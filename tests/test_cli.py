@@ -19,7 +19,8 @@ def test_extract_writes_the_documented_json_schema(tmp_path, capsys):
     assert doc["schema"] == 1
     assert [f["file"] for f in doc["files"]] == [str(DATA / "07_01.bvh"), str(DATA / "07_05.amc")]
     for entry in doc["files"]:
-        assert set(entry["methods"]) == {"saliency", "speed", "simplify", "uniform", "decimate"}
+        assert set(entry["methods"]) == {"saliency", "speed", "simplify", "uniform", "decimate",
+                                         "isodata", "curvefit"}
         for name, result in entry["methods"].items():
             keys = result["keyframes"]
             assert keys == sorted(set(keys)) and len(keys) == len(result["scores"]) > 0, name
@@ -48,6 +49,12 @@ def test_bad_bvh_prints_one_error_line_and_exits_2_without_traceback(tmp_path):
     assert "Traceback" not in result.stderr
     assert result.stderr.strip().splitlines()[-1].startswith(f"error: {bad}:")
     assert "MOTION" in result.stderr
+
+
+def test_verbose_isodata_prints_its_derived_thresholds(capsys):
+    assert main(["extract", str(DATA / "07_01.bvh"), "--method", "isodata", "-v", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "isodata: N=316" in err and "D_T=" in err
 
 
 def test_missing_input_and_unknown_method_exit_2(tmp_path, capsys):

@@ -20,6 +20,8 @@ OFFLINE_METHODS: dict[str, str] = {
     "simplify": "simplify:extract",
     "uniform": "baselines:uniform",
     "decimate": "baselines:decimate",
+    "isodata": "isodata:extract",
+    "curvefit": "curvefit:extract",
 }
 ONLINE_METHODS: dict[str, str] = {
     "saliency": "saliency:Online",
