@@ -61,6 +61,17 @@ makes the online result equal the offline one when every decision waits for `flu
   default lookahead: mean F1 against offline 0.877 with the lookahead-sized window only,
   0.894 with 10 s, 0.895 keeping the whole stream.
 - Clustering needs no global statistic: runs and 2 sigma cuts are decided frame by frame.
+- Below the support (lookahead < radius + 1 + 2 sigma, issue 3): a frame whose deadline comes
+  before its Gaussian windows are complete is classified from maps whose windows are cut at
+  the newest frame t, weights renormalised over the part inside, with the curvature of t by
+  the clip-end rule (D' one-sided, D'' copied): the offline edge rule, as if the clip ended at
+  t. These provisional maps are used once and never enter the running statistics, which keep
+  the final maps only. While the final maps cover fewer frames than the last basis update saw
+  (stream start, at most `radius` final rows at that update), the Itti statistics come from
+  the maps of that update (cut at its frame) instead. A cluster still open at its deadline is
+  closed there; the run goes on in a new cluster on the same 2 sigma grid. Measured on the
+  shared clips at sigma = 10 (results/agreement_saliency_lookahead.md): mean F1 0.806 at 30
+  frames, 0.852 at 60, 0.894 at 121 (the default).
 """
 
 from __future__ import annotations
@@ -69,8 +80,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg import eigh
-from scipy.ndimage import correlate1d
 
 from ..errors import UsageError
 from ..features import Features, compute_features
@@ -79,6 +88,39 @@ from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
 from ..signal import unwrap_degrees
+from .saliency_math import (
+    FOOT_SIGMA,
+    SCALES,
+    Basis,
+    Clusterer,
+    MapStats,
+    Moments,
+    cluster_keyframes,
+    cluster_size,
+    combine,
+    curvature,
+    curve_weights,
+    curves_of,
+    end_curvature,
+    fit_k,
+    gaussian_means,
+    kernel,
+    kernel_bank,
+    local_max_mask,
+    map_stats,
+    maps_of,
+    match_basis,
+    moments,
+    normalisation,
+    pca_basis,
+    pick_keyframe,
+    remap,
+    remap_stats,
+    scale_maps,
+    support_radius,
+    truncated_maps,
+    widths,
+)
 
 __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FOOT_SIGMA",
            "SCALES", "HISTORY_SECONDS", "Basis", "Moments", "MapStats", "moments", "pca_basis",
@@ -90,12 +132,7 @@ __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FO
 METHOD = "saliency"
 PRESETS: dict[str, tuple[float, int]] = {"low": (10.0, 7), "high": (3.0, 10)}
 AUTO_SPEED_THRESHOLD = 0.85  # body heights per second
-FOOT_SIGMA = 3.0  # Halit §3.3
-SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
-VARIANCE_SHARE = 0.9
 HISTORY_SECONDS = 10.0  # online: past kept for recomputation when the basis changes
-_MIN_VAR = 1e-10
-_TIE = 1e-9
 
 
 # --------------------------------------------------------------------------- parameters
@@ -130,227 +167,6 @@ def resolve_params(sigma: float | None, k: int | None, preset: str, contact: boo
     return sigma, int(k)
 
 
-def cluster_size(sigma: float) -> int:
-    """Largest cluster, 2 sigma frames (Halit §3.1.4)."""
-    return max(1, int(round(2 * sigma)))
-
-
-def support_radius(sigma: float, contact: bool) -> int:
-    """Widest half-window of the Gaussian means: floor(2 * 2 * 2.5 sigma) frames (eq. 3.5)."""
-    r = int(np.floor(4 * SCALES[-1] * sigma))
-    return max(r, int(np.floor(4 * SCALES[-1] * FOOT_SIGMA))) if contact else r
-
-
-# --------------------------------------------------------------------------- PCA
-
-@dataclass
-class Moments:
-    """Sums over frames of x and x x^T (x shifted by a reference row): exact to accumulate."""
-
-    n: int
-    sx: np.ndarray
-    sxx: np.ndarray
-
-    def __add__(self, other: Moments) -> Moments:
-        return Moments(self.n + other.n, self.sx + other.sx, self.sxx + other.sxx)
-
-
-def moments(xs: np.ndarray) -> Moments:
-    """Moments of shifted rows `xs` (n, m) in one batch (same arithmetic offline and online)."""
-    xs = np.ascontiguousarray(xs, dtype=np.float64)
-    return Moments(len(xs), xs.sum(axis=0), xs.T @ xs)
-
-
-@dataclass
-class Basis:
-    """Standardisation and principal axes: z = ((x - mean) / sd)[keep] @ vectors."""
-
-    mean: np.ndarray
-    sd: np.ndarray
-    keep: np.ndarray
-    vectors: np.ndarray
-    values: np.ndarray
-    explained: float
-
-    def project(self, xs: np.ndarray) -> np.ndarray:
-        """Curves D of shifted rows `xs` (n, m) -> (n, k)."""
-        z = (xs[..., self.keep] - self.mean[self.keep]) / self.sd[self.keep]
-        return z @ self.vectors
-
-
-def pca_basis(mo: Moments, k: int, variance_rule: bool) -> Basis:
-    """Halit §3.1.1: PCA of the standardised columns from their covariance (correlation) matrix.
-
-    Returns at most as many components as non-constant columns (possibly zero).
-    """
-    n = max(mo.n, 1)
-    mean = mo.sx / n
-    cov = mo.sxx / n - np.outer(mean, mean)
-    var = np.maximum(np.diag(cov).copy(), 0.0)
-    keep = np.flatnonzero(var > _MIN_VAR)
-    sd = np.sqrt(np.where(var > _MIN_VAR, var, 1.0))
-    corr = cov[np.ix_(keep, keep)] / np.outer(sd[keep], sd[keep])
-    if len(keep) == 0:
-        return Basis(mean, sd, keep, np.zeros((0, 0)), np.zeros(0), 1.0)
-    values, vectors = eigh(corr, check_finite=False)
-    values, vectors = np.maximum(values[::-1], 0.0), vectors[:, ::-1]
-    total = float(values.sum())
-    if variance_rule and total > 0:
-        share = np.cumsum(values) / total
-        k = max(k, int(np.searchsorted(share, VARIANCE_SHARE - 1e-12)) + 1)
-    k = min(k, len(keep))
-    vectors = vectors[:, :k]
-    top = np.argmax(np.abs(vectors), axis=0)
-    vectors = vectors * np.where(vectors[top, np.arange(k)] < 0, -1.0, 1.0)
-    explained = float(values[:k].sum() / total) if total > 0 else 1.0
-    return Basis(mean, sd, keep, vectors, values[:k].copy(), explained)
-
-
-# --------------------------------------------------------------------------- saliency maps
-
-def curvature(d: np.ndarray) -> np.ndarray:
-    """Halit eq. 3.4 with D' (DESIGN §4.1.3): |D''| / (1 + D'^2)^(3/2), per column of (n, k)."""
-    n = len(d)
-    if n < 3:
-        return np.zeros_like(d)
-    d1 = np.empty_like(d)
-    d1[1:-1] = (d[2:] - d[:-2]) / 2.0
-    d1[0] = d[1] - d[0]
-    d1[-1] = d[-1] - d[-2]
-    d2 = np.empty_like(d)
-    d2[1:-1] = d[2:] - 2.0 * d[1:-1] + d[:-2]
-    d2[0] = d2[1]
-    d2[-1] = d2[-2]
-    return np.abs(d2) / (1.0 + d1 * d1) ** 1.5
-
-
-def kernel(s: float) -> np.ndarray:
-    """Gaussian weights exp(-d^2 / 2 s^2) for |d| <= floor(2 s) (Halit eq. 3.5), unnormalised."""
-    r = int(np.floor(2 * s))
-    d = np.arange(-r, r + 1, dtype=np.float64)
-    return np.exp(-d * d / (2.0 * s * s))
-
-
-def widths(sigma: float) -> list[float]:
-    """The eight Gaussian widths: s_i for the four scales, then 2 s_i (eq. 3.6)."""
-    s = [sigma * f for f in SCALES]
-    return s + [2 * x for x in s]
-
-
-def gaussian_means(c: np.ndarray, sigma: float) -> np.ndarray:
-    """G(f, w) for the eight widths of `sigma`, (n, k, 8); weights renormalised at the ends."""
-    out = np.empty(c.shape + (8,))
-    ones = np.ones(len(c))
-    for i, s in enumerate(widths(sigma)):
-        w = kernel(s)
-        num = correlate1d(c, w, axis=0, mode="constant", cval=0.0)
-        den = correlate1d(ones, w, mode="constant", cval=0.0)
-        out[..., i] = num / den[:, None]
-    return out
-
-
-def scale_maps(g: np.ndarray) -> np.ndarray:
-    """S_i = |G(f, s_i) - G(f, 2 s_i)| (Halit eq. 3.6): (..., 8) -> (..., 4)."""
-    return np.abs(g[..., :4] - g[..., 4:])
-
-
-@dataclass
-class MapStats:
-    """Running statistics of the raw maps S_i per (curve, scale): count, sum, max, local maxima."""
-
-    n: int
-    total: np.ndarray
-    top: np.ndarray
-    lm_n: np.ndarray
-    lm_sum: np.ndarray
-    lm_top: np.ndarray
-
-    @classmethod
-    def empty(cls, k: int) -> MapStats:
-        """No frames yet."""
-        z = np.zeros((k, 4))
-        return cls(0, z.copy(), z.copy(), np.zeros((k, 4), dtype=np.int64), z.copy(), z.copy())
-
-    def __add__(self, o: MapStats) -> MapStats:
-        return MapStats(self.n + o.n, self.total + o.total, np.maximum(self.top, o.top),
-                        self.lm_n + o.lm_n, self.lm_sum + o.lm_sum,
-                        np.maximum(self.lm_top, o.lm_top))
-
-
-def local_max_mask(s: np.ndarray) -> np.ndarray:
-    """Interior local maxima along axis 0 (v[f-1] < v[f] >= v[f+1]), as a boolean mask."""
-    mask = np.zeros(s.shape, dtype=bool)
-    if len(s) >= 3:
-        mask[1:-1] = (s[1:-1] > s[:-2]) & (s[1:-1] >= s[2:])
-    return mask
-
-
-def map_stats(s: np.ndarray, lm: np.ndarray | None = None) -> MapStats:
-    """Statistics of raw maps `s` (n, k, 4); `lm` the local-maximum mask (default: computed)."""
-    if lm is None:
-        lm = local_max_mask(s)
-    k = s.shape[1]
-    if len(s) == 0:
-        return MapStats.empty(k)
-    lm_vals = np.where(lm, s, 0.0)
-    return MapStats(len(s), s.sum(axis=0), s.max(axis=0), lm.sum(axis=0),
-                    lm_vals.sum(axis=0), lm_vals.max(axis=0))
-
-
-def normalisation(st: MapStats) -> tuple[np.ndarray, np.ndarray]:
-    """Itti factors a (k, 4) with S = sum_i a_i S_i, and the per-curve threshold mean(S) (k,)."""
-    top = st.top
-    pos = top > 0
-    safe = np.where(pos, top, 1.0)
-    # one local maximum equal to the global one is left out (none left -> m = 0)
-    has_top = st.lm_top == top
-    m = (st.lm_sum - has_top * top) / np.maximum(st.lm_n - has_top, 1)
-    r = 1.0 - m / safe
-    a = top.max(axis=1, keepdims=True) ** 3 / safe * (r * r) * pos
-    return a, combine(st.total / max(st.n, 1), a)
-
-
-def combine(s: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """S = sum_i a_i S_i over the last axis, in a fixed order (identical bits for any batch)."""
-    return ((s[..., 0] * a[:, 0] + s[..., 1] * a[:, 1]) + s[..., 2] * a[:, 2]) + s[..., 3] * a[:, 3]
-
-
-# --------------------------------------------------------------------------- clusters
-
-def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, cmax: int,
-                      rel: np.ndarray) -> dict[str, np.ndarray]:
-    """Halit §3.1.4 / §3.3 clustering of a candidate matrix (n, k), vectorised.
-
-    `foot` flags the foot curves, `rel` (n, k) is S_j(f) / mean(S_j). Returns per cluster its
-    start, end, keyframe (0-based rows), foot flag and score.
-    """
-    rows = np.flatnonzero(cand.any(axis=1))
-    if len(rows) == 0:
-        e = np.zeros(0, dtype=np.int64)
-        return {"start": e, "end": e, "key": e, "foot": e.astype(bool), "score": e * 0.0}
-    new_run = np.ones(len(rows), dtype=bool)
-    new_run[1:] = np.diff(rows) != 1
-    run_start = rows[np.flatnonzero(new_run)][np.cumsum(new_run) - 1]
-    new_cl = new_run | ((rows - run_start) % cmax == 0)
-    cl = np.cumsum(new_cl) - 1
-    c = cand[rows]
-    w_row = c.astype(np.float64) @ weights
-    wsum = np.bincount(cl, w_row)
-    mean = np.bincount(cl, w_row * rows) / wsum
-    is_foot = c[:, foot].any(axis=1)
-    cl_foot = np.bincount(cl, is_foot).astype(bool)
-    eligible = is_foot | ~cl_foot[cl]
-    dist = np.where(eligible, np.abs(rows - mean[cl]), np.inf)
-    best = np.minimum.reduceat(dist, np.flatnonzero(new_cl))
-    pick = np.flatnonzero(dist <= best[cl] + _TIE)
-    _, first = np.unique(cl[pick], return_index=True)
-    score = np.bincount(cl, (np.where(c, rel[rows], 0.0) @ weights)) / weights.sum()
-    starts = np.flatnonzero(new_cl)
-    ends = np.append(starts[1:], len(rows)) - 1
-    return {"start": rows[starts], "end": rows[ends], "key": rows[pick[first]],
-            "foot": cl_foot, "score": score}
-
-
 # --------------------------------------------------------------------------- offline
 
 @dataclass
@@ -372,52 +188,14 @@ def _rotations(motion: Motion, features: Features) -> np.ndarray:
     return unwrap_degrees(motion.channels[first:, cols])
 
 
-def curve_weights(basis: Basis, contact: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalue weights of the curves and the foot-curve flags (feet last, §3.3)."""
-    k = len(basis.values)
-    weights = basis.values.copy()
-    foot = np.zeros(k, dtype=bool)
-    if contact:
-        foot[-2:] = True
-    return weights, foot
-
-
 def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: bool,
             variance_rule: bool) -> _Curves:
     basis = pca_basis(moments(xs), k, variance_rule)
-    basis = _fit_k(basis, k, contact)
+    basis = fit_k(basis, k, contact)
     d = curves_of(basis, xs, feet, contact)
     s = maps_of(curvature(d), sigma, contact)
     weights, foot = curve_weights(basis, contact)
     return _Curves(d, s, weights, foot, basis)
-
-
-def _fit_k(basis: Basis, k: int, contact: bool) -> Basis:
-    """With contact, keep at least 3 components' worth of curves (pad with zero curves)."""
-    need = 3 if contact else 1
-    have = basis.vectors.shape[1]
-    if have >= need:
-        return basis
-    pad = need - have
-    vec = np.hstack([basis.vectors, np.zeros((basis.vectors.shape[0], pad))])
-    return Basis(basis.mean, basis.sd, basis.keep, vec, np.append(basis.values, np.zeros(pad)),
-                 basis.explained)
-
-
-def curves_of(basis: Basis, xs: np.ndarray, feet: np.ndarray, contact: bool) -> np.ndarray:
-    """The k curves: PCA projections, the last two replaced by the foot heights (§3.3)."""
-    d = basis.project(xs)
-    if contact:
-        d = np.concatenate([d[:, :-2], feet], axis=1)
-    return d
-
-
-def maps_of(c: np.ndarray, sigma: float, contact: bool) -> np.ndarray:
-    """Raw scale maps S_i (n, k, 4) of curvatures `c`; the foot curves use sigma = 3 (§3.3)."""
-    if not contact:
-        return scale_maps(gaussian_means(c, sigma))
-    return np.concatenate([scale_maps(gaussian_means(c[:, :-2], sigma)),
-                           scale_maps(gaussian_means(c[:, -2:], FOOT_SIGMA))], axis=1)
 
 
 def extract(motion: Motion, *, sigma: float | None = None, k: int | None = None,
@@ -476,108 +254,6 @@ def _info(cv: _Curves, cand: np.ndarray, res: dict[str, np.ndarray], thr: np.nda
 
 # --------------------------------------------------------------------------- online
 
-def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
-    """Halit §3.1.4 / §3.3 choice in one cluster (sequential twin of `cluster_keyframes`)."""
-    r = np.asarray(rows, dtype=np.float64)
-    w = np.asarray(wrow)
-    mean = float((w * r).sum() / w.sum())
-    ft = np.asarray(foot, dtype=bool)
-    dist = np.where(ft if ft.any() else True, np.abs(r - mean), np.inf)
-    return rows[int(np.flatnonzero(dist <= dist.min() + _TIE)[0])]
-
-
-class _Clusterer:
-    """Sequential clustering of classified frames: runs cut every `cmax` frames (§3.1.4)."""
-
-    def __init__(self, cmax: int) -> None:
-        self.cmax = cmax
-        self.rows: list[int] = []
-        self.wrow: list[float] = []
-        self.foot: list[bool] = []
-        self.score = 0.0
-
-    def add(self, row: int, cand: np.ndarray, weights: np.ndarray, footmask: np.ndarray,
-            rel: np.ndarray) -> list[tuple[int, float]]:
-        """Classify `row` (candidate flags per curve); returns the clusters it closed."""
-        closed = []
-        if self.rows and (not cand.any() or row != self.rows[-1] + 1):
-            closed.append(self.close())
-        if cand.any():
-            self.rows.append(row)
-            self.wrow.append(float(cand.astype(np.float64) @ weights))
-            self.foot.append(bool(cand[footmask].any()))
-            self.score += float(np.where(cand, rel, 0.0) @ weights) / float(weights.sum())
-            if len(self.rows) == self.cmax:
-                closed.append(self.close())
-        return closed
-
-    def close(self) -> tuple[int, float]:
-        """Close the open cluster: (keyframe row, score)."""
-        out = (pick_keyframe(self.rows, self.wrow, self.foot), self.score)
-        self.rows, self.wrow, self.foot, self.score = [], [], [], 0.0
-        return out
-
-
-def kernel_bank(sigma: float, radius: int) -> np.ndarray:
-    """The eight Gaussian kernels of `sigma`, zero-padded to (2 radius + 1, 8), unnormalised."""
-    bank = np.zeros((2 * radius + 1, 8))
-    for i, s in enumerate(widths(sigma)):
-        w = kernel(s)
-        r = len(w) // 2
-        bank[radius - r : radius + r + 1, i] = w
-    return bank
-
-
-def match_basis(old: Basis, new: Basis, n_pca_old: int, n_pca_new: int
-                ) -> tuple[Basis, np.ndarray]:
-    """Reorder and re-sign the new components to follow the old ones (greedy on |cos|).
-
-    Returns the reordered basis and `perm`: for each new curve, the old curve it continues
-    (-1 for none). Only the first `n_pca_*` components are matched; with contact the foot
-    curves (the last two) always continue themselves.
-    """
-    k_new = new.vectors.shape[1]
-    perm = np.full(k_new, -1, dtype=np.int64)
-    vo = np.zeros((len(new.mean), n_pca_old))
-    vo[old.keep] = old.vectors[:, :n_pca_old]
-    vn = np.zeros((len(new.mean), n_pca_new))
-    vn[new.keep] = new.vectors[:, :n_pca_new]
-    cos = np.abs(vo.T @ vn)[: min(n_pca_old, n_pca_new)]
-    order = np.full(n_pca_new, -1, dtype=np.int64)
-    taken = np.zeros(n_pca_new, dtype=bool)
-    for flat in np.argsort(-cos, axis=None, kind="stable"):
-        i, j = divmod(int(flat), n_pca_new)
-        if order[i] < 0 and not taken[j]:
-            order[i], taken[j], perm[i] = j, True, i
-    free = iter(np.flatnonzero(~taken))
-    order = np.array([o if o >= 0 else next(free) for o in order], dtype=np.int64)
-    idx = np.concatenate([order, np.arange(n_pca_new, k_new)]).astype(np.int64)
-    vec = new.vectors[:, idx]
-    sign = np.ones(k_new)
-    ok = perm[:n_pca_new] >= 0
-    dots = np.einsum("ij,ij->j", vo[:, perm[:n_pca_new][ok]], vn[:, order[ok]])
-    sign[np.flatnonzero(ok)] = np.where(dots < 0, -1.0, 1.0)
-    if k_new > n_pca_new:
-        perm[n_pca_new:] = np.arange(k_new - n_pca_new) + old.vectors.shape[1] - (
-            k_new - n_pca_new)
-    return Basis(new.mean, new.sd, new.keep, vec * sign, new.values[idx], new.explained), perm
-
-
-def _remap(arr: np.ndarray, perm: np.ndarray) -> np.ndarray:
-    """Columns (axis 1) of `arr` laid out for the new curves; new curves start at zero."""
-    out = np.zeros((arr.shape[0], len(perm)) + arr.shape[2:], dtype=arr.dtype)
-    ok = perm >= 0
-    out[:, ok] = arr[:, perm[ok]]
-    return out
-
-
-def _remap_stats(st: MapStats, perm: np.ndarray) -> MapStats:
-    def col(a: np.ndarray) -> np.ndarray:
-        return _remap(a[None], perm)[0]
-
-    return MapStats(st.n, col(st.total), col(st.top), col(st.lm_n), col(st.lm_sum),
-                    col(st.lm_top))
-
 
 class Online(OnlineKeyframer):
     """Online multiscale saliency: `push` frames, get keyframe events within `lookahead`.
@@ -591,9 +267,11 @@ class Online(OnlineKeyframer):
     cluster starting at frame c0 (at most 2 sigma frames) is classified and closed when frame
     c0 + lookahead arrives, and a frame that may start one waits until its own f + lookahead.
     Hence every event has latency_frames <= lookahead, warm-up included, and a lookahead of at
-    least the stream's length leaves every decision to `flush()`. The minimum (and default)
-    lookahead is radius + 1 + 2 sigma, the method's support: 121 frames at sigma = 10, 37 at
-    sigma = 3 with contact.
+    least the stream's length leaves every decision to `flush()`. The default lookahead is
+    radius + 1 + 2 sigma, the method's support: 121 frames at sigma = 10, 37 at sigma = 3 with
+    contact. Any lookahead >= 1 is accepted: below the support, frames are decided from
+    Gaussian windows cut at the newest frame and clusters closed at their deadline (module
+    docstring), so latency_frames <= lookahead still holds; agreement with offline degrades.
     """
 
     method = METHOD
@@ -611,12 +289,12 @@ class Online(OnlineKeyframer):
         self.sigma, self.k, self.contact, self.variance_rule = sigma, k, contact, variance_rule
         self.radius = support_radius(sigma, contact)
         self.cmax = cluster_size(sigma)
-        self.min_lookahead = self.radius + 1 + self.cmax
+        self.min_lookahead = self.radius + 1 + self.cmax  # the support: the default
         lookahead = self.min_lookahead if lookahead is None else lookahead
         if isinstance(lookahead, bool) or not isinstance(lookahead, (int, np.integer)) or (
-                lookahead < self.min_lookahead):
-            raise UsageError(f"saliency online: lookahead must be an integer >= "
-                             f"{self.min_lookahead} frames (the support), got {lookahead!r}")
+                lookahead < 1):
+            raise UsageError("saliency online: lookahead must be an integer >= 1 frame, got "
+                             f"{lookahead!r}")
         if update_every < 1:
             raise UsageError("saliency online: update_every must be >= 1 frame")
         if history is not None and history < 1:
@@ -631,7 +309,7 @@ class Online(OnlineKeyframer):
                          params=params)
         # Frames kept: the decision window, and at least `history` (default 10 s) so that a new
         # basis recomputes the maps and statistics of the recent past consistently.
-        self.window = max(self.lookahead + self.radius + 2, hist)
+        self.window = max(max(self.lookahead, self.radius) + self.radius + 2, hist)
         # main-curve kernels in columns 0-7, foot-curve kernels (sigma = 3) in columns 8-15
         self._bank2 = np.hstack([kernel_bank(sigma, self.radius),
                                  kernel_bank(FOOT_SIGMA, self.radius)])
@@ -652,6 +330,7 @@ class Online(OnlineKeyframer):
         self.out_mom = Moments(0, np.zeros(self._m), np.zeros((self._m, self._m)))
         self.out_st = MapStats.empty(0)
         self.st = MapStats.empty(0)
+        self.warm: MapStats | None = None
         self.out_upto = 0
         self.s_ready = 0
         self.n_class = 0
@@ -661,7 +340,7 @@ class Online(OnlineKeyframer):
         self.buf: dict[str, np.ndarray] = {
             "xs": np.zeros((self.cap, self._m)), "ft": np.zeros((self.cap, 2)),
             "tm": np.zeros(self.cap)}
-        self.clusterer = _Clusterer(self.cmax)
+        self.clusterer = Clusterer(self.cmax)
         self._norm: tuple[np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
         self._proj: tuple[np.ndarray, ...] = ()
@@ -673,8 +352,8 @@ class Online(OnlineKeyframer):
         b["d"] = np.zeros((self.cap, kk))
         b["c"] = np.zeros((self.cap, kk))
         if perm is not None and "s" in old:
-            b["s"] = _remap(old["s"], perm)
-            b["lm"] = _remap(old["lm"], perm)
+            b["s"] = remap(old["s"], perm)
+            b["lm"] = remap(old["lm"], perm)
         else:
             b["s"] = np.zeros((self.cap, kk, 4))
             b["lm"] = np.zeros((self.cap, kk, 4), dtype=bool)
@@ -741,16 +420,37 @@ class Online(OnlineKeyframer):
 
     def _classify_due(self, t: int) -> list[KeyframeEvent]:
         """Classify the frames whose deadline has come: a cluster starting at c0 (or a frame
-        that may start one) is classified, and closed, when frame c0 + lookahead arrives."""
+        that may start one) is classified, and closed, when frame c0 + lookahead arrives.
+
+        Below the support, frames past t - radius - 1 are classified from maps cut at frame t
+        (`truncated_maps`), and a cluster still open at its deadline is closed there."""
         events: list[KeyframeEvent] = []
         g, ready = self.n_class, t - self.radius - 1
-        while g <= ready:
+        edge: tuple[int, np.ndarray] | None = None
+        while g <= t:
             rows = self.clusterer.rows
             if t < (rows[0] if rows else g) + self.lookahead:
                 break
-            events.extend(self._classify(g, g))
+            s = None
+            if g > ready:  # only below the support
+                edge = edge or self._edge_curvatures(t)
+                s = truncated_maps(edge[1], self._bank2, np.array([g - edge[0]]),
+                                   self.footmask)
+            events.extend(self._classify(g, g, s))
             g += 1
+        rows = self.clusterer.rows
+        if rows and t >= rows[0] + self.lookahead:
+            events.extend(self._emit([self.clusterer.close()]))
         return events
+
+    def _edge_curvatures(self, t: int) -> tuple[int, np.ndarray]:
+        """(first frame, curvatures up to frame t) as if the clip ended at t (eq. 3.4 ends)."""
+        lo = max(0, t - 2 * self.radius)
+        b = self.buf
+        cs = b["c"][lo - self.base : t - self.base + 1].copy()
+        r = t - self.base
+        cs[-1] = end_curvature(b["d"][r - 2 : r + 1]) if t >= 2 else 0.0
+        return lo, cs
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: final basis from every frame, then decide every pending frame."""
@@ -789,20 +489,26 @@ class Online(OnlineKeyframer):
             b["lm"][h - 1] = False
             if w0 == 0:
                 b["lm"][a] = False
-        self.s_ready = hi + 1
+        self.s_ready = max(hi + 1, 0)
         self.st = self.out_st + map_stats(b["s"][a:h], b["lm"][a:h])
+        # Below the support, early frames are decided before (almost) any final map exists:
+        # until the final maps cover as many frames, normalise with the maps cut at frame t.
+        self.warm = None
+        if not final and self.lookahead < self.min_lookahead and w0 == 0 and (
+                hi < self.radius):
+            self.warm = map_stats(s)
         self._norm = None
         self.next_update = t + 1 + min(t + 1, self.update_every)
 
     def _new_basis(self, mom: Moments) -> None:
         """PCA of the moments, matched to the previous basis; per-curve state follows it."""
         feet = 2 if self.contact else 0
-        new = _fit_k(pca_basis(mom, self.k, self.variance_rule), self.k, self.contact)
+        new = fit_k(pca_basis(mom, self.k, self.variance_rule), self.k, self.contact)
         kk = new.vectors.shape[1]
         perm = None
         if self.basis is not None:
             new, perm = match_basis(self.basis, new, len(self.weights) - feet, kk - feet)
-            self.out_st = _remap_stats(self.out_st, perm)
+            self.out_st = remap_stats(self.out_st, perm)
         elif self.out_st.top.shape[0] != kk:
             self.out_st = MapStats.empty(kk)
         if "d" not in self.buf or self.buf["d"].shape[1] != kk or perm is not None:
@@ -824,6 +530,9 @@ class Online(OnlineKeyframer):
         dd = b["d"][r - 2 : r + 1]
         d1 = (dd[2] - dd[0]) / 2.0
         b["c"][r - 1] = np.abs(dd[2] - 2.0 * dd[1] + dd[0]) / (1.0 + d1 * d1) ** 1.5
+        if t == 2:  # first frame: D' one-sided, D'' copied from frame 1 (as `curvature`)
+            d1 = dd[1] - dd[0]
+            b["c"][0] = np.abs(dd[2] - 2.0 * dd[1] + dd[0]) / (1.0 + d1 * d1) ** 1.5
         f = t - self.radius - 1
         if f < self.s_ready:
             return
@@ -859,12 +568,17 @@ class Online(OnlineKeyframer):
         self.s_ready = f + 1
         self._norm = None
 
-    def _classify(self, g0: int, g1: int) -> list[KeyframeEvent]:
-        """Candidates of frames g0..g1 with the current statistics, fed to the clusterer."""
+    def _classify(self, g0: int, g1: int, s: np.ndarray | None = None
+                  ) -> list[KeyframeEvent]:
+        """Candidates of frames g0..g1 with the current statistics, fed to the clusterer;
+        `s` their maps when not the stored ones."""
         if self._norm is None:
-            self._norm = normalisation(self.st)
+            warm = self.warm
+            self._norm = normalisation(warm if warm is not None and self.st.n < warm.n
+                                       else self.st)
         a, thr = self._norm
-        s = self.buf["s"][g0 - self.base : g1 - self.base + 1]
+        if s is None:
+            s = self.buf["s"][g0 - self.base : g1 - self.base + 1]
         sal = combine(s, a)
         cand = sal > thr
         rel = sal / np.where(thr > 0, thr, 1.0)
