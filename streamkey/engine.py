@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from .adapters.base import Sink, Source
-from .keyframes import Event, KeyframeEvent
+from .keyframes import Event, KeyframeEvent, StatusEvent
+from .motion import Frame
 from .online import OnlineKeyframer, Pipeline
 
 __all__ = ["Engine", "RunSummary"]
@@ -39,6 +40,7 @@ class RunSummary:
     sinks: dict[str, dict[str, Any]] = field(default_factory=dict)
     wall_latency_ms: list[float] = field(default_factory=list)
     seconds: float = 0.0
+    errors: list[str] = field(default_factory=list)
 
     def latency_percentiles(self) -> dict[str, float | None]:
         """p50 / p99 / max of the wall latency (ms), None before the first event."""
@@ -52,7 +54,8 @@ class RunSummary:
         """The summary as a JSON-ready dict."""
         return {"frames_in": self.frames_in, "seconds": round(self.seconds, 3),
                 "guard": self.guard, "source": self.source, "events": dict(self.events),
-                "sinks": self.sinks, "wall_latency_ms": self.latency_percentiles()}
+                "sinks": self.sinks, "wall_latency_ms": self.latency_percentiles(),
+                "keyframer_errors": self.errors}
 
     def text(self) -> str:
         """A few human-readable lines for the end of a run."""
@@ -71,6 +74,8 @@ class RunSummary:
         for name, st in self.sinks.items():
             lines.append(f"sink {name}: sent {st['sent']}, dropped {st['dropped']}"
                          + (f", last error: {st['last_error']}" if st.get("last_error") else ""))
+        for error in self.errors[:5]:
+            lines.append(f"keyframer error (window restarted): {error}")
         if lat["p50"] is not None:
             lines.append(f"wall latency: p50 {lat['p50']:.3f} ms, p99 {lat['p99']:.3f} ms, "
                          f"max {lat['max']:.3f} ms")
@@ -87,7 +92,8 @@ class Engine:
                  stream: str = "default",
                  on_ready: Callable[[str], None] | None = None,
                  on_event: Callable[[dict[str, Any]], None] | None = None,
-                 idle_exit: float | None = None) -> None:
+                 idle_exit: float | None = None,
+                 on_frame: Callable[[Frame], None] | None = None) -> None:
         self.source = source
         self.idle_exit = idle_exit
         self.make_keyframers = make_keyframers
@@ -96,6 +102,7 @@ class Engine:
         self.stream = stream
         self.on_ready = on_ready or (lambda line: None)
         self.on_event = on_event
+        self.on_frame = on_frame  # called after each frame's events (the dashboard's pose view)
         self.summary = RunSummary()
         self.pipeline: Pipeline | None = None
         self._stopping = False
@@ -120,7 +127,11 @@ class Engine:
         finally:
             await self.source.close()
             if self.pipeline is not None:
-                self._dispatch(self.pipeline.flush(), time.monotonic_ns())
+                try:
+                    events = self.pipeline.flush()
+                except Exception as exc:
+                    events = self._contain(exc, None)
+                self._dispatch(events, time.monotonic_ns())
             for sink in self.sinks:
                 await sink.close()
             self._finish_summary(started)
@@ -149,9 +160,25 @@ class Engine:
                 return
             frame, arrival_ns = item
             self.summary.frames_in += 1
-            events = self.pipeline.push(frame)
+            try:
+                events = self.pipeline.push(frame)
+            except Exception as exc:  # a keyframer bug must not end the session or lose the log
+                events = self._contain(exc, frame.seq)
             if events:
                 self._dispatch(events, arrival_ns)
+            if self.on_frame is not None:
+                self.on_frame(frame)
+
+    def _contain(self, exc: Exception, seq: int | None) -> list[Event]:
+        """Report a keyframer failure as a status event and restart the window."""
+        assert self.pipeline is not None
+        self.summary.errors.append(f"{type(exc).__name__}: {exc} (at seq {seq})")
+        for kf in self.pipeline.keyframers:
+            kf.reset()
+        self.pipeline.guard.reset()
+        self.pipeline.features.reset()
+        return [StatusEvent(self.stream, "*", "error",
+                            {"error": f"{type(exc).__name__}: {exc}", "seq": seq})]
 
     def _dispatch(self, events: list[Event], arrival_ns: int) -> None:
         for event in events:

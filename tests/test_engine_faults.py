@@ -113,6 +113,16 @@ async def test_duplicates_out_of_order_and_silence_do_not_stop_the_stream(tmp_pa
     assert any(e["type"] == "keyframe" and e["frame"] > 205 for e in events)
 
 
+async def bind_publisher(address):
+    """libzmq closes sockets in its I/O thread: the port may be busy a moment after close."""
+    for _ in range(100):
+        try:
+            return ZmqFrameSender(address)
+        except zmq.ZMQError:
+            await asyncio.sleep(0.05)
+    raise AssertionError(f"could not bind {address}")
+
+
 async def test_zmq_publisher_restart_is_survived(tmp_path):
     port = free_port(socket.SOCK_STREAM)
     address = parse_address(f"zmq+tcp://127.0.0.1:{port}")
@@ -122,7 +132,7 @@ async def test_zmq_publisher_restart_is_survived(tmp_path):
     task = asyncio.create_task(engine.run())
     await until(lambda: source.socket is not None)
     for attempt in range(2):  # the publisher starts, stops, and starts again from frame 1
-        pub = ZmqFrameSender(address)
+        pub = await bind_publisher(address)
         assert await asyncio.to_thread(pub.subscribers, 5.0 * MS) >= 1
         pub.send_skeleton(MOTION.skeleton, MOTION.fps)
         for i, frame in enumerate(MOTION.frames()):
@@ -188,3 +198,29 @@ def test_sink_addresses_bind_loopback_unless_listen_is_given():
     with pytest.raises(UsageError, match="needs --listen"):
         OscSource(parse_address("osc://192.168.1.10:9000"))
     assert zmq.zmq_version()
+
+
+async def test_a_failing_keyframer_is_contained_and_the_log_keeps_everything(tmp_path):
+    from streamkey.methods import speed
+    from streamkey.replay.source import MotionSource
+
+    class Faulty(speed.Online):  # fault injection: one bug at one frame
+        def process(self, block):
+            if block.seq[0] == 100:
+                raise RuntimeError("injected fault")
+            return super().process(block)
+
+    def make(source):
+        return [Faulty(source.skeleton, source.fps),
+                *keyframers(("simplify",))(source)]
+
+    log = tmp_path / "log.jsonl"
+    engine = Engine(MotionSource(MOTION, rate=0.0), make,
+                    [make_sink(parse_address(f"jsonl:{log}"))])
+    summary = await engine.run()
+    assert summary.frames_in == MOTION.n_frames - 1
+    assert len(summary.errors) == 1 and "injected fault" in summary.errors[0]
+    events = read_jsonl(log)
+    assert [e["status"] for e in events if e["type"] == "status"] == ["error"]
+    assert any(e["type"] == "keyframe" and e["method"] == "simplify" and e["frame"] > 150
+               for e in events)

@@ -1,0 +1,494 @@
+"""The live dashboard: a local web page that shows the stream and takes the operator's notes.
+
+One port serves everything (notes/ecosystem.md §2f): plain HTTP for the page (`/`) and its
+static files (`/static/...`, shipped in the package: no build step, no CDN, works offline),
+and a WebSocket on `/ws` that pushes, as JSON text:
+
+- `hello` once per connection: methods and their colours, bones, fps, recent keyposes;
+- `pose` every few frames (about 30 per second): the current pose as points in body heights
+  plus the driving signals computed here (body-frame speed and acceleration);
+- every engine event (`keyframe` events carry the pose of their frame for the thumbnail);
+- `stats` about four times a second: frames, drops, gaps, events, wall latency, lookahead;
+- `annotation` when any operator adds one, `ack` / `error` in reply to the sender.
+
+Operator actions arrive as JSON objects (`{"action": "label", "frame": 120, "method":
+"saliency", "text": "heel strike"}`, `{"action": "key", "frame": 300}`, `{"action":
+"reject", "frame": 120, "method": "speed"}`). `Annotator` validates them (sans-I/O): a
+malformed or oversize message, an unknown action or a frame the stream has not produced
+gets an `error` reply naming the problem, never an exception. Valid ones are written to the
+session's JSON Lines log as `annotation` events before they are broadcast.
+
+Security: the server binds to loopback unless `listen` says otherwise; the WebSocket accepts
+only its own origin (the `Origin` header must be `http://` + the request's `Host`; a request
+without `Origin` is a non-browser client) and, on loopback, only the host names `127.0.0.1`,
+`localhost` and `[::1]` (no DNS rebinding). Listening beyond loopback needs a token: the
+page URL carries `?token=...` and the page and the WebSocket refuse requests without it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+import secrets
+import signal
+import time
+from collections import deque
+from collections.abc import Callable
+from importlib import resources
+from typing import Any
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+
+from .adapters import make_sink, parse_address
+from .adapters.base import LOOPBACK, Address, Source, bind_host
+from .adapters.sinks import JsonlSink
+from .adapters.websocket import WebSocketSink, _Client
+from .engine import Engine, RunSummary
+from .errors import UsageError
+from .keyframes import SCHEMA_VERSION
+from .kinematics import body_height, forward_kinematics, pelvis_frame
+from .motion import Frame, Motion, Skeleton
+from .online import OnlineKeyframer
+
+__all__ = ["Annotator", "LiveView", "DashboardSink", "run_dashboard", "METHOD_COLORS",
+           "MAX_TEXT", "ACTIONS", "check_port", "method_color",
+           "default_log"]
+
+MAX_TEXT = 500            # characters of a label or a reason
+MAX_CLIENT_MESSAGE = 4096  # bytes of one operator message
+ACTIONS = ("label", "key", "reject")
+METHOD_COLORS = {"saliency": "#d62728", "speed": "#1f77b4", "simplify": "#2ca02c",
+                 "manual": "#9467bd"}
+_SPARE_COLORS = ("#ff7f0e", "#8c564b", "#e377c2", "#17becf")
+_STATIC = {"dashboard.js": "text/javascript", "dashboard.css": "text/css"}
+_LOOPBACK_NAMES = {"127.0.0.1", "localhost", "::1", "[::1]"}
+
+
+def method_color(method: str, methods: list[str]) -> str:
+    """A stable colour per method (known methods fixed, others from a spare palette)."""
+    if method in METHOD_COLORS:
+        return METHOD_COLORS[method]
+    return _SPARE_COLORS[methods.index(method) % len(_SPARE_COLORS)] if method in methods \
+        else _SPARE_COLORS[0]
+
+
+class Annotator:
+    """Validate operator messages against what the stream produced; build annotation events."""
+
+    def __init__(self, stream: str = "default", max_text: int = MAX_TEXT) -> None:
+        self.stream = stream
+        self.max_text = max_text
+        self.first_seq: int | None = None
+        self.last_seq: int | None = None
+        self.last_time = 0.0
+        self.fps = 0.0
+        self.keys: dict[int, set[str]] = {}   # frame -> methods that keyed it (and "manual")
+        self.count = 0
+
+    def see_frame(self, seq: int, time_s: float) -> None:
+        """Remember the stream's frame range (annotations must reference a produced frame)."""
+        if self.first_seq is None:
+            self.first_seq = seq
+        self.last_seq = seq
+        self.last_time = time_s
+
+    def see_key(self, method: str, frame: int) -> None:
+        """Remember a keyframe (labels and rejections must name one)."""
+        self.keys.setdefault(int(frame), set()).add(method)
+
+    def handle(self, text: str) -> tuple[dict[str, Any] | None, dict[str, Any]]:
+        """Validate one client message: (annotation event or None, reply to the sender)."""
+        request_id: Any = None
+        try:
+            if len(text.encode("utf-8", "replace")) > MAX_CLIENT_MESSAGE:
+                raise _Reject(f"message too long ({len(text)} characters; at most "
+                              f"{MAX_CLIENT_MESSAGE} bytes)")
+            try:
+                msg = json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise _Reject(f"malformed JSON: {exc.msg} at character {exc.pos}") from None
+            if not isinstance(msg, dict):
+                raise _Reject("expected a JSON object like {\"action\": \"label\", ...}")
+            request_id = msg.get("id") if isinstance(msg.get("id"), (int, str)) else None
+            record = self._validate(msg)
+        except _Reject as exc:
+            return None, {"type": "error", "id": request_id, "error": str(exc)}
+        self.count += 1
+        if record["action"] == "key":
+            self.see_key("manual", record["frame"])
+        return record, {"type": "ack", "id": request_id, "annotation": record}
+
+    def _validate(self, msg: dict[str, Any]) -> dict[str, Any]:
+        action = msg.get("action")
+        if action not in ACTIONS:
+            raise _Reject(f"unknown action {action!r}; expected one of {', '.join(ACTIONS)}")
+        frame = msg.get("frame")
+        if isinstance(frame, bool) or not isinstance(frame, int):
+            raise _Reject(f"{action}: 'frame' must be an integer frame number, got {frame!r}")
+        if self.last_seq is None or self.first_seq is None:
+            raise _Reject(f"{action}: no frame has arrived yet")
+        if not self.first_seq <= frame <= self.last_seq:
+            raise _Reject(f"{action}: unknown frame {frame}; the stream has frames "
+                          f"{self.first_seq}..{self.last_seq}")
+        method = msg.get("method")
+        if method is not None and not isinstance(method, str):
+            raise _Reject(f"{action}: 'method' must be a string")
+        text = msg.get("text", "")
+        if not isinstance(text, str):
+            raise _Reject(f"{action}: 'text' must be a string")
+        if len(text) > self.max_text:
+            raise _Reject(f"{action}: text too long ({len(text)} characters; at most "
+                          f"{self.max_text})")
+        if action == "label" and not text.strip():
+            raise _Reject("label: 'text' must not be empty")
+        if action in ("label", "reject"):
+            keyed = self.keys.get(frame, set())
+            if method is not None and method not in keyed:
+                raise _Reject(f"{action}: frame {frame} is not a keyframe of {method!r}")
+            if not keyed:
+                raise _Reject(f"{action}: frame {frame} is not a keyframe")
+        elif method not in (None, "manual"):
+            raise _Reject("key: a manual key has no method (or method 'manual')")
+        return {"v": SCHEMA_VERSION, "type": "annotation", "stream": self.stream,
+                "action": action, "frame": frame,
+                "method": "manual" if action == "key" else method,
+                "text": text.strip(), "time": self._time_of(frame), "seq_at": self.last_seq,
+                "wall_time": round(time.time(), 3)}
+
+
+    def _time_of(self, frame: int) -> float | None:
+        if not self.fps or self.last_seq is None:
+            return None
+        return round(self.last_time - (self.last_seq - frame) / self.fps, 6)
+
+
+class _Reject(Exception):
+    """An operator message that is refused (its text goes back to the client)."""
+
+
+class LiveView:
+    """The pose stream of the page: decimated poses, thumbnails and the driving signals.
+
+    Keeps the last `history` frames' channels so that a keyframe decided up to `history`
+    frames late still gets the pose of its own frame as a thumbnail.
+    """
+
+    def __init__(self, skeleton: Skeleton, fps: float, rate: float = 30.0,
+                 history: int = 1024) -> None:
+        self.skeleton = skeleton
+        self.fps = float(fps)
+        self.every = max(1, round(self.fps / rate))
+        self.height = body_height(skeleton) or 1.0
+        self.frames: deque[Frame] = deque(maxlen=history)
+        self.prev: tuple[float, np.ndarray, float] | None = None  # time, body points, speed
+        self.n = 0
+        parents = list(skeleton.parents)
+        ends = sorted(skeleton.end_sites)
+        self.bones = [[j, p] for j, p in enumerate(parents) if p >= 0]
+        self.bones += [[skeleton.n_joints + i, j] for i, j in enumerate(ends)]
+
+    def points(self, channels: np.ndarray) -> tuple[list[float], np.ndarray]:
+        """Flattened display points (root centred in x/z, body heights) and body-frame points."""
+        fk = forward_kinematics(self.skeleton, channels[None, :])
+        pos = fk.positions[0]
+        shown = (pos - np.array([pos[0, 0], 0.0, pos[0, 2]])) / self.height
+        return np.round(shown, 3).ravel().tolist(), pelvis_frame(fk, 0)[0] / self.height
+
+    def push(self, frame: Frame) -> dict[str, Any] | None:
+        """Remember a frame; every `every` frames return the `pose` message."""
+        self.frames.append(frame)
+        self.n += 1
+        if (self.n - 1) % self.every:
+            return None
+        flat, body = self.points(np.asarray(frame.channels, dtype=np.float64))
+        speed = accel = 0.0
+        if self.prev is not None and frame.time > self.prev[0]:
+            dt = frame.time - self.prev[0]
+            speed = float(np.linalg.norm(body - self.prev[1], axis=1).mean() / dt)
+            accel = abs(speed - self.prev[2]) / dt
+        self.prev = (frame.time, body, speed)
+        return {"type": "pose", "frame": frame.seq, "time": round(frame.time, 4), "p": flat,
+                "speed": round(speed, 4), "accel": round(accel, 3)}
+
+    def pose_of(self, seq: int) -> list[float] | None:
+        """Display points of a recent frame (None if it has left the history)."""
+        for frame in reversed(self.frames):
+            if frame.seq == seq:
+                return self.points(np.asarray(frame.channels, dtype=np.float64))[0]
+            if frame.seq < seq:
+                break
+        return None
+
+
+class DashboardSink(WebSocketSink):
+    """Page + WebSocket server on one port; a live sink of the engine (never blocks it)."""
+
+    name = "dashboard"
+
+    def __init__(self, port: int = 8765, listen: str | None = None, stream: str = "default",
+                 methods: list[str] | None = None, log: JsonlSink | None = None,
+                 token: str | None = None, rate: float = 30.0, recent: int = 24) -> None:
+        address = Address("ws", LOOPBACK, port)
+        super().__init__(address, listen, on_message=None)
+        self.host = bind_host(address, listen)
+        self.loopback = self.host in _LOOPBACK_NAMES
+        self.token = token if token is not None else (None if self.loopback
+                                                      else secrets.token_urlsafe(16))
+        self.methods = list(methods or [])
+        self.log = log
+        self.rate = rate
+        self.annotator = Annotator(stream)
+        self.view: LiveView | None = None
+        self.engine: Engine | None = None
+        self.recent: deque[dict[str, Any]] = deque(maxlen=recent)
+        self.latency: deque[float] = deque(maxlen=2000)
+        self.annotations: list[dict[str, Any]] = []
+        self.signals: deque[dict[str, Any]] = deque(maxlen=round(10 * rate) + 1)  # 10 s chart
+        self.refused: list[str] = []
+        self._last_stats = 0
+
+    # ------------------------------------------------------------------ engine side
+    async def start(self) -> str:
+        from websockets.asyncio.server import serve
+
+        from .adapters.base import MAX_MESSAGE_BYTES
+
+        self.server = await serve(self._handle, self.host, self.address.port,
+                                  compression=None, max_size=MAX_MESSAGE_BYTES,
+                                  process_request=self._http, ping_interval=5, ping_timeout=10,
+                                  write_limit=4096, close_timeout=1)
+        return self.url
+
+    @property
+    def url(self) -> str:
+        """The page's address (with the token when one is required)."""
+        host = self.host if self.host != "0.0.0.0" else LOOPBACK
+        query = f"?token={self.token}" if self.token else ""
+        return f"http://{host}:{self.port}/{query}"
+
+    def attach(self, engine: Engine) -> None:
+        """Read counters from this engine (frames, drops, gaps, latency, lookahead)."""
+        self.engine = engine
+
+    def on_frame(self, frame: Frame) -> None:
+        """Engine hook after each frame: remember it, send the pose every few frames."""
+        if self.view is None:
+            source = self.engine.source if self.engine else None
+            if source is None or source.skeleton is None or source.fps is None:
+                return
+            self.view = LiveView(source.skeleton, source.fps, self.rate)
+            self.annotator.fps = source.fps
+        self.annotator.see_frame(frame.seq, frame.time)
+        pose = self.view.push(frame)
+        if pose is not None:
+            self.signals.append({k: pose[k] for k in ("frame", "speed", "accel")})
+            self._broadcast(pose)
+        if self.view.n - self._last_stats >= max(1, round(self.view.fps / 4)):
+            self._last_stats = self.view.n
+            self._broadcast(self.counters())
+
+    def offer(self, event: dict[str, Any]) -> None:
+        """An engine event: keyframes get their pose attached and join the recent list."""
+        if event.get("type") == "keyframe":
+            self.annotator.see_key(event["method"], event["frame"])
+            if event.get("wall_latency_ms") is not None:
+                self.latency.append(float(event["wall_latency_ms"]))
+            pose = self.view.pose_of(event["frame"]) if self.view else None
+            event = {**event, "pose": pose}
+            self.recent.append(event)
+        self._broadcast(event)
+
+    def counters(self) -> dict[str, Any]:
+        """The counters message of the page."""
+        out: dict[str, Any] = {"type": "stats", "frames": 0, "drops": 0, "gaps": 0,
+                               "events": {}, "lookahead": {}, "latency_ms": {},
+                               "annotations": len(self.annotations), "clients": len(self.clients)}
+        eng = self.engine
+        if eng is None:
+            return out
+        src = eng.source.stats
+        out["frames"] = eng.summary.frames_in
+        out["drops"] = src.queue_drops + sum(src.malformed.values())
+        if eng.pipeline is not None:
+            g = eng.pipeline.guard.counters
+            out["drops"] += g.duplicates + g.out_of_order + g.invalid
+            out["gaps"] = g.gaps
+            out["lookahead"] = {kf.method: kf.lookahead for kf in eng.pipeline.keyframers}
+        out["events"] = dict(eng.summary.events)
+        if self.latency:
+            lat = np.array(self.latency)
+            out["latency_ms"] = {"p50": round(float(np.percentile(lat, 50)), 3),
+                                 "p99": round(float(np.percentile(lat, 99)), 3)}
+        return out
+
+    def hello(self) -> dict[str, Any]:
+        """First message of a connection: what the page needs to draw, and recent keys."""
+        methods = self.methods + ["manual"]
+        return {"type": "hello", "v": SCHEMA_VERSION, "stream": self.annotator.stream,
+                "methods": self.methods,
+                "colors": {m: method_color(m, self.methods) for m in methods},
+                "bones": self.view.bones if self.view else None,
+                "fps": self.view.fps if self.view else None, "max_text": MAX_TEXT,
+                "recent": list(self.recent), "annotations": self.annotations[-50:],
+                "signals": list(self.signals)}
+
+    # ------------------------------------------------------------------ client side
+    def _broadcast(self, message: dict[str, Any]) -> None:
+        text = json.dumps(message, separators=(",", ":"))
+        for client in list(self.clients):
+            before = client.dropped
+            client.put(text)
+            self.stats.dropped += client.dropped - before
+        self.stats.sent += 1
+
+    def annotate(self, text: str) -> dict[str, Any]:
+        """Handle one operator message: log and broadcast it if valid; returns the reply."""
+        record, reply = self.annotator.handle(text)
+        if record is None:
+            return reply
+        if self.log is not None:
+            if self.log.file.closed:
+                return {"type": "error", "id": reply.get("id"),
+                        "error": "the session log is closed (the stream has ended)"}
+            self.log.offer(record)
+        self.annotations.append(record)
+        shown = record
+        if record["action"] == "key":
+            shown = {**record, "pose": self.view.pose_of(record["frame"]) if self.view else None}
+            self.recent.append({**shown, "type": "keyframe"})
+        self._broadcast(shown)
+        return reply
+
+    async def _handle(self, connection: Any) -> None:
+        from websockets.exceptions import ConnectionClosed
+
+        client = _Client(connection, self.client_queue)
+        client.put(json.dumps(self.hello(), separators=(",", ":")))
+        self.clients.add(client)
+        sender = asyncio.create_task(self._send_loop(client))
+        try:
+            async for message in connection:
+                text = message if isinstance(message, str) else message.decode("utf-8",
+                                                                                "replace")
+                client.put(json.dumps(self.annotate(text), separators=(",", ":")))
+        except ConnectionClosed:
+            pass
+        finally:
+            sender.cancel()
+            self.clients.discard(client)
+            self.client_drops += client.dropped
+
+    def _http(self, connection: Any, request: Any) -> Any:
+        """Route `/`, `/static/...` and `/ws`; refuse foreign hosts, origins and bad tokens."""
+        parts = urlsplit(request.path)
+        host = request.headers.get("Host", "")
+        hostname = urlsplit(f"//{host}").hostname or ""
+        if self.loopback and hostname not in _LOOPBACK_NAMES:
+            return self._refuse(connection, f"host {host!r} refused: this dashboard answers "
+                                "to 127.0.0.1 / localhost only")
+        token = parse_qs(parts.query).get("token", [""])[-1]
+        token_ok = self.token is None or hmac.compare_digest(token, self.token)
+        if parts.path == "/ws":
+            origin = request.headers.get("Origin")
+            if origin is not None and origin != f"http://{host}":
+                return self._refuse(connection, f"cross-origin WebSocket refused: origin "
+                                    f"{origin} is not http://{host}")
+            if not token_ok:
+                return self._refuse(connection, "WebSocket refused: missing or wrong token")
+            return None
+        if parts.path in ("/", "/index.html"):
+            if not token_ok:
+                return self._refuse(connection, "missing or wrong token: open the URL printed "
+                                    "by streamkey (it ends with ?token=...)")
+            return _asset(connection, "dashboard.html", "text/html")
+        name = parts.path.removeprefix("/static/")
+        if name in _STATIC:
+            return _asset(connection, name, _STATIC[name])
+        if parts.path == "/favicon.ico":
+            return connection.respond(204, "")
+        return connection.respond(404, f"not found: {parts.path}\n")
+
+    def _refuse(self, connection: Any, why: str) -> Any:
+        self.refused.append(why)
+        return connection.respond(403, why + "\n")
+
+
+def _asset(connection: Any, name: str, kind: str) -> Any:
+    body = resources.files("streamkey").joinpath("static", name).read_text(encoding="utf-8")
+    response = connection.respond(200, body)
+    del response.headers["Content-Type"]  # Headers is a multidict: replace, don't append
+    response.headers["Content-Type"] = f"{kind}; charset=utf-8"
+    response.headers["Cache-Control"] = "no-store"
+    response.headers["X-Content-Type-Options"] = "nosniff"
+    return response
+
+
+async def run_dashboard(source: Source | Motion, methods: list[str], to: list[str],
+                        params: dict[str, dict[str, Any]] | None = None,
+                        lookahead: int | None = None, listen: str | None = None,
+                        stream: str = "default", rate: float | None = None,
+                        port: int = 8765, log: str | None = None, loop: bool = False,
+                        on_ready: Callable[[str], None] | None = None,
+                        on_event: Callable[[dict[str, Any]], None] | None = None,
+                        idle_exit: float | None = None,
+                        on_start: Callable[[DashboardSink], None] | None = None
+                        ) -> tuple[RunSummary, DashboardSink]:
+    """`run_live` with the dashboard: the page on `port`, annotations into the JSON Lines log.
+
+    The log is the `jsonl:` sink among `to`, else `log` (a path), else no log (annotations
+    are then only broadcast). A Motion source is paced at its fps (looped if `loop`).
+    `on_start` gets the dashboard before the run starts (`board.engine.stop()` ends it).
+    """
+    from .live import _ready
+    from .replay.source import MotionSource
+    from .streaming import make_keyframers
+
+    on_ready = on_ready or _ready
+    if isinstance(source, Motion):
+        source = MotionSource(source, rate=rate, loop=loop)
+    targets = list(to) + ([f"jsonl:{log}"] if log else [])
+    sinks = [make_sink(parse_address(a), listen) for a in targets]
+    logs = [s for s in sinks if isinstance(s, JsonlSink)]
+    board = DashboardSink(port, listen, stream, methods, logs[0] if logs else None)
+    sinks.append(board)
+
+    def keyframers(src: Source) -> list[OnlineKeyframer]:
+        assert src.skeleton is not None and src.fps is not None
+        motion = Motion(src.skeleton, np.zeros((0, src.skeleton.n_channels)), src.fps)
+        return make_keyframers(motion, methods, params, lookahead, stream)
+
+    def ready(line: str) -> None:
+        on_ready(line.replace("sending to http", "dashboard on http"))
+
+    engine = Engine(source, keyframers, sinks, stream, ready, on_event, idle_exit,
+                    on_frame=board.on_frame)
+    board.attach(engine)
+    if on_start is not None:
+        on_start(board)
+    loop_ = asyncio.get_running_loop()
+    handled = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop_.add_signal_handler(sig, engine.stop)
+            handled.append(sig)
+        except (NotImplementedError, RuntimeError):  # not the main thread
+            pass
+    try:
+        return await engine.run(), board
+    finally:
+        for sig in handled:
+            loop_.remove_signal_handler(sig)
+
+
+def default_log() -> str:
+    """`session-<UTC time>.jsonl` in the current folder: where annotations go by default."""
+    return time.strftime("session-%Y%m%d-%H%M%S.jsonl", time.gmtime())
+
+
+def check_port(port: int) -> int:
+    """Validate a `--dashboard` port (0 picks a free one)."""
+    if not 0 <= port <= 65535:
+        raise UsageError(f"--dashboard: port must be 0..65535, got {port}")
+    return port

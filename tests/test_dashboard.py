@@ -1,0 +1,361 @@
+"""The live dashboard: operator messages, origin and token checks, and a real headless browser.
+
+The browser test drives Debian's Chromium with Selenium + chromedriver (installed by .ci/run);
+it never skips: a missing browser is a failure with the install hint.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import re
+import signal
+import subprocess
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from live_helpers import MS, read_jsonl, streamkey, wait_ready
+from websockets.asyncio.client import connect
+from websockets.exceptions import InvalidStatus
+
+from streamkey.dashboard import MAX_TEXT, Annotator, DashboardSink, run_dashboard
+from streamkey.methods import ONLINE_METHODS
+from streamkey.replay.demo import demo_motion
+
+ROOT = Path(__file__).resolve().parents[1]
+METHODS = ["saliency", "speed", "simplify"]
+LIVE = list(ONLINE_METHODS)  # what `demo` and `run --method all` run
+CHROMIUM = "/usr/bin/chromium"
+CHROMEDRIVER = "/usr/bin/chromedriver"
+# The demo motion is looped; 4 s loops keep the test short (one loop shows every method).
+DEMO_SECONDS = "4"
+
+
+def annotator_with_keys() -> Annotator:
+    a = Annotator("take")
+    a.fps = 120.0
+    for seq in range(100, 400):
+        a.see_frame(seq, seq / 120)
+    a.see_key("saliency", 150)
+    a.see_key("speed", 200)
+    return a
+
+
+@pytest.mark.parametrize(("message", "reason"), [
+    ("{bad json", "malformed JSON"),
+    ("[1, 2]", "expected a JSON object"),
+    ('{"action": "delete", "frame": 150}', "unknown action 'delete'"),
+    ('{"action": "label", "frame": "150", "text": "x"}', "'frame' must be an integer"),
+    ('{"action": "label", "frame": true, "text": "x"}', "'frame' must be an integer"),
+    ('{"action": "label", "frame": 5000, "text": "x"}', "unknown frame 5000"),
+    ('{"action": "key", "frame": 99}', "unknown frame 99; the stream has frames 100..399"),
+    ('{"action": "label", "frame": 151, "text": "x"}', "frame 151 is not a keyframe"),
+    ('{"action": "label", "frame": 150, "method": "speed", "text": "x"}',
+     "not a keyframe of 'speed'"),
+    ('{"action": "label", "frame": 150, "text": "   "}', "must not be empty"),
+    (json.dumps({"action": "label", "frame": 150, "text": "x" * (MAX_TEXT + 1)}),
+     "text too long (501 characters; at most 500)"),
+    ("x" * 5000, "message too long"),
+])
+def test_annotator_refuses_bad_messages_naming_the_problem(message: str, reason: str) -> None:
+    a = annotator_with_keys()
+    record, reply = a.handle(message)
+    assert record is None
+    assert reply["type"] == "error" and reason in reply["error"]
+    assert a.count == 0
+
+
+def test_annotator_builds_annotation_events_that_reference_the_frame() -> None:
+    a = annotator_with_keys()
+    record, reply = a.handle('{"id": 7, "action": "label", "frame": 150, "text": " heel "}')
+    assert reply == {"type": "ack", "id": 7, "annotation": record}
+    assert record is not None
+    assert record["type"] == "annotation" and record["action"] == "label"
+    assert (record["frame"], record["method"], record["text"]) == (150, None, "heel")
+    assert record["time"] == pytest.approx(150 / 120) and record["stream"] == "take"
+    key, _ = a.handle('{"action": "key", "frame": 300}')
+    assert key is not None and key["method"] == "manual"
+    # a manual key is a keyframe from then on: it can be labelled and rejected
+    assert a.handle('{"action": "reject", "frame": 300, "method": "manual"}')[0] is not None
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.text(max_size=300),
+                 st.dictionaries(st.sampled_from(["action", "frame", "method", "text", "id"]),
+                                 st.one_of(st.none(), st.integers(), st.text(max_size=20),
+                                           st.sampled_from(["label", "key", "reject"]),
+                                           st.floats(), st.lists(st.integers(), max_size=3)))
+                 .map(json.dumps)))
+def test_annotator_never_raises_whatever_the_client_sends(text: str) -> None:
+    record, reply = annotator_with_keys().handle(text)
+    assert reply["type"] in ("ack", "error")
+    assert (record is None) == (reply["type"] == "error")
+
+
+@asynccontextmanager
+async def serving(tmp_path: Path, **kwargs: Any) -> AsyncIterator[tuple[str, DashboardSink]]:
+    """The dashboard over the looped demo motion at 120 Hz; yields (page URL, dashboard)."""
+    lines: list[str] = []
+    ready = asyncio.Event()
+    boards: list[DashboardSink] = []
+
+    def on_ready(line: str) -> None:
+        lines.append(line)
+        if "dashboard on" in line:
+            ready.set()
+
+    task = asyncio.create_task(run_dashboard(
+        demo_motion(4.0), METHODS, [], port=0, log=str(tmp_path / "session.jsonl"), loop=True,
+        on_ready=on_ready, on_start=boards.append, **kwargs))
+    await asyncio.wait_for(ready.wait(), 30 * MS)
+    url = re.search(r"dashboard on (\S+)", "\n".join(lines))
+    assert url is not None
+    try:
+        yield url.group(1), boards[0]
+    finally:
+        assert boards[0].engine is not None
+        boards[0].engine.stop()
+        summary, _ = await asyncio.wait_for(task, 30 * MS)
+        assert summary.frames_in > 0
+
+
+def ws_url(page: str) -> str:
+    base, _, query = page.partition("?")
+    return base.replace("http://", "ws://").rstrip("/") + "/ws" + (f"?{query}" if query else "")
+
+
+async def next_of(ws: Any, kinds: tuple[str, ...]) -> dict[str, Any]:
+    """The next message of one of `kinds` (poses, stats and events in between are skipped)."""
+    async with asyncio.timeout(30 * MS):
+        while True:
+            message = json.loads(await ws.recv())
+            if message["type"] in kinds:
+                return message
+
+
+async def test_malformed_client_messages_get_errors_and_the_session_goes_on(
+        tmp_path: Path) -> None:
+    async with serving(tmp_path) as (url, board), connect(ws_url(url)) as ws:
+        hello = await next_of(ws, ("hello",))
+        assert hello["methods"] == METHODS and len(set(hello["colors"].values())) == 4
+        key = await next_of(ws, ("keyframe",))
+        assert key["pose"] is not None  # the thumbnail of the key's own frame
+        bad = ["{bad", "null", '{"action": "label", "frame": 1e9, "text": "x"}',
+               json.dumps({"action": "label", "frame": key["frame"], "method": key["method"],
+                           "text": "y" * 600}),
+               json.dumps({"action": "label", "frame": 10**9, "text": "x"}), b"\xff\xfe\x00"]
+        for message in bad:
+            await ws.send(message)
+        errors = [await next_of(ws, ("error", "ack")) for _ in bad]
+        assert [e["type"] for e in errors] == ["error"] * len(bad)
+        reasons = [e["error"] for e in errors]
+        assert "malformed JSON" in reasons[0] and "JSON object" in reasons[1]
+        assert "'frame' must be an integer" in reasons[2] and "too long" in reasons[3]
+        assert "unknown frame 1000000000" in reasons[4] and "malformed JSON" in reasons[5]
+        frames_before = board.engine.summary.frames_in  # type: ignore[union-attr]
+        await ws.send(json.dumps({"id": "a1", "action": "label", "frame": key["frame"],
+                                  "method": key["method"], "text": "arms up"}))
+        ack = await next_of(ws, ("ack", "error"))
+        assert ack["type"] == "ack" and ack["id"] == "a1"
+        await next_of(ws, ("pose",))
+        assert board.engine.summary.frames_in > frames_before  # type: ignore[union-attr]
+    logged = [e for e in read_jsonl(tmp_path / "session.jsonl") if e["type"] == "annotation"]
+    assert [(e["frame"], e["method"], e["text"]) for e in logged] == [
+        (key["frame"], key["method"], "arms up")]
+
+
+def http_get(url: str, headers: dict[str, str] | None = None) -> tuple[int, str]:
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, headers=headers or {}),
+                                    timeout=30 * MS) as r:
+            return r.status, r.read().decode()
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read().decode()
+
+
+async def test_cross_origin_and_foreign_host_requests_are_refused(tmp_path: Path) -> None:
+    async with serving(tmp_path) as (url, board):
+        port = url.split(":")[2].split("/")[0]
+        with pytest.raises(InvalidStatus) as refused:
+            async with connect(ws_url(url), origin="http://evil.example"):  # type: ignore[arg-type]
+                pass
+        assert refused.value.response.status_code == 403
+        assert b"cross-origin WebSocket refused: origin http://evil.example" in (
+            refused.value.response.body or b"")
+        # DNS rebinding: a page of another name resolved to 127.0.0.1 is refused too
+        status, body = await asyncio.to_thread(http_get, url, {"Host": f"evil.example:{port}"})
+        assert status == 403 and "127.0.0.1 / localhost only" in body
+        # the server is unharmed and its own origin still connects
+        async with connect(ws_url(url), origin=f"http://127.0.0.1:{port}") as ws:  # type: ignore[arg-type]
+            assert (await next_of(ws, ("hello",)))["type"] == "hello"
+        status, page = await asyncio.to_thread(http_get, url)
+        assert status == 200 and "/static/dashboard.js" in page
+        assert len(board.refused) == 2
+
+
+async def test_listening_beyond_loopback_requires_the_token(tmp_path: Path) -> None:
+    async with serving(tmp_path, listen="127.0.0.2") as (url, board):
+        assert board.token and url.endswith(f"/?token={board.token}")
+        bare = url.split("?")[0]
+        status, body = await asyncio.to_thread(http_get, bare)
+        assert status == 403 and "token" in body
+        assert (await asyncio.to_thread(http_get, bare + "?token=wrong"))[0] == 403
+        assert (await asyncio.to_thread(http_get, url))[0] == 200
+        with pytest.raises(InvalidStatus) as refused:
+            async with connect(ws_url(bare)):
+                pass
+        assert refused.value.response.status_code == 403
+        async with connect(ws_url(url)) as ws:
+            assert (await next_of(ws, ("hello",)))["type"] == "hello"
+
+
+# --------------------------------------------------------------------------- the browser
+
+def chrome() -> Any:
+    """Headless Chromium through chromedriver, with the flags that work on this machine."""
+    for tool in (CHROMIUM, CHROMEDRIVER):
+        assert Path(tool).exists(), (f"{tool} missing: apt-get install --no-install-recommends "
+                                     "chromium chromium-driver (.ci/run does)")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--window-size=1280,1000",
+                 f"--user-data-dir={tempfile.mkdtemp(prefix='streamkey-chromium-')}"):
+        options.add_argument(flag)
+    return webdriver.Chrome(options=options, service=Service(CHROMEDRIVER))
+
+
+def wait_for(condition: Any, what: str, timeout: float = 60.0) -> Any:
+    """Poll `condition` until truthy (returns it) or fail naming `what`."""
+    deadline = time.monotonic() + timeout * MS
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def click_reject(driver: Any) -> int | None:
+    """Click "reject" on the newest method keypose; its frame, or None if the list moved."""
+    from selenium.common.exceptions import (
+        ElementClickInterceptedException,
+        StaleElementReferenceException,
+    )
+    from selenium.webdriver.common.by import By
+
+    try:
+        item = driver.find_element(By.CSS_SELECTOR, "#keys li:not([data-method=manual])")
+        frame = int(item.get_attribute("data-frame"))
+        item.find_element(By.CLASS_NAME, "reject").click()
+        return frame
+    except (StaleElementReferenceException, ElementClickInterceptedException):
+        return None  # the list moved before the pointer reached it (it holds still now)
+
+
+def test_browser_shows_markers_counters_and_logs_a_typed_label(tmp_path: Path) -> None:
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    log = tmp_path / "session.jsonl"
+    proc = streamkey("demo", "--dashboard", "0", "--seconds", DEMO_SECONDS, "--log", str(log),
+                     cwd=tmp_path)
+    driver = None
+    failure: BaseException | None = None
+    try:
+        url = re.search(r"dashboard on (\S+)", "".join(wait_ready(proc, "dashboard on")))
+        assert url is not None
+        driver = chrome()
+        driver.get(url.group(1))
+        wait = WebDriverWait(driver, 60 * MS, poll_frequency=0.05)
+        text = lambda element_id: driver.find_element(By.ID, element_id).text  # noqa: E731
+
+        def markers(method: str) -> int:
+            span = driver.find_element(By.CSS_SELECTOR, f'#legend span[data-method="{method}"]')
+            return int(span.get_attribute("data-count") or 0)
+
+        for method in LIVE:  # a marker drawn in the strip chart for every method
+            wait.until(lambda _, m=method: markers(m) > 0)
+        first = int(text("c-frames"))
+        wait.until(lambda _: int(text("c-frames")) > first)  # the counters move
+        assert re.search(r"saliency \d+", text("c-events"))
+        assert re.fullmatch(r"[\d.]+ / [\d.]+ ms", text("c-latency"))
+        assert all(re.search(rf"{m} \d+", text("c-lookahead")) for m in LIVE)
+
+        item = driver.find_element(By.CSS_SELECTOR, "#keys li:not([data-method=manual])")
+        frame, method = int(item.get_attribute("data-frame")), item.get_attribute("data-method")
+        item.find_element(By.TAG_NAME, "input").send_keys("heel strike", Keys.ENTER)
+        wait.until(lambda _: "saved label" in text("message"))
+        logged = wait_for(lambda: [e for e in read_jsonl(log) if e["type"] == "annotation"],
+                          "the label in the JSON Lines log")
+        assert [(e["action"], e["frame"], e["method"], e["text"]) for e in logged] == [
+            ("label", frame, method, "heel strike")]
+        assert item.find_element(By.CLASS_NAME, "label-text").text == "heel strike"
+
+        driver.find_element(By.TAG_NAME, "body").send_keys("k")  # the manual-key hotkey
+        wait.until(lambda _: "saved key" in text("message"))
+        rejected = wait.until(lambda _: click_reject(driver))
+        wait.until(lambda _: "saved reject" in text("message"))
+        assert driver.find_elements(By.CSS_SELECTOR, f"#keys li.rejected[data-frame='{rejected}']")
+        ActionChains(driver).move_to_element(driver.find_element(By.ID, "c-frames")).perform()
+        driver.execute_script("window.scrollTo(0, 0)")  # pointer off the list: it moves again
+        wait.until(lambda _: driver.find_elements(By.CSS_SELECTOR, "#keys li[data-method=manual]"))
+        assert wait.until(lambda _: int(text("c-annotations")) == 3)
+        shot = (ROOT / "docs" if os.environ.get("STREAMKEY_UPDATE_DOCS") else ROOT / "results")
+        shot.mkdir(exist_ok=True)
+        assert driver.save_screenshot(str(shot / "dashboard.png"))
+    except BaseException as exc:
+        failure = exc
+        if driver is not None:
+            exc.add_note(f"page message: {driver.find_element(By.ID, 'message').text!r}")
+        raise
+    finally:
+        if driver is not None:
+            driver.quit()
+        proc.send_signal(signal.SIGINT)
+        try:
+            _, err = proc.communicate(timeout=30 * MS)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+        if failure is not None:
+            failure.add_note(f"streamkey stderr:\n{err[-4000:]}")
+    assert proc.returncode == 0, err
+    assert "annotations: 3" in err and "Traceback" not in err
+    events = read_jsonl(log)
+    actions = [(e["action"], e["frame"]) for e in events if e["type"] == "annotation"]
+    assert [a for a, _ in actions] == ["label", "key", "reject"]
+    assert {e["method"] for e in events if e["type"] == "keyframe"} == set(LIVE)
+
+
+def test_run_with_a_dashboard_serves_the_page_and_logs_to_the_jsonl_sink(
+        data_dir: Path, tmp_path: Path) -> None:
+    log = tmp_path / "take.jsonl"
+    proc = streamkey("run", "--from", str(data_dir / "07_01.bvh"), "--method", "all",
+                     "--to", f"jsonl:{log}", "--dashboard", "0", "--stream", "take")
+    lines = wait_ready(proc, "dashboard on")
+    url = re.search(r"dashboard on (\S+)", "".join(lines))
+    assert url is not None and url.group(1).startswith("http://127.0.0.1:")
+    status, page = http_get(url.group(1))
+    assert status == 200 and "<canvas id=\"chart\"" in page
+    _, err = proc.communicate(timeout=60 * MS)  # the file source ends by itself
+    assert proc.returncode == 0, err
+    assert not list(tmp_path.glob("session-*.jsonl"))  # the jsonl: sink is the session log
+    methods = {e["method"] for e in read_jsonl(log) if e["type"] == "keyframe"}
+    assert methods == set(LIVE) and "annotations: 0" in err
