@@ -193,9 +193,13 @@ class OscSource(Source):
 
     async def start(self) -> str:
         loop = asyncio.get_running_loop()
-        self.transport, _ = await loop.create_datagram_endpoint(
-            lambda: _Protocol(self), local_addr=(self.host, self.address.port),
-            family=socket.AF_INET)
+        try:
+            self.transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Protocol(self), local_addr=(self.host, self.address.port),
+                family=socket.AF_INET)
+        except OSError as exc:
+            raise InputError(f"{self.address}: cannot listen on {self.host}:"
+                             f"{self.address.port}: {exc.strerror or exc}") from None
         port = self.transport.get_extra_info("sockname")[1]
         return f"osc://{self.host}:{port}"
 

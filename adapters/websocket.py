@@ -18,6 +18,8 @@ from typing import Any
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.exceptions import ConnectionClosed
 
+from streamkey.errors import InputError
+
 from .base import MAX_MESSAGE_BYTES, Address, Sink, bind_host
 
 __all__ = ["WebSocketSink"]
@@ -62,12 +64,18 @@ class WebSocketSink(Sink):
         self.client_drops = 0
 
     async def start(self) -> str:
-        self.server = await serve(self._handle, self.host, self.address.port, compression=None,
-                                  max_size=MAX_MESSAGE_BYTES, origins=self.origins,
-                                  ping_interval=5, ping_timeout=10, write_limit=4096,
-                                  close_timeout=1)
+        try:
+            self.server = await self._serve()
+        except OSError as exc:
+            raise InputError(f"{self.address}: cannot listen on {self.host}:"
+                             f"{self.address.port}: {exc.strerror or exc}") from None
         port = self.server.sockets[0].getsockname()[1]
         return f"ws://{self.host}:{port}"
+
+    async def _serve(self) -> Server:
+        return await serve(self._handle, self.host, self.address.port, compression=None,
+                           max_size=MAX_MESSAGE_BYTES, origins=self.origins, ping_interval=5,
+                           ping_timeout=10, write_limit=4096, close_timeout=1)
 
     @property
     def port(self) -> int:

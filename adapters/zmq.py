@@ -23,7 +23,7 @@ import zmq
 import zmq.asyncio
 
 from streamkey.bvh import parse_bvh
-from streamkey.errors import BVHError, UsageError
+from streamkey.errors import BVHError, InputError, UsageError
 from streamkey.motion import Frame, Skeleton
 
 from .base import MAX_CHANNELS, MAX_MESSAGE_BYTES, Address, Sink, SinkStats, Source, bind_host
@@ -92,7 +92,11 @@ class ZmqSource(Source):
         else:
             if self.listen and self.address.scheme == "zmq+tcp":
                 endpoint = f"tcp://{self.listen}:{self.address.port}"
-            sock.bind(endpoint)
+            try:
+                sock.bind(endpoint)
+            except zmq.ZMQError as exc:
+                sock.close(linger=0)
+                raise InputError(f"{self.address}: cannot bind {endpoint}: {exc}") from None
         self.socket = sock
         self.task = asyncio.create_task(self._receive())
         return f"zmq+{self.pattern} {endpoint}"
@@ -128,15 +132,19 @@ class ZmqSource(Source):
 
 
 def _pub_socket(address: Address, listen: str | None) -> tuple[zmq.Socket[bytes], str]:
+    host = bind_host(address, listen) if address.scheme == "zmq+tcp" else ""
     sock = zmq.Context.instance().socket(zmq.XPUB)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.SNDHWM, 1000)
     if address.scheme == "zmq+tcp":
-        host = bind_host(address, listen)
         endpoint = f"tcp://{host}:{address.port}"
     else:
         endpoint = address.zmq_endpoint
-    sock.bind(endpoint)
+    try:
+        sock.bind(endpoint)
+    except zmq.ZMQError as exc:
+        sock.close(linger=0)
+        raise InputError(f"{address}: cannot bind {endpoint}: {exc}") from None
     return sock, endpoint
 
 

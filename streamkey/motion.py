@@ -100,7 +100,8 @@ class Motion:
     """A skeleton with `channels` (n_frames x n_channels, degrees / file units) at `fps`.
 
     `first_frame` is the first captured frame: 1 when frame 0 is a cgspeed T-pose reference
-    frame, else 0. Methods skip frames before it and report indices in the file's numbering.
+    frame (2 when a dropout frame follows it), else 0. Methods skip frames before it and
+    report indices in the file's numbering.
     """
 
     skeleton: Skeleton
@@ -150,11 +151,21 @@ class Frame:
 
 
 def detect_reference_frame(skeleton: Skeleton, channels: np.ndarray) -> int:
-    """Return 1 if frame 0 is a cgspeed T-pose reference frame, else 0 (DESIGN §3).
+    """Index of the first captured frame: past a cgspeed T-pose reference frame (DESIGN §3)
+    and past any all-zero dropout frames right after it.
 
     The reference frame has zero root rotation and at most ~10 non-zero joint channels, all
-    integers, while frame 1 moves; captured frames practically never look like that.
+    integers, while the next frame differs; captured frames practically never look like that.
+    A frame whose every channel is exactly zero (root at the origin, every joint at rest) is
+    a dropout, not a pose: 07_12 has one right after its reference frame.
     """
+    first = _reference_frame(skeleton, channels)
+    while first < channels.shape[0] - 1 and not np.any(channels[first]):
+        first += 1
+    return first
+
+
+def _reference_frame(skeleton: Skeleton, channels: np.ndarray) -> int:
     if channels.shape[0] < 2:
         return 0
     rot = skeleton.rotation_columns()

@@ -19,6 +19,7 @@ from streamkey.adapters.osc import OscSource, encode_frame
 from streamkey.adapters.zmq import ZmqFrameSender, ZmqSource
 from streamkey.bvh import read_bvh
 from streamkey.engine import Engine
+from streamkey.errors import InputError
 from streamkey.motion import Motion
 from streamkey.streaming import make_keyframers
 
@@ -118,7 +119,7 @@ async def bind_publisher(address):
     for _ in range(100):
         try:
             return ZmqFrameSender(address)
-        except zmq.ZMQError:
+        except InputError:  # "cannot bind ...: Address already in use"
             await asyncio.sleep(0.05)
     raise AssertionError(f"could not bind {address}")
 
@@ -224,3 +225,20 @@ async def test_a_failing_keyframer_is_contained_and_the_log_keeps_everything(tmp
     assert [e["status"] for e in events if e["type"] == "status"] == ["error"]
     assert any(e["type"] == "keyframe" and e["method"] == "simplify" and e["frame"] > 150
                for e in events)
+
+
+def test_a_busy_port_is_a_clear_input_error_not_a_traceback(tmp_path):
+    import subprocess
+    import sys
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        for target in (f"ws://127.0.0.1:{port}", f"zmq+tcp://127.0.0.1:{port}"):
+            result = subprocess.run(
+                [sys.executable, "-m", "streamkey", "run", "--from", str(DATA / "09_06.bvh"),
+                 "--fast", "--to", target], capture_output=True, text=True, timeout=60 * MS)
+            assert result.returncode == 2, result.stderr
+            assert "Traceback" not in result.stderr
+            assert result.stderr.strip().splitlines()[-1].startswith(f"error: {target}: cannot")
