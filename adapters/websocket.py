@@ -22,12 +22,14 @@ from streamkey.errors import InputError
 
 from .base import MAX_MESSAGE_BYTES, Address, Sink, bind_host
 
-__all__ = ["WebSocketSink"]
+__all__ = ["WebSocketSink", "Client", "CLIENT_QUEUE"]
 
 CLIENT_QUEUE = 256
 
 
-class _Client:
+class Client:
+    """One connected client: its connection and bounded outgoing queue."""
+
     def __init__(self, connection: ServerConnection, size: int) -> None:
         self.connection = connection
         self.queue: asyncio.Queue[str] = asyncio.Queue(size)
@@ -59,7 +61,7 @@ class WebSocketSink(Sink):
         self.host = bind_host(address, listen)
         self.on_message = on_message
         self.origins = origins
-        self.clients: set[_Client] = set()
+        self.clients: set[Client] = set()
         self.server: Server | None = None
         self.client_drops = 0
 
@@ -84,7 +86,7 @@ class WebSocketSink(Sink):
         return int(self.server.sockets[0].getsockname()[1])
 
     async def _handle(self, connection: ServerConnection) -> None:
-        client = _Client(connection, self.client_queue)
+        client = Client(connection, self.client_queue)
         sock = connection.transport.get_extra_info("socket")
         if sock is not None:  # a small kernel buffer: a stalled client shows up in seconds
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer)
@@ -100,7 +102,7 @@ class WebSocketSink(Sink):
             self.clients.discard(client)
             self.client_drops += client.dropped
 
-    def _reply(self, client: _Client, message: str | bytes) -> None:
+    def _reply(self, client: Client, message: str | bytes) -> None:
         if self.on_message is None:
             return
         text = message if isinstance(message, str) else message.decode("utf-8", "replace")
@@ -108,7 +110,7 @@ class WebSocketSink(Sink):
         if reply is not None:
             client.put(json.dumps(reply))
 
-    async def _send_loop(self, client: _Client) -> None:
+    async def _send_loop(self, client: Client) -> None:
         try:
             while True:
                 await client.connection.send(await client.queue.get())
@@ -116,7 +118,11 @@ class WebSocketSink(Sink):
             pass
 
     def offer(self, event: dict[str, Any]) -> None:
-        text = json.dumps(event, separators=(",", ":"))
+        self.broadcast(event)
+
+    def broadcast(self, message: dict[str, Any]) -> None:
+        """Queue one JSON message for every client (drop-oldest per client, counted)."""
+        text = json.dumps(message, separators=(",", ":"))
         for client in list(self.clients):
             before = client.dropped
             client.put(text)

@@ -31,7 +31,6 @@ import asyncio
 import hmac
 import json
 import secrets
-import signal
 import time
 from collections import deque
 from collections.abc import Callable
@@ -44,13 +43,12 @@ import numpy as np
 from .adapters import make_sink, parse_address
 from .adapters.base import LOOPBACK, Address, Source, bind_host
 from .adapters.sinks import JsonlSink
-from .adapters.websocket import WebSocketSink, _Client
+from .adapters.websocket import Client, WebSocketSink
 from .engine import Engine, RunSummary
 from .errors import UsageError
 from .keyframes import SCHEMA_VERSION
 from .kinematics import body_height, forward_kinematics, pelvis_frame
 from .motion import Frame, Motion, Skeleton
-from .online import OnlineKeyframer
 
 __all__ = ["Annotator", "LiveView", "DashboardSink", "run_dashboard", "METHOD_COLORS",
            "MAX_TEXT", "ACTIONS", "check_port", "method_color",
@@ -284,10 +282,10 @@ class DashboardSink(WebSocketSink):
         pose = self.view.push(frame)
         if pose is not None:
             self.signals.append({k: pose[k] for k in ("frame", "speed", "accel")})
-            self._broadcast(pose)
+            self.broadcast(pose)
         if self.view.n - self._last_stats >= max(1, round(self.view.fps / 4)):
             self._last_stats = self.view.n
-            self._broadcast(self.counters())
+            self.broadcast(self.counters())
 
     def offer(self, event: dict[str, Any]) -> None:
         """An engine event: keyframes get their pose attached and join the recent list."""
@@ -298,7 +296,7 @@ class DashboardSink(WebSocketSink):
             pose = self.view.pose_of(event["frame"]) if self.view else None
             event = {**event, "pose": pose}
             self.recent.append(event)
-        self._broadcast(event)
+        self.broadcast(event)
 
     def counters(self) -> dict[str, Any]:
         """The counters message of the page."""
@@ -335,14 +333,6 @@ class DashboardSink(WebSocketSink):
                 "signals": list(self.signals)}
 
     # ------------------------------------------------------------------ client side
-    def _broadcast(self, message: dict[str, Any]) -> None:
-        text = json.dumps(message, separators=(",", ":"))
-        for client in list(self.clients):
-            before = client.dropped
-            client.put(text)
-            self.stats.dropped += client.dropped - before
-        self.stats.sent += 1
-
     def annotate(self, text: str) -> dict[str, Any]:
         """Handle one operator message: log and broadcast it if valid; returns the reply."""
         record, reply = self.annotator.handle(text)
@@ -358,13 +348,13 @@ class DashboardSink(WebSocketSink):
         if record["action"] == "key":
             shown = {**record, "pose": self.view.pose_of(record["frame"]) if self.view else None}
             self.recent.append({**shown, "type": "keyframe"})
-        self._broadcast(shown)
+        self.broadcast(shown)
         return reply
 
     async def _handle(self, connection: Any) -> None:
         from websockets.exceptions import ConnectionClosed
 
-        client = _Client(connection, self.client_queue)
+        client = Client(connection, self.client_queue)
         client.put(json.dumps(self.hello(), separators=(",", ":")))
         self.clients.add(client)
         sender = asyncio.create_task(self._send_loop(client))
@@ -441,45 +431,23 @@ async def run_dashboard(source: Source | Motion, methods: list[str], to: list[st
     are then only broadcast). A Motion source is paced at its fps (looped if `loop`).
     `on_start` gets the dashboard before the run starts (`board.engine.stop()` ends it).
     """
-    from .live import _ready
-    from .replay.source import MotionSource
-    from .streaming import make_keyframers
+    from .live import _ready, build_engine, run_engine
 
     on_ready = on_ready or _ready
-    if isinstance(source, Motion):
-        source = MotionSource(source, rate=rate, loop=loop)
     targets = list(to) + ([f"jsonl:{log}"] if log else [])
     sinks = [make_sink(parse_address(a), listen) for a in targets]
     logs = [s for s in sinks if isinstance(s, JsonlSink)]
     board = DashboardSink(port, listen, stream, methods, logs[0] if logs else None)
-    sinks.append(board)
-
-    def keyframers(src: Source) -> list[OnlineKeyframer]:
-        assert src.skeleton is not None and src.fps is not None
-        motion = Motion(src.skeleton, np.zeros((0, src.skeleton.n_channels)), src.fps)
-        return make_keyframers(motion, methods, params, lookahead, stream)
 
     def ready(line: str) -> None:
         on_ready(line.replace("sending to http", "dashboard on http"))
 
-    engine = Engine(source, keyframers, sinks, stream, ready, on_event, idle_exit,
-                    on_frame=board.on_frame)
+    engine = build_engine(source, methods, [*sinks, board], params, lookahead, stream, rate,
+                          loop, on_event, ready, idle_exit, on_frame=board.on_frame)
     board.attach(engine)
     if on_start is not None:
         on_start(board)
-    loop_ = asyncio.get_running_loop()
-    handled = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        try:
-            loop_.add_signal_handler(sig, engine.stop)
-            handled.append(sig)
-        except (NotImplementedError, RuntimeError):  # not the main thread
-            pass
-    try:
-        return await engine.run(), board
-    finally:
-        for sig in handled:
-            loop_.remove_signal_handler(sig)
+    return await run_engine(engine), board
 
 
 def default_log() -> str:

@@ -10,8 +10,10 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from .adapters import make_sink, parse_address
-from .adapters.base import Source
+from .adapters.base import Sink, Source
 from .engine import Engine, RunSummary
 from .errors import UsageError
 from .motion import Frame, Motion
@@ -20,13 +22,50 @@ from .replay.pacing import frame_stream, paced
 from .replay.source import MotionSource
 from .streaming import make_keyframers
 
-__all__ = ["run_live", "replay", "FRAME_TARGETS"]
+__all__ = ["run_live", "build_engine", "run_engine", "replay", "FRAME_TARGETS"]
 
 FRAME_TARGETS = ("osc", "zmq+tcp", "zmq+ipc", "-")
 
 
 def _ready(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
+
+
+def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
+                 params: dict[str, dict[str, Any]] | None = None,
+                 lookahead: int | None = None, stream: str = "default",
+                 rate: float | None = None, loop: bool = False,
+                 on_event: Callable[[dict[str, Any]], None] | None = None,
+                 on_ready: Callable[[str], None] = _ready, idle_exit: float | None = None,
+                 on_frame: Callable[[Frame], None] | None = None) -> Engine:
+    """The engine for a source (a Motion is replayed at `rate`, default its fps; 0: unpaced)."""
+    if isinstance(source, Motion):
+        source = MotionSource(source, rate=rate, loop=loop)
+
+    def keyframers(src: Source) -> list[OnlineKeyframer]:
+        assert src.skeleton is not None and src.fps is not None
+        motion = Motion(src.skeleton, np.zeros((0, src.skeleton.n_channels)), src.fps)
+        return make_keyframers(motion, methods, params, lookahead, stream)
+
+    return Engine(source, keyframers, sinks, stream, on_ready, on_event, idle_exit,
+                  on_frame=on_frame)
+
+
+async def run_engine(engine: Engine) -> RunSummary:
+    """Run until the source ends or SIGINT/SIGTERM (which flush and drain); the summary."""
+    loop = asyncio.get_running_loop()
+    handled = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, engine.stop)
+            handled.append(sig)
+        except (NotImplementedError, RuntimeError):  # not the main thread
+            pass
+    try:
+        return await engine.run()
+    finally:
+        for sig in handled:
+            loop.remove_signal_handler(sig)
 
 
 async def run_live(source: Source | Motion, methods: list[str], to: list[str],
@@ -36,37 +75,11 @@ async def run_live(source: Source | Motion, methods: list[str], to: list[str],
                    on_event: Callable[[dict[str, Any]], None] | None = None,
                    on_ready: Callable[[str], None] = _ready,
                    idle_exit: float | None = None) -> RunSummary:
-    """Run the engine until the source ends or SIGINT/SIGTERM; returns the summary."""
-    if isinstance(source, Motion):
-        source = MotionSource(source, rate=rate)
+    """Run the engine from `source` to the sinks at `to`; returns the summary."""
     sinks = [make_sink(parse_address(a), listen) for a in to]
-
-    def keyframers(src: Source) -> list[OnlineKeyframer]:
-        assert src.skeleton is not None and src.fps is not None
-        motion = Motion(src.skeleton, _empty(src.skeleton.n_channels), src.fps)
-        return make_keyframers(motion, methods, params, lookahead, stream)
-
-    engine = Engine(source, keyframers, sinks, stream, on_ready, on_event, idle_exit)
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        try:
-            loop.add_signal_handler(sig, engine.stop)
-        except (NotImplementedError, RuntimeError):  # not the main thread
-            pass
-    try:
-        return await engine.run()
-    finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            try:
-                loop.remove_signal_handler(sig)
-            except (NotImplementedError, RuntimeError):
-                pass
-
-
-def _empty(n: int) -> Any:
-    import numpy as np
-
-    return np.zeros((0, n))
+    return await run_engine(build_engine(source, methods, sinks, params, lookahead, stream,
+                                         rate, on_event=on_event, on_ready=on_ready,
+                                         idle_exit=idle_exit))
 
 
 def replay(motion: Motion, to: list[str], rate: float | None = None, speed: float = 1.0,
