@@ -22,7 +22,8 @@ from .motion import Motion
 __all__ = ["Agreement", "agreement", "tolerance_for", "online_keyframes", "lookahead_table",
            "write_lookahead_table", "LOOKAHEADS"]
 
-LOOKAHEADS = {"saliency": (30, 60, 121), "speed": (60, 90, 120), "simplify": (30, 60, 120)}
+LOOKAHEADS = {"saliency": (30, 60, 121, 240), "speed": (30, 60, 90, 120, 240),
+              "simplify": (15, 30, 60, 120, 240)}
 
 
 @dataclass(frozen=True)
