@@ -244,6 +244,7 @@ class DashboardSink(WebSocketSink):
         self.latency: deque[float] = deque(maxlen=2000)
         self.annotations: list[dict[str, Any]] = []
         self.signals: deque[dict[str, Any]] = deque(maxlen=round(10 * rate) + 1)  # 10 s chart
+        self.saliency: deque[list[float]] = deque(maxlen=1500)  # 10 s at up to 150 Hz
         self.refused: list[str] = []
         self._last_stats = 0
 
@@ -283,9 +284,27 @@ class DashboardSink(WebSocketSink):
         if pose is not None:
             self.signals.append({k: pose[k] for k in ("frame", "speed", "accel")})
             self.broadcast(pose)
+            points = self._new_saliency()
+            if points:
+                self.saliency.extend(points)
+                self.broadcast({"type": "saliency", "points": points})
         if self.view.n - self._last_stats >= max(1, round(self.view.fps / 4)):
             self._last_stats = self.view.n
             self.broadcast(self.counters())
+
+    def _new_saliency(self) -> list[list[float]]:
+        """Per-frame saliency the online saliency keyframer classified since the last call
+        (it trails the stream by at most its lookahead)."""
+        pipeline = self.engine.pipeline if self.engine is not None else None
+        trace = next((getattr(kf, "trace", None) for kf in (pipeline.keyframers if pipeline
+                      else []) if kf.method == "saliency"), None)
+        if not trace:
+            return []
+        last = self.saliency[-1][0] if self.saliency else None
+        if last is not None and trace[0][0] > last + 1:  # the keyframer restarted
+            last = None
+        fresh = [[seq, round(v, 4)] for seq, v in trace if last is None or seq > last]
+        return fresh[-self.saliency.maxlen :] if last is None and self.saliency.maxlen else fresh
 
     def offer(self, event: dict[str, Any]) -> None:
         """An engine event: keyframes get their pose attached and join the recent list."""
@@ -330,7 +349,7 @@ class DashboardSink(WebSocketSink):
                 "bones": self.view.bones if self.view else None,
                 "fps": self.view.fps if self.view else None, "max_text": MAX_TEXT,
                 "recent": list(self.recent), "annotations": self.annotations[-50:],
-                "signals": list(self.signals)}
+                "signals": list(self.signals), "saliency": list(self.saliency)}
 
     # ------------------------------------------------------------------ client side
     def annotate(self, text: str) -> dict[str, Any]:

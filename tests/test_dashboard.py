@@ -294,6 +294,8 @@ def test_browser_shows_markers_counters_and_logs_a_typed_label(tmp_path: Path) -
             wait.until(lambda _, m=method: markers(m) > 0)
         first = int(text("c-frames"))
         wait.until(lambda _: int(text("c-frames")) > first)  # the counters move
+        # the saliency signal is drawn too (it trails the stream by the lookahead)
+        wait.until(lambda _: driver.execute_script("return state.saliency.length") > 10)
         assert re.search(r"saliency \d+", text("c-events"))
         assert re.fullmatch(r"[\d.]+ / [\d.]+ ms", text("c-latency"))
         assert all(re.search(rf"{m} \d+", text("c-lookahead")) for m in LIVE)

@@ -397,3 +397,16 @@ def test_online_agreement_against_lookahead_is_measured_and_written() -> None:
     (RESULTS / "agreement_saliency_lookahead.md").write_text("\n".join(lines) + "\n",
                                                              encoding="utf-8")
     assert mean[60] >= 0.5  # a measurement; F1 must not collapse below the support
+
+
+def test_online_saliency_exposes_a_bounded_per_frame_trace_for_live_views() -> None:
+    m = motion("07_01.bvh")
+    kf = saliency.Online(m.skeleton, m.fps, sigma=10, k=7)
+    for f in m.frames():
+        kf.push(f)
+    seqs = [seq for seq, _ in kf.trace]
+    assert seqs == list(range(m.first_frame, m.first_frame + len(seqs)))
+    assert m.n_frames - 1 - kf.lookahead <= seqs[-1] < m.n_frames - 1  # it trails the stream
+    values = np.array([v for _, v in kf.trace])
+    assert np.all(np.isfinite(values)) and values.max() > 1.0
+    assert kf.trace.maxlen == saliency.TRACE_FRAMES

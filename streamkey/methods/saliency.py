@@ -76,6 +76,7 @@ makes the online result equal the offline one when every decision waits for `flu
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -121,6 +122,8 @@ from .saliency_math import (
     truncated_maps,
     widths,
 )
+
+TRACE_FRAMES = 2400  # 20 s at 120 Hz of per-frame saliency kept for live views
 
 __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FOOT_SIGMA",
            "SCALES", "HISTORY_SECONDS", "Basis", "Moments", "MapStats", "moments", "pca_basis",
@@ -344,6 +347,9 @@ class Online(OnlineKeyframer):
         self._norm: tuple[np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
         self._proj: tuple[np.ndarray, ...] = ()
+        # (seq, saliency) of each frame as it is classified, for live views: the weighted
+        # mean of S_j(f) / mean(S_j) over the curves (> 1 on a candidate of every curve).
+        self.trace: deque[tuple[int, float]] = deque(maxlen=TRACE_FRAMES)
 
     def _alloc_curves(self, kk: int, perm: np.ndarray | None) -> None:
         """(Re)allocate the per-curve ring arrays for `kk` curves, remapping kept columns."""
@@ -583,9 +589,11 @@ class Online(OnlineKeyframer):
         cand = sal > thr
         rel = sal / np.where(thr > 0, thr, 1.0)
         closed: list[tuple[int, float]] = []
+        level = rel @ self.weights / max(float(self.weights.sum()), 1e-300)
         for i in range(len(s)):
             closed.extend(self.clusterer.add(g0 + i, cand[i], self.weights, self.footmask,
                                              rel[i]))
+            self.trace.append((self.seq0 + g0 + i, float(level[i])))
         self.n_class = g1 + 1
         return self._emit(closed)
 

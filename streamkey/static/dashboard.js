@@ -6,7 +6,8 @@ const MAX_KEYS_SHOWN = 24;   // recent keyposes listed
 
 const state = {
   methods: [], colors: {}, bones: null, fps: 120, frame: null, pose: null,
-  signals: [], keys: [], pending: [], hold: false, ws: null, nextId: 1, dirty: true,
+  signals: [], saliency: [], keys: [], pending: [], hold: false, ws: null, nextId: 1,
+  dirty: true,
 };
 
 const $ = (id) => document.getElementById(id);
@@ -57,6 +58,7 @@ const HANDLERS = {
     $("stream").textContent = `stream ${m.stream}`;
     buildLegend();
     state.signals = m.signals || [];
+    state.saliency = m.saliency || [];
     if (state.signals.length) state.frame = state.signals[state.signals.length - 1].frame;
     for (const k of m.recent) addKey(k);
     for (const a of m.annotations) applyAnnotation(a);
@@ -68,6 +70,13 @@ const HANDLERS = {
     const oldest = m.frame - WINDOW_SECONDS * state.fps;
     while (state.signals.length && state.signals[0].frame < oldest) state.signals.shift();
     $("c-frame").textContent = m.frame;
+    state.dirty = true;
+  },
+  saliency(m) {
+    // per-frame saliency of the online keyframer: it trails the stream (at most its lookahead)
+    for (const p of m.points) state.saliency.push(p);
+    const oldest = (state.frame ?? 0) - WINDOW_SECONDS * state.fps;
+    while (state.saliency.length && state.saliency[0][0] < oldest) state.saliency.shift();
     state.dirty = true;
   },
   keyframe(m) { addKey(m); state.dirty = true; },
@@ -109,6 +118,7 @@ function buildLegend() {
   };
   add("body speed", "#222", true);
   add("acceleration", "#aaa", true);
+  add("saliency (delayed)", "#f4a6a6", true);
   for (const m of [...state.methods, "manual"]) add(m, state.colors[m]);
 }
 
@@ -258,6 +268,19 @@ function drawChart() {
     ctx.stroke();
   };
   trace("accel", "#aaa");
+  if (state.saliency.length) {
+    // saliency: 1 = a frame as salient as the mean on every curve; candidates lie above 1
+    const values = state.saliency.map((p) => p[1]).sort((a, b) => a - b);
+    const max = Math.max(2, values[Math.floor(0.98 * (values.length - 1))] || 0) * 1.1;
+    ctx.strokeStyle = "#f4a6a6";
+    ctx.lineWidth = 1.5;
+    ctx.beginPath();
+    state.saliency.forEach(([f, v], i) => {
+      const y = plotH - Math.min(v / max, 1.05) * (plotH - 6);
+      if (i === 0) ctx.moveTo(X(f), y); else ctx.lineTo(X(f), y);
+    });
+    ctx.stroke();
+  }
   trace("speed", "#222");
   const counts = Object.fromEntries(rows.map((m) => [m, 0]));
   for (const k of state.keys) {
