@@ -41,6 +41,7 @@ class RunSummary:
     wall_latency_ms: list[float] = field(default_factory=list)
     seconds: float = 0.0
     errors: list[str] = field(default_factory=list)
+    method_latency_ms: dict[str, list[float]] = field(default_factory=dict)
 
     def latency_percentiles(self) -> dict[str, float | None]:
         """p50 / p99 / max of the wall latency (ms), None before the first event."""
@@ -120,6 +121,8 @@ class Engine:
         for sink in self.sinks:
             self.on_ready(f"sending to {await sink.start()}")
         try:
+            if self.source.skeleton_ready.is_set():  # known skeleton: ready before frames flow
+                self._make_pipeline()
             self.on_ready(f"listening on {await self.source.start()}")
             await self._wait_skeleton()
             if not self._stopping:
@@ -143,8 +146,24 @@ class Engine:
         await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
         for w in waits:
             w.cancel()
-        if self.source.skeleton_ready.is_set() and not self._stopping:
-            self.pipeline = Pipeline(self.make_keyframers(self.source), stream=self.stream)
+        if self.source.skeleton_ready.is_set() and not self._stopping and self.pipeline is None:
+            self._make_pipeline()
+
+    def _make_pipeline(self) -> None:
+        self.pipeline = Pipeline(self.make_keyframers(self.source), stream=self.stream)
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Push a few rest-pose frames through a throwaway copy of the keyframers, so that
+        first-call costs (lazy imports, FK plans, BLAS start-up) are not paid by the first
+        real decision's latency."""
+        assert self.source.skeleton is not None
+        spare = Pipeline(self.make_keyframers(self.source), stream=self.stream)
+        rest = np.zeros(self.source.skeleton.n_channels)
+        fps = self.source.fps or 120.0
+        for seq in range(3):
+            spare.push(Frame(seq, seq / fps, rest))
+        spare.flush()
 
     async def _loop(self) -> None:
         assert self.pipeline is not None
@@ -161,11 +180,9 @@ class Engine:
             frame, arrival_ns = item
             self.summary.frames_in += 1
             try:
-                events = self.pipeline.push(frame)
+                self.pipeline.push(frame, lambda evs, t=arrival_ns: self._dispatch(evs, t))
             except Exception as exc:  # a keyframer bug must not end the session or lose the log
-                events = self._contain(exc, frame.seq)
-            if events:
-                self._dispatch(events, arrival_ns)
+                self._dispatch(self._contain(exc, frame.seq), arrival_ns)
             if self.on_frame is not None:
                 self.on_frame(frame)
 
@@ -187,6 +204,7 @@ class Engine:
                 latency = (time.monotonic_ns() - arrival_ns) / 1e6
                 record["wall_latency_ms"] = round(latency, 3)
                 self.summary.wall_latency_ms.append(latency)
+                self.summary.method_latency_ms.setdefault(event.method, []).append(latency)
                 self.summary.events[event.method] += 1
             else:
                 self.summary.events[record["type"]] += 1

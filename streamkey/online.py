@@ -22,7 +22,7 @@ restart, and a `GapEvent` with `bridged=False` is emitted. Nothing in this path 
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -233,6 +233,12 @@ class OnlineKeyframer:
         """Advance over clean consecutive frames (subclass hook)."""
         raise NotImplementedError
 
+    def idle(self) -> list[KeyframeEvent]:
+        """Deferred work of the last frame (subclass hook): called right after `process`,
+        once the events that were already due have been handed on, so a slow re-analysis
+        does not hold up finished decisions. Same frame, so `decided_at` is unchanged."""
+        return []
+
     def finish(self) -> list[KeyframeEvent]:
         """Decide everything pending at end of stream or before a restart (subclass hook)."""
         raise NotImplementedError
@@ -243,15 +249,19 @@ class OnlineKeyframer:
 
 
 def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
-           frames: Iterable[Frame]) -> list[Event]:
+           frames: Iterable[Frame],
+           emit: Callable[[list[Event]], None] | None = None) -> list[Event]:
     events: list[Event] = []
+    out = emit or events.extend
     pending: list[Frame] = []
 
     def run_pending() -> None:
         if pending:
             block = stage.compute(pending)
             for kf in keyframers:
-                events.extend(kf.process(block))
+                out(kf.process(block))
+            for kf in keyframers:
+                out(kf.idle())
             pending.clear()
 
     for frame in frames:
@@ -260,10 +270,10 @@ def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineK
             run_pending()
         if restart:
             for kf in keyframers:
-                events.extend(kf.finish())
+                out(kf.finish())
                 kf.reset()
             stage.reset()
-        events.extend(gaps)
+        out(gaps)
         pending.extend(clean)
     run_pending()
     return events
@@ -281,9 +291,12 @@ class Pipeline:
         self.guard = StreamGuard(first.skeleton.n_channels, stream, "*", max_bridge_frames)
         self.features = first.features
 
-    def push(self, frame: Frame) -> list[Event]:
-        """Feed one frame to every keyframer."""
-        return _drive(self.guard, self.features, self.keyframers, [frame])
+    def push(self, frame: Frame,
+             emit: Callable[[list[Event]], None] | None = None) -> list[Event]:
+        """Feed one frame to every keyframer. With `emit`, events are handed to it as soon as
+        each keyframer has them (due decisions before any deferred re-analysis) and the
+        return value is empty."""
+        return _drive(self.guard, self.features, self.keyframers, [frame], emit)
 
     def push_block(self, frames: Iterable[Frame]) -> list[Event]:
         """Feed many frames; same events as pushing them one by one."""

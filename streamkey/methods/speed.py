@@ -467,7 +467,9 @@ class Online(OnlineKeyframer):
     `lookahead`) comes before the next analysis are decided; each decision is sent when its
     deadline frame arrives, so latency_frames == lookahead for every event except those of
     `flush()`, which analyses the whole window and decides the rest (decisions not yet sent
-    included). A decision sees at least lookahead - hop + 1 frames after its candidate.
+    included). A decision sees at least lookahead - hop frames after its candidate; its
+    deadline is never the analysis frame itself (after warm-up), so a re-analysis does not
+    hold up the event it decides.
     `cutoff_history` frames of candidate intensities feed the Ward + Mojena cut-off; below
     `warmup_candidates` a one-cluster verdict becomes two.
     The module docstring lists what replaces each global step of the offline method.
@@ -515,6 +517,7 @@ class Online(OnlineKeyframer):
         """Forget the window and the cut-off history; keep parameters."""
         self._ring.clear()
         self._count = 0
+        self._analysis_due = False
         self._last_seq = 0
         self._scheduled_upto: int | None = None  # candidates <= this have a decision
         self._scheduled: deque[tuple[int, float, bool]] = deque()  # (frame, U, keep) not sent
@@ -535,9 +538,20 @@ class Online(OnlineKeyframer):
             self._last_seq = int(block.seq[i - 1])
             events.extend(self._emit())
             if self._count % self.hop == 0:
-                self._schedule()
-                events.extend(self._emit())
+                if i < len(block):
+                    self._schedule()
+                    events.extend(self._emit())
+                else:  # the block's last frame: re-analyse in `idle`, after due events left
+                    self._analysis_due = True
         return events
+
+    def idle(self) -> list[KeyframeEvent]:
+        """The re-analysis deferred from the last `process` (same frame, same decisions)."""
+        if not self._analysis_due:
+            return []
+        self._analysis_due = False
+        self._schedule()
+        return self._emit()
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: analyse the whole window and decide every candidate not yet sent.
@@ -545,18 +559,19 @@ class Online(OnlineKeyframer):
         Decisions scheduled but not sent (their frame + lookahead never arrived) are redone
         with the whole window, like everything else still pending.
         """
+        events = self.idle()  # normally already run by the driver
         if not len(self._ring):
-            return []
+            return events
         self._scheduled.clear()
         t = self._last_seq
         if self._scheduled_upto is not None:  # what was sent: candidates <= t - lookahead
             self._scheduled_upto = min(self._scheduled_upto, t - self.lookahead)
         u, seqs, new = self._analyse(t, final=True)
         if not np.any(new):
-            return []
+            return events
         threshold = self._cutoff(u[new], u[seqs > t], t, final=True)
-        return [self.event(int(c), self._ring.time(int(c)), float(x), t)
-                for c, x in zip(seqs[new], u[new], strict=True) if x > threshold]
+        return events + [self.event(int(c), self._ring.time(int(c)), float(x), t)
+                         for c, x in zip(seqs[new], u[new], strict=True) if x > threshold]
 
     def _emit(self) -> list[KeyframeEvent]:
         """Send the scheduled decisions whose frame + lookahead has arrived (their deadline)."""
@@ -572,7 +587,7 @@ class Online(OnlineKeyframer):
     def _schedule(self) -> None:
         """Decide the candidates whose deadline comes before the next update; send at deadline."""
         t = self._last_seq
-        zone_end = t + self.hop - 1 - self.lookahead
+        zone_end = t + self.hop - self.lookahead
         if zone_end < self._ring.first_seq or (self._scheduled_upto is not None
                                                and zone_end <= self._scheduled_upto):
             return  # nothing is due yet
