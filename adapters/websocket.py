@@ -90,6 +90,9 @@ class WebSocketSink(Sink):
         sock = connection.transport.get_extra_info("socket")
         if sock is not None:  # a small kernel buffer: a stalled client shows up in seconds
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer)
+        greeting = self.greeting()
+        if greeting is not None:
+            client.put(json.dumps(greeting, separators=(",", ":")))
         self.clients.add(client)
         sender = asyncio.create_task(self._send_loop(client))
         try:
@@ -101,6 +104,10 @@ class WebSocketSink(Sink):
             sender.cancel()
             self.clients.discard(client)
             self.client_drops += client.dropped
+
+    def greeting(self) -> dict[str, Any] | None:
+        """First message to every new client (none here; the dashboard sends its state)."""
+        return None
 
     def _reply(self, client: Client, message: str | bytes) -> None:
         if self.on_message is None:

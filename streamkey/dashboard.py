@@ -27,7 +27,6 @@ page URL carries `?token=...` and the page and the WebSocket refuse requests wit
 
 from __future__ import annotations
 
-import asyncio
 import hmac
 import json
 import secrets
@@ -43,7 +42,7 @@ import numpy as np
 from .adapters import make_sink, parse_address
 from .adapters.base import LOOPBACK, Address, Source, bind_host
 from .adapters.sinks import JsonlSink
-from .adapters.websocket import Client, WebSocketSink
+from .adapters.websocket import WebSocketSink
 from .engine import Engine, RunSummary
 from .errors import UsageError
 from .keyframes import SCHEMA_VERSION
@@ -229,7 +228,7 @@ class DashboardSink(WebSocketSink):
                  methods: list[str] | None = None, log: JsonlSink | None = None,
                  token: str | None = None, rate: float = 30.0, recent: int = 24) -> None:
         address = Address("ws", LOOPBACK, port)
-        super().__init__(address, listen, on_message=None)
+        super().__init__(address, listen, on_message=self.annotate)
         self.host = bind_host(address, listen)
         self.loopback = self.host in _LOOPBACK_NAMES
         self.token = token if token is not None else (None if self.loopback
@@ -340,6 +339,10 @@ class DashboardSink(WebSocketSink):
                                  "p99": round(float(np.percentile(lat, 99)), 3)}
         return out
 
+    def greeting(self) -> dict[str, Any]:
+        """Every new page first gets the state it needs to draw (`hello`)."""
+        return self.hello()
+
     def hello(self) -> dict[str, Any]:
         """First message of a connection: what the page needs to draw, and recent keys."""
         methods = self.methods + ["manual"]
@@ -369,25 +372,6 @@ class DashboardSink(WebSocketSink):
             self.recent.append({**shown, "type": "keyframe"})
         self.broadcast(shown)
         return reply
-
-    async def _handle(self, connection: Any) -> None:
-        from websockets.exceptions import ConnectionClosed
-
-        client = Client(connection, self.client_queue)
-        client.put(json.dumps(self.hello(), separators=(",", ":")))
-        self.clients.add(client)
-        sender = asyncio.create_task(self._send_loop(client))
-        try:
-            async for message in connection:
-                text = message if isinstance(message, str) else message.decode("utf-8",
-                                                                                "replace")
-                client.put(json.dumps(self.annotate(text), separators=(",", ":")))
-        except ConnectionClosed:
-            pass
-        finally:
-            sender.cancel()
-            self.clients.discard(client)
-            self.client_drops += client.dropped
 
     def _http(self, connection: Any, request: Any) -> Any:
         """Route `/`, `/static/...` and `/ws`; refuse foreign hosts, origins and bad tokens."""

@@ -51,3 +51,16 @@ def keyframes_of(events: list[dict]) -> list[tuple[str, int, int]]:
     """(method, frame, decided_at) of every keyframe event, sorted."""
     return sorted((e["method"], e["frame"], e["decided_at"]) for e in events
                   if e["type"] == "keyframe")
+
+
+def wait_udp_bound(port: int, what: str, timeout: float = 20.0) -> None:
+    """For peers that print no ready line (oscdump, Pd): wait until their UDP port is taken."""
+    deadline = time.monotonic() + timeout * MS
+    while time.monotonic() < deadline:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                return
+        time.sleep(0.02)
+    raise AssertionError(f"{what} did not bind UDP port {port}")

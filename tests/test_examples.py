@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from cmu import DATA, ROOT
-from live_helpers import MS, free_port, read_jsonl, streamkey, wait_ready
+from live_helpers import MS, free_port, read_jsonl, streamkey, wait_ready, wait_udp_bound
 
 EXAMPLES = ROOT / "examples"
 CLIP = DATA / "07_01.bvh"
@@ -25,16 +25,7 @@ def test_pure_data_patch_receives_and_prints_keyframes(tmp_path):
     proc = subprocess.Popen([pd, "-nogui", "-noaudio", "-nomidi", "-stderr", "-open", str(patch)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 20 * MS
-        while time.monotonic() < deadline:  # Pd prints nothing when ready: probe its port
-            import socket
-
-            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-                try:
-                    probe.bind(("127.0.0.1", port))
-                except OSError:
-                    break
-            time.sleep(0.05)
+        wait_udp_bound(port, "Pure Data")
         run = streamkey("run", "--from", str(CLIP), "--fast", "--method", "speed",
                         "--to", f"osc://127.0.0.1:{port}")
         _, err = run.communicate(timeout=120 * MS)

@@ -5,12 +5,11 @@ from __future__ import annotations
 import shlex
 import shutil
 import signal
-import socket
 import subprocess
 import time
 
 from cmu import DATA
-from live_helpers import MS, free_port, read_jsonl, streamkey, wait_ready
+from live_helpers import MS, free_port, read_jsonl, streamkey, wait_ready, wait_udp_bound
 
 from streamkey.bvh import read_bvh
 
@@ -21,19 +20,6 @@ def require(tool: str) -> str:
     path = shutil.which(tool)
     assert path, f"{tool} not found: install Debian liblo-tools (.ci/run does)"
     return path
-
-
-def wait_bound(port: int, timeout: float = 10.0) -> None:
-    """oscdump prints no ready line: wait until its UDP port is taken."""
-    deadline = time.monotonic() + timeout * MS
-    while time.monotonic() < deadline:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-            try:
-                probe.bind(("127.0.0.1", port))
-            except OSError:
-                return
-        time.sleep(0.02)
-    raise AssertionError(f"oscdump did not bind port {port}")
 
 
 def parse_oscdump(text: str) -> list[dict]:
@@ -55,7 +41,7 @@ def test_oscdump_receives_keyframe_messages_that_parse_back_to_the_events(tmp_pa
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     log = tmp_path / "events.jsonl"
     try:
-        wait_bound(port)
+        wait_udp_bound(port, "oscdump")
         run = streamkey("run", "--from", str(CLIP), "--fast", "--stream", "take 1",
                         "--to", f"osc://127.0.0.1:{port}", "--to", f"jsonl:{log}")
         _, err = run.communicate(timeout=120 * MS)
