@@ -20,7 +20,8 @@ from streamkey.errors import UsageError
 from streamkey.motion import Frame, Skeleton
 
 __all__ = ["Address", "parse_address", "FrameQueue", "Source", "Sink", "SourceStats",
-           "SinkStats", "LOOPBACK", "bind_host", "MAX_CHANNELS", "MAX_MESSAGE_BYTES"]
+           "SinkStats", "put_drop_oldest", "LOOPBACK", "bind_host", "MAX_CHANNELS",
+           "MAX_MESSAGE_BYTES"]
 
 LOOPBACK = "127.0.0.1"
 MAX_CHANNELS = 1024          # more channels than any skeleton we know of (CMU: 96)
@@ -128,6 +129,19 @@ class SinkStats:
         return dict(self.__dict__)
 
 
+def put_drop_oldest(queue: asyncio.Queue[Any], item: Any) -> int:
+    """Put `item` without waiting, dropping the oldest entries to make room; returns how
+    many were dropped (live consumers want the newest data, not a backlog)."""
+    dropped = 0
+    while True:
+        try:
+            queue.put_nowait(item)
+            return dropped
+        except asyncio.QueueFull:
+            queue.get_nowait()
+            dropped += 1
+
+
 class FrameQueue:
     """Bounded frame queue between a network callback and the engine: drop-oldest when full.
 
@@ -142,13 +156,7 @@ class FrameQueue:
     def put(self, frame: Frame | None) -> None:
         """Enqueue a frame (stamped with its arrival time) or the end-of-stream marker."""
         item = None if frame is None else (frame, time.monotonic_ns())
-        while True:
-            try:
-                self.queue.put_nowait(item)
-                return
-            except asyncio.QueueFull:
-                self.queue.get_nowait()
-                self.stats.queue_drops += 1
+        self.stats.queue_drops += put_drop_oldest(self.queue, item)
 
     async def get(self) -> tuple[Frame, int] | None:
         """Next frame and its arrival time (ns, monotonic), or None at end of stream."""

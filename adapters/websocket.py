@@ -20,7 +20,7 @@ from websockets.exceptions import ConnectionClosed
 
 from streamkey.errors import InputError
 
-from .base import MAX_MESSAGE_BYTES, Address, Sink, bind_host
+from .base import MAX_MESSAGE_BYTES, Address, Sink, bind_host, put_drop_oldest
 
 __all__ = ["WebSocketSink", "Client", "CLIENT_QUEUE"]
 
@@ -36,13 +36,8 @@ class Client:
         self.dropped = 0
 
     def put(self, text: str) -> None:
-        while True:
-            try:
-                self.queue.put_nowait(text)
-                return
-            except asyncio.QueueFull:
-                self.queue.get_nowait()
-                self.dropped += 1
+        """Queue a message for this client, dropping its oldest when full."""
+        self.dropped += put_drop_oldest(self.queue, text)
 
 
 class WebSocketSink(Sink):

@@ -40,11 +40,8 @@ async def until(predicate, seconds=10.0):
         await asyncio.sleep(0.002)
 
 
-def sender():
-    return socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-
-
-async def test_malformed_osc_packets_are_counted_and_the_stream_goes_on(tmp_path):
+async def osc_engine(tmp_path):
+    """An engine listening for OSC frames on a free port, logging to JSON Lines."""
     port = free_port()
     source = OscSource(parse_address(f"osc://127.0.0.1:{port}"), skeleton=MOTION.skeleton,
                        fps=MOTION.fps)
@@ -52,6 +49,15 @@ async def test_malformed_osc_packets_are_counted_and_the_stream_goes_on(tmp_path
     engine = Engine(source, keyframers(), [make_sink(parse_address(f"jsonl:{log}"))])
     task = asyncio.create_task(engine.run())
     await until(lambda: source.transport is not None)
+    return port, source, log, engine, task
+
+
+def sender():
+    return socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+
+async def test_malformed_osc_packets_are_counted_and_the_stream_goes_on(tmp_path):
+    port, source, log, engine, task = await osc_engine(tmp_path)
     out = sender()
     target = ("127.0.0.1", port)
     good = [encode_frame(i, i / 120, MOTION.channels[i]) for i in range(1, MOTION.n_frames)]
@@ -85,13 +91,7 @@ async def test_malformed_osc_packets_are_counted_and_the_stream_goes_on(tmp_path
 
 
 async def test_duplicates_out_of_order_and_silence_do_not_stop_the_stream(tmp_path):
-    port = free_port()
-    source = OscSource(parse_address(f"osc://127.0.0.1:{port}"), skeleton=MOTION.skeleton,
-                       fps=MOTION.fps)
-    log = tmp_path / "log.jsonl"
-    engine = Engine(source, keyframers(), [make_sink(parse_address(f"jsonl:{log}"))])
-    task = asyncio.create_task(engine.run())
-    await until(lambda: source.transport is not None)
+    port, source, log, engine, task = await osc_engine(tmp_path)
     out = sender()
     order = list(range(1, 150)) + [149, 148, 120] + list(range(150, 200))
     for i, seq in enumerate(order):
