@@ -256,9 +256,13 @@ def click_reject(driver: Any) -> int | None:
         ElementClickInterceptedException,
         StaleElementReferenceException,
     )
+    from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
 
     try:
+        # The list holds still while the pointer is over it: hover first, then pick, so a
+        # key that slides in between reading the frame and clicking cannot take the click.
+        ActionChains(driver).move_to_element(driver.find_element(By.ID, "keys")).perform()
         item = driver.find_element(By.CSS_SELECTOR, "#keys li:not([data-method=manual])")
         frame = int(item.get_attribute("data-frame"))
         item.find_element(By.CLASS_NAME, "reject").click()
