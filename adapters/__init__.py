@@ -34,7 +34,7 @@ def make_sink(address: Address, listen: str | None = None) -> Sink:
     if address.scheme == "osc":
         from .osc import OscEventSink
 
-        return OscEventSink(address)
+        return OscEventSink(address, listen)
     if address.scheme in ("zmq+tcp", "zmq+ipc"):
         from .zmq import ZmqEventSink
 

@@ -19,21 +19,35 @@ byte-for-byte equal to it: tested); everything else goes through python-osc.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import socket
 import struct
+import sys
+import time
 from typing import Any
 
 import numpy as np
-from pythonosc.osc_bundle import OscBundle
 from pythonosc.osc_message import OscMessage
 from pythonosc.osc_message_builder import OscMessageBuilder
 
 from streamkey.bvh import parse_bvh
 from streamkey.errors import BVHError, InputError, UsageError
+from streamkey.keyframes import Event, KeyframeEvent
 from streamkey.motion import Frame, Skeleton
 
-from .base import MAX_CHANNELS, MAX_MESSAGE_BYTES, Address, Sink, Source, bind_host
+from .base import (
+    LOOPBACK,
+    MAX_CHANNELS,
+    MAX_MESSAGE_BYTES,
+    Address,
+    Sink,
+    Source,
+    bind_host,
+    fps_problem,
+    frame_numbers_problem,
+    is_loopback,
+)
 
 __all__ = ["FRAME_ADDRESS", "SKELETON_ADDRESS", "KEYFRAME_ADDRESS", "encode_frame",
            "decode_frame", "encode_skeleton", "encode_event", "OscDecodeError", "OscSource",
@@ -85,8 +99,10 @@ def encode_skeleton(skeleton: Skeleton, fps: float) -> bytes:
     return builder.build().dgram
 
 
-def encode_event(event: dict[str, Any], time_type: str = "f") -> bytes:
+def encode_event(event: KeyframeEvent | dict[str, Any], time_type: str = "f") -> bytes:
     """`/streamkey/keyframe s stream, s method, i frame, f time, f score, i latency_frames`."""
+    if isinstance(event, KeyframeEvent):
+        event = event.to_dict()
     builder = OscMessageBuilder(KEYFRAME_ADDRESS)
     builder.add_arg(str(event["stream"]), "s")
     builder.add_arg(str(event["method"]), "s")
@@ -97,50 +113,59 @@ def encode_event(event: dict[str, Any], time_type: str = "f") -> bytes:
     return builder.build().dgram
 
 
-def _fast_frame(data: bytes) -> tuple[int, float, np.ndarray] | None:
-    """Decode our own fixed layout without python-osc; None if the packet is not in it."""
-    head = _osc_string(FRAME_ADDRESS)
-    if not data.startswith(head + b",id"):
-        return None
-    tags_end = data.index(b"\0", len(head))
-    tags = data[len(head) + 1 : tags_end]
-    n = len(tags) - 2
-    if n < 1 or tags[2:] != b"f" * n:
-        return None
-    start = len(head) + len(_osc_string("," + tags.decode()))
-    if len(data) != start + 12 + 4 * n:
-        return None
-    seq, time = struct.unpack_from(">id", data, start)
-    return seq, time, np.frombuffer(data, ">f4", n, start + 12).astype(np.float64)
+_ARG_FORMATS = {ord("i"): "i", ord("h"): "q", ord("f"): "f", ord("d"): "d"}
+_FRAME_HEAD = _osc_string(FRAME_ADDRESS)
+
+
+def _address_of(data: bytes) -> str:
+    """The address pattern of an OSC message, for error messages; raises on garbage."""
+    end = data.find(b"\0")
+    if end <= 0 or not data.startswith(b"/"):
+        raise OscDecodeError("parse", "not an OSC message: no address pattern")
+    return data[:end].decode("ascii", "replace")
 
 
 def decode_frame(data: bytes) -> tuple[int, float, np.ndarray]:
-    """Decode a `/streamkey/frame` packet; raises `OscDecodeError` saying what is wrong."""
-    fast = _fast_frame(data)
-    if fast is not None:
-        seq, time, channels = fast
+    """Decode a `/streamkey/frame` packet exactly (every byte accounted for); raises
+    `OscDecodeError` with a kind: parse, address, types, arity, oversize, truncated,
+    trailing, nan, range."""
+    if not data.startswith(_FRAME_HEAD):
+        raise OscDecodeError("address", f"unexpected OSC address {_address_of(data)!r}")
+    head = len(_FRAME_HEAD)
+    tags_end = data.find(b"\0", head)
+    if tags_end < 0 or data[head : head + 1] != b",":
+        raise OscDecodeError("parse", f"{FRAME_ADDRESS}: no type tag string")
+    tags = data[head + 1 : tags_end]
+    formats = [_ARG_FORMATS.get(t) for t in tags]
+    if None in formats:
+        raise OscDecodeError("types", f"{FRAME_ADDRESS}: seq, time and channels must be "
+                             f"numbers (i, h, f, d), got type tags {tags[:40]!r}")
+    if len(formats) < 3:
+        raise OscDecodeError("arity", f"{FRAME_ADDRESS}: expected seq, time and at least one "
+                             f"channel, got {len(formats)} arguments")
+    n = len(formats) - 2
+    if n > MAX_CHANNELS:
+        raise OscDecodeError("oversize", f"{FRAME_ADDRESS}: {n} channels, more than the limit "
+                             f"of {MAX_CHANNELS}")
+    start = (tags_end + 4) & ~3
+    layout = struct.Struct(">" + "".join(f for f in formats if f))
+    if len(data) != start + layout.size:
+        kind = "truncated" if len(data) < start + layout.size else "trailing"
+        raise OscDecodeError(kind, f"{FRAME_ADDRESS}: {len(data)} bytes, the type tags "
+                             f"{tags[:40].decode('ascii')!r} need {start + layout.size}")
+    if tags[2:] == b"f" * n:  # our own layout (and most senders'): one vectorised read
+        seq_value, time_value = struct.unpack_from(f">{formats[0]}{formats[1]}", data, start)
+        offset = start + struct.calcsize(f">{formats[0]}{formats[1]}")
+        channels = np.frombuffer(data, ">f4", n, offset).astype(np.float64)
     else:
-        params = _message(data, FRAME_ADDRESS).params
-        if len(params) < 3:
-            raise OscDecodeError("arity", f"{FRAME_ADDRESS}: expected seq, time and at least one "
-                                 f"channel, got {len(params)} arguments")
-        seq_value, time_value, values = params[0], params[1], params[2:]
-        if isinstance(seq_value, float) and seq_value.is_integer():
-            seq_value = int(seq_value)
-        if not isinstance(seq_value, int) or isinstance(seq_value, bool):
-            raise OscDecodeError("types", f"{FRAME_ADDRESS}: seq must be an integer (i, h), got "
-                                 f"{type(seq_value).__name__}")
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                   for v in [time_value, *values]):
-            raise OscDecodeError("types", f"{FRAME_ADDRESS}: time and channels must be numbers "
-                                 "(f, d or i)")
-        seq, time, channels = seq_value, float(time_value), np.array(values, dtype=np.float64)
-    if len(channels) > MAX_CHANNELS:
-        raise OscDecodeError("oversize", f"{FRAME_ADDRESS}: {len(channels)} channels, more than "
-                             f"the limit of {MAX_CHANNELS}")
-    if not (math.isfinite(time) and np.all(np.isfinite(channels))):
-        raise OscDecodeError("nan", f"{FRAME_ADDRESS}: seq {seq}: NaN or infinite value")
-    return int(seq), float(time), channels
+        seq_value, time_value, *values = layout.unpack_from(data, start)
+        channels = np.array(values, dtype=np.float64)
+    if not (math.isfinite(time_value) and np.all(np.isfinite(channels))):
+        raise OscDecodeError("nan", f"{FRAME_ADDRESS}: NaN or infinite value")
+    problem = frame_numbers_problem(seq_value, time_value)
+    if problem is not None:
+        raise OscDecodeError("range", f"{FRAME_ADDRESS}: {problem}")
+    return int(seq_value), float(time_value), channels
 
 
 def _message(data: bytes, address: str | None = None) -> OscMessage:
@@ -154,33 +179,48 @@ def _message(data: bytes, address: str | None = None) -> OscMessage:
 
 
 def decode_skeleton(data: bytes) -> tuple[Skeleton, float]:
-    """Decode `/streamkey/skeleton s bvh [, d fps]`."""
+    """Decode `/streamkey/skeleton s bvh [, d fps]`; any failure is an `OscDecodeError`."""
     params = _message(data, SKELETON_ADDRESS).params
     if not params or not isinstance(params[0], str):
         raise OscDecodeError("types", f"{SKELETON_ADDRESS}: expected s bvh_header [, d fps]")
     fps = params[1] if len(params) > 1 and isinstance(params[1], (int, float)) else 120.0
-    if not (math.isfinite(fps) and 0 < fps <= 10_000):
-        raise OscDecodeError("types", f"{SKELETON_ADDRESS}: fps {fps} out of range")
+    problem = fps_problem(fps)
+    if problem is not None:
+        raise OscDecodeError("skeleton", f"{SKELETON_ADDRESS}: {problem}")
     try:
         motion = parse_bvh(params[0], source=SKELETON_ADDRESS)
     except BVHError as exc:
         raise OscDecodeError("skeleton", str(exc)) from None
+    except Exception as exc:  # a hostile header must not reach the loop (RecursionError, ...)
+        raise OscDecodeError("skeleton", f"{SKELETON_ADDRESS}: {type(exc).__name__}: "
+                             f"{str(exc)[:200]}") from None
     return motion.skeleton, float(fps)
 
 
-class _Protocol(asyncio.DatagramProtocol):
-    def __init__(self, source: OscSource) -> None:
-        self.source = source
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35 if sys.platform == "linux" else None)
+_SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40 if sys.platform == "linux" else None)
+_READ_BURST = 64  # datagrams read per wake-up before the loop gets its turn back
 
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.source.receive(data)
 
-    def error_received(self, exc: Exception) -> None:
-        self.source.stats.reject("socket", str(exc))
+def _enable(sock: socket.socket, option: int | None) -> bool:
+    if option is None:
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, option, 1)
+    except OSError:
+        return False
+    return True
 
 
 class OscSource(Source):
-    """Frames from OSC over UDP (`/streamkey/frame`, bundles of them too)."""
+    """Frames from OSC over UDP (`/streamkey/frame`, bundles of them too).
+
+    The socket is read with `recvmsg`: on Linux every datagram carries the kernel's receive
+    time (`SO_TIMESTAMPNS`), so the wall latency counts the time a frame waited in the socket
+    while the loop was busy, and the kernel's count of datagrams it dropped because the
+    receive buffer was full (`SO_RXQ_OVFL`). Elsewhere the arrival is stamped when read and
+    kernel drops stay unknown (None in the summary, said so in its text).
+    """
 
     name = "osc"
 
@@ -189,72 +229,137 @@ class OscSource(Source):
         super().__init__(skeleton, fps)
         self.address = address
         self.host = bind_host(address, listen)
-        self.transport: asyncio.DatagramTransport | None = None
+        self.sock: socket.socket | None = None
+        self.kernel_stamps = False
 
     async def start(self) -> str:
-        loop = asyncio.get_running_loop()
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.setblocking(False)
         try:
-            self.transport, _ = await loop.create_datagram_endpoint(
-                lambda: _Protocol(self), local_addr=(self.host, self.address.port),
-                family=socket.AF_INET)
+            sock.bind((self.host, self.address.port))
         except OSError as exc:
+            sock.close()
             raise InputError(f"{self.address}: cannot listen on {self.host}:"
                              f"{self.address.port}: {exc.strerror or exc}") from None
-        port = self.transport.get_extra_info("sockname")[1]
-        return f"osc://{self.host}:{port}"
+        self.kernel_stamps = _enable(sock, _SO_TIMESTAMPNS)
+        if _enable(sock, _SO_RXQ_OVFL):
+            self.stats.kernel_drops = 0
+        self.sock = sock
+        asyncio.get_running_loop().add_reader(sock.fileno(), self._readable)
+        return f"osc://{self.host}:{sock.getsockname()[1]}"
 
-    def receive(self, data: bytes) -> None:
-        """Handle one datagram (called on the event loop); never raises."""
+    def _readable(self) -> None:
+        assert self.sock is not None
+        space = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4)
+        offset: int | None = None
+        for _ in range(_READ_BURST):
+            try:
+                data, ancillary, flags, _ = self.sock.recvmsg(MAX_MESSAGE_BYTES + 1, space)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:  # an ICMP error reported on the socket
+                self.stats.reject("socket", str(exc))
+                continue
+            arrival: int | None = None
+            for level, kind, value in ancillary:
+                if level != socket.SOL_SOCKET:
+                    continue
+                if kind == _SO_TIMESTAMPNS and len(value) >= 16:
+                    sec, nsec = struct.unpack_from("qq", value)
+                    if offset is None:  # realtime -> monotonic, one clock pair per burst
+                        offset = time.monotonic_ns() - time.time_ns()
+                    arrival = sec * 1_000_000_000 + nsec + offset
+                elif kind == _SO_RXQ_OVFL and len(value) >= 4:
+                    self.stats.kernel_drops = struct.unpack_from("I", value)[0]
+            if flags & socket.MSG_TRUNC:
+                self.stats.reject("oversize", f"datagram larger than {MAX_MESSAGE_BYTES} bytes")
+                continue
+            self.receive(data, arrival)
+
+    def receive(self, data: bytes, arrival_ns: int | None = None, depth: int = 0) -> None:
+        """Handle one datagram (called on the event loop); never raises: every packet that
+        does not become a frame is counted by kind."""
         try:
             if len(data) > MAX_MESSAGE_BYTES:
                 raise OscDecodeError("oversize", f"packet of {len(data)} bytes, more than "
                                      f"{MAX_MESSAGE_BYTES}")
-            if OscBundle.dgram_is_bundle(data):
-                for item in _bundle_messages(data):
-                    self.receive(item)
+            if data.startswith(_BUNDLE_HEAD):
+                for item in _bundle_elements(data, depth):
+                    self.receive(item, arrival_ns, depth + 1)
                 return
             if data.startswith(_osc_string(SKELETON_ADDRESS)):
                 self.set_skeleton(*decode_skeleton(data))
                 return
-            seq, time, channels = decode_frame(data)
+            seq, time_s, channels = decode_frame(data)
         except OscDecodeError as exc:
             self.stats.reject(exc.kind, str(exc))
             return
+        except Exception as exc:  # a decoder bug: counted, the source goes on
+            self.stats.reject("internal", f"{type(exc).__name__}: {str(exc)[:200]}")
+            return
         self.stats.received += 1
-        self.frames.put(Frame(seq, time, channels))
+        self.frames.put(Frame(seq, time_s, channels), arrival_ns)
 
     async def close(self) -> None:
-        if self.transport is not None:
-            self.transport.close()
+        await super().close()
+        if self.sock is not None:
+            with contextlib.suppress(Exception):
+                asyncio.get_running_loop().remove_reader(self.sock.fileno())
+            self.sock.close()
 
 
-def _bundle_messages(data: bytes) -> list[bytes]:
-    try:
-        bundle = OscBundle(data)
-    except Exception as exc:
-        raise OscDecodeError("parse", f"bad OSC bundle: {exc}") from None
-    out = []
-    for i in range(bundle.num_contents):
-        content = bundle.content(i)
-        out.extend(_bundle_messages(content.dgram) if isinstance(content, OscBundle)
-                   else [content.dgram])
+_BUNDLE_HEAD = b"#bundle\0"
+MAX_BUNDLE_DEPTH = 8
+
+
+def _bundle_elements(data: bytes, depth: int) -> list[bytes]:
+    """The elements of an OSC bundle (size-prefixed, each a multiple of 4 bytes, non-empty,
+    inside the packet); a malformed bundle is an `OscDecodeError` of kind `bundle`."""
+    if depth >= MAX_BUNDLE_DEPTH:
+        raise OscDecodeError("bundle", f"bundles nested deeper than {MAX_BUNDLE_DEPTH}")
+    if len(data) < 16:
+        raise OscDecodeError("bundle", "bundle shorter than its header and time tag")
+    out, at = [], 16
+    while at < len(data):
+        if at + 4 > len(data):
+            raise OscDecodeError("bundle", f"bundle element size cut off at byte {at}")
+        (size,) = struct.unpack_from(">i", data, at)
+        at += 4
+        if size <= 0 or size % 4 or at + size > len(data):
+            raise OscDecodeError("bundle", f"bundle element of size {size} at byte {at - 4} "
+                                 f"(must be a positive multiple of 4 inside the packet)")
+        out.append(data[at : at + size])
+        at += size
     return out
 
 
 class _UdpSender:
-    """A non-blocking UDP socket to one peer; a full buffer or an absent peer counts a drop."""
+    """A non-blocking UDP socket to one peer; a full buffer or an absent peer counts a drop.
 
-    def __init__(self, address: Address, stats: Any) -> None:
+    The socket is bound to the loopback (or to `listen`) when the peer is on loopback, and
+    connect()ed to the peer, so it never listens on every interface and takes datagrams from
+    the peer only.
+    """
+
+    def __init__(self, address: Address, stats: Any, listen: str | None = None) -> None:
         self.target = (address.host, address.port)
         self.stats = stats
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setblocking(False)
+        try:
+            if listen or is_loopback(address.host):
+                self.sock.bind((listen or LOOPBACK, 0))
+            self.sock.connect(self.target)
+        except OSError as exc:
+            self.sock.close()
+            raise InputError(f"{address}: cannot send to {address.host}:{address.port}: "
+                             f"{exc.strerror or exc}") from None
 
     def send(self, data: bytes) -> None:
         try:
-            self.sock.sendto(data, self.target)
+            self.sock.send(data)
             self.stats.sent += 1
-        except (BlockingIOError, ConnectionRefusedError, OSError) as exc:
+        except OSError as exc:  # full buffer, absent peer (ICMP refused), unreachable
             self.stats.dropped += 1
             self.stats.last_error = str(exc)
 
@@ -267,20 +372,23 @@ class OscEventSink(Sink):
 
     name = "osc"
 
-    def __init__(self, address: Address) -> None:
+    def __init__(self, address: Address, listen: str | None = None) -> None:
         super().__init__()
         self.address = address
         self.time_type = address.options.get("time", "f")
         if self.time_type not in ("f", "d"):
             raise UsageError(f"{address}: time must be f or d")
-        self.sender = _UdpSender(address, self.stats)
+        self.sender = _UdpSender(address, self.stats, listen)
 
     async def start(self) -> str:
         return str(self.address)
 
-    def offer(self, event: dict[str, Any]) -> None:
-        if event.get("type") == "keyframe":
-            self.sender.send(encode_event(event, self.time_type))
+    def offer(self, event: Event) -> None:
+        match event:
+            case KeyframeEvent():
+                self.sender.send(encode_event(event, self.time_type))
+            case _:
+                pass  # gaps and status have no OSC message
 
     async def close(self) -> None:
         self.sender.close()
@@ -291,12 +399,12 @@ class OscFrameSender:
 
     name = "osc"
 
-    def __init__(self, address: Address) -> None:
+    def __init__(self, address: Address, listen: str | None = None) -> None:
         from .base import SinkStats
 
         self.address = address
         self.stats = SinkStats()
-        self.sender = _UdpSender(address, self.stats)
+        self.sender = _UdpSender(address, self.stats, listen)
         self.skeleton_message: tuple[Skeleton, bytes] | None = None
 
     def send_skeleton(self, skeleton: Skeleton, fps: float) -> None:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from streamkey.errors import InputError
+from streamkey.keyframes import Event
 
 from .base import Address, Sink
 
@@ -18,8 +19,9 @@ __all__ = ["JsonlSink", "StdoutSink"]
 class JsonlSink(Sink):
     """Append every event as one JSON line, flushed before any network sink sees it.
 
-    The file is fsynced on close. It never drops: a write error stops the run with a clear
-    message rather than losing the log silently.
+    The file is fsynced on close. It never drops by itself; a write error (disk full) raises,
+    and the engine counts it against this sink (and disables it after repeated failures)
+    without touching the keyframers or the other sinks.
     """
 
     name = "jsonl"
@@ -37,8 +39,12 @@ class JsonlSink(Sink):
     async def start(self) -> str:
         return f"jsonl:{self.path}"
 
-    def offer(self, event: dict[str, Any]) -> None:
-        self.file.write(json.dumps(event, separators=(",", ":")) + "\n")
+    def offer(self, event: Event) -> None:
+        self.write(event.to_dict())
+
+    def write(self, record: dict[str, Any]) -> None:
+        """Append one JSON record (an event, or an operator annotation) and flush."""
+        self.file.write(json.dumps(record, separators=(",", ":")) + "\n")
         self.file.flush()
         self.stats.sent += 1
 
@@ -55,9 +61,9 @@ class StdoutSink(Sink):
     name = "stdout"
     live = False
 
-    def offer(self, event: dict[str, Any]) -> None:
+    def offer(self, event: Event) -> None:
         try:
-            sys.stdout.write(json.dumps(event, separators=(",", ":")) + "\n")
+            sys.stdout.write(json.dumps(event.to_dict(), separators=(",", ":")) + "\n")
             sys.stdout.flush()
             self.stats.sent += 1
         except BrokenPipeError:

@@ -19,6 +19,7 @@ from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.exceptions import ConnectionClosed
 
 from streamkey.errors import InputError
+from streamkey.keyframes import Event
 
 from .base import MAX_MESSAGE_BYTES, Address, Sink, bind_host, put_drop_oldest
 
@@ -119,8 +120,8 @@ class WebSocketSink(Sink):
         except ConnectionClosed:
             pass
 
-    def offer(self, event: dict[str, Any]) -> None:
-        self.broadcast(event)
+    def offer(self, event: Event) -> None:
+        self.broadcast(event.to_dict())
 
     def broadcast(self, message: dict[str, Any]) -> None:
         """Queue one JSON message for every client (drop-oldest per client, counted)."""

@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-from typing import Any
 
 import numpy as np
 import zmq
@@ -24,6 +23,7 @@ import zmq.asyncio
 
 from streamkey.bvh import parse_bvh
 from streamkey.errors import BVHError, InputError, UsageError
+from streamkey.keyframes import Event
 from streamkey.motion import Frame, Skeleton
 
 from .base import MAX_CHANNELS, MAX_MESSAGE_BYTES, Address, Sink, SinkStats, Source, bind_host
@@ -163,10 +163,11 @@ class ZmqEventSink(Sink):
         self.socket, endpoint = _pub_socket(self.address, self.listen)
         return f"zmq+pub {endpoint}"
 
-    def offer(self, event: dict[str, Any]) -> None:
+    def offer(self, event: Event) -> None:
         assert self.socket is not None
         try:
-            self.socket.send_multipart([b"event", json.dumps(event).encode()], zmq.NOBLOCK)
+            self.socket.send_multipart([b"event", json.dumps(event.to_dict()).encode()],
+                                       zmq.NOBLOCK)
             self.stats.sent += 1
         except zmq.Again:
             self.stats.dropped += 1

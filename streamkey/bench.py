@@ -157,13 +157,8 @@ def _engine_latency(motion: Motion, seconds: float = 60.0) -> dict[str, Any]:
         summary = asyncio.run(run_live(source, list(ONLINE_METHODS), [f"jsonl:{tmp}/e.jsonl"],
                                        on_ready=lambda line: None))
     lat = summary.latency_percentiles()
-    per_method = {}
-    for method in ONLINE_METHODS:
-        values = np.array(summary.method_latency_ms.get(method, []))
-        if len(values):
-            per_method[method] = {"events": len(values), "p50": float(np.percentile(values, 50)),
-                                  "p99": float(np.percentile(values, 99)),
-                                  "max": float(values.max())}
+    per_method = {m: {"events": h.count, **h.summary()}
+                  for m, h in summary.method_latency.items()}
     return {"seconds": seconds, "rate_hz": motion.fps, "frames": summary.frames_in,
             "events": sum(summary.events.values()), "wall_latency_ms": lat,
             "per_method": per_method}

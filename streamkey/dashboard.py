@@ -45,7 +45,7 @@ from .adapters.sinks import JsonlSink
 from .adapters.websocket import WebSocketSink
 from .engine import Engine, RunSummary
 from .errors import UsageError
-from .keyframes import SCHEMA_VERSION
+from .keyframes import SCHEMA_VERSION, Event, KeyframeEvent
 from .kinematics import body_height, forward_kinematics, pelvis_frame
 from .motion import Frame, Motion, Skeleton
 
@@ -305,16 +305,19 @@ class DashboardSink(WebSocketSink):
         fresh = [[seq, round(v, 4)] for seq, v in trace if last is None or seq > last]
         return fresh[-self.saliency.maxlen :] if last is None and self.saliency.maxlen else fresh
 
-    def offer(self, event: dict[str, Any]) -> None:
+    def offer(self, event: Event) -> None:
         """An engine event: keyframes get their pose attached and join the recent list."""
-        if event.get("type") == "keyframe":
-            self.annotator.see_key(event["method"], event["frame"])
-            if event.get("wall_latency_ms") is not None:
-                self.latency.append(float(event["wall_latency_ms"]))
-            pose = self.view.pose_of(event["frame"]) if self.view else None
-            event = {**event, "pose": pose}
-            self.recent.append(event)
-        self.broadcast(event)
+        record = event.to_dict()
+        match event:
+            case KeyframeEvent(method=method, frame=frame, wall_latency_ms=latency):
+                self.annotator.see_key(method, frame)
+                if latency is not None:
+                    self.latency.append(float(latency))
+                record["pose"] = self.view.pose_of(frame) if self.view else None
+                self.recent.append(record)
+            case _:
+                pass
+        self.broadcast(record)
 
     def counters(self) -> dict[str, Any]:
         """The counters message of the page."""
@@ -364,7 +367,7 @@ class DashboardSink(WebSocketSink):
             if self.log.file.closed:
                 return {"type": "error", "id": reply.get("id"),
                         "error": "the session log is closed (the stream has ended)"}
-            self.log.offer(record)
+            self.log.write(record)
         self.annotations.append(record)
         shown = record
         if record["action"] == "key":

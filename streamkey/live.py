@@ -145,7 +145,7 @@ def _frame_sender(address: Any, listen: str | None) -> Any:
     if address.scheme == "osc":
         from .adapters.osc import OscFrameSender
 
-        return OscFrameSender(address)
+        return OscFrameSender(address, listen)
     if address.scheme in ("zmq+tcp", "zmq+ipc"):
         from .adapters.zmq import ZmqFrameSender
 

@@ -22,7 +22,7 @@ restart, and a `GapEvent` with `bridged=False` is emitted. Nothing in this path 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -53,6 +53,7 @@ class GuardCounters:
     gaps: int = 0
     bridged_frames: int = 0
     restarts: int = 0
+    lost: int = 0  # frames that never arrived: the seq holes of every gap, bridged or not
 
     def as_dict(self) -> dict[str, int]:
         """Counters as a plain dict (for summaries and status events)."""
@@ -103,6 +104,7 @@ class StreamGuard:
             return [clean], [], False
         missing = clean.seq - last.seq - 1
         self.counters.gaps += 1
+        self.counters.lost += missing
         bridged = missing <= self.max_bridge_frames
         gap = GapEvent(self.stream, self.method, last.seq + 1, clean.seq - 1, bridged)
         if not bridged:
@@ -249,19 +251,18 @@ class OnlineKeyframer:
 
 
 def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
-           frames: Iterable[Frame],
-           emit: Callable[[list[Event]], None] | None = None) -> list[Event]:
+           frames: Iterable[Frame], defer_idle: bool = False) -> list[Event]:
     events: list[Event] = []
-    out = emit or events.extend
     pending: list[Frame] = []
 
     def run_pending() -> None:
         if pending:
             block = stage.compute(pending)
             for kf in keyframers:
-                out(kf.process(block))
-            for kf in keyframers:
-                out(kf.idle())
+                events.extend(kf.process(block))
+            if not defer_idle:
+                for kf in keyframers:
+                    events.extend(kf.idle())
             pending.clear()
 
     for frame in frames:
@@ -270,10 +271,10 @@ def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineK
             run_pending()
         if restart:
             for kf in keyframers:
-                out(kf.finish())
+                events.extend(kf.finish())
                 kf.reset()
             stage.reset()
-        out(gaps)
+        events.extend(gaps)
         pending.extend(clean)
     run_pending()
     return events
@@ -290,21 +291,35 @@ class Pipeline:
         self.keyframers = list(keyframers)
         self.guard = StreamGuard(first.skeleton.n_channels, stream, "*", max_bridge_frames)
         self.features = first.features
+        self._idle_due = False
 
-    def push(self, frame: Frame,
-             emit: Callable[[list[Event]], None] | None = None) -> list[Event]:
-        """Feed one frame to every keyframer. With `emit`, events are handed to it as soon as
-        each keyframer has them (due decisions before any deferred re-analysis) and the
-        return value is empty."""
-        return _drive(self.guard, self.features, self.keyframers, [frame], emit)
+    def push(self, frame: Frame) -> list[Event]:
+        """Feed one frame to every keyframer; returns the events due now. Deferred work (a
+        re-analysis) waits for `idle()`, so due decisions leave first; if `idle()` is not
+        called, its events come with the next call."""
+        events = self.idle()
+        before = self.guard.counters.accepted
+        events.extend(_drive(self.guard, self.features, self.keyframers, [frame], True))
+        self._idle_due = self.guard.counters.accepted != before
+        return events
+
+    def idle(self) -> list[Event]:
+        """The deferred work of the last pushed frame (same `decided_at`); [] if none."""
+        if not self._idle_due:
+            return []
+        self._idle_due = False
+        events: list[Event] = []
+        for kf in self.keyframers:
+            events.extend(kf.idle())
+        return events
 
     def push_block(self, frames: Iterable[Frame]) -> list[Event]:
         """Feed many frames; same events as pushing them one by one."""
-        return _drive(self.guard, self.features, self.keyframers, frames)
+        return self.idle() + _drive(self.guard, self.features, self.keyframers, frames)
 
     def flush(self) -> list[Event]:
         """End of stream for every keyframer."""
-        events: list[Event] = []
+        events: list[Event] = self.idle()
         for kf in self.keyframers:
             events.extend(kf.finish())
             kf.reset()

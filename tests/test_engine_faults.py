@@ -48,7 +48,7 @@ async def osc_engine(tmp_path):
     log = tmp_path / "log.jsonl"
     engine = Engine(source, keyframers(), [make_sink(parse_address(f"jsonl:{log}"))])
     task = asyncio.create_task(engine.run())
-    await until(lambda: source.transport is not None)
+    await until(lambda: source.sock is not None)
     return port, source, log, engine, task
 
 

@@ -1,0 +1,230 @@
+"""The engine's edges: the `Source` and `Sink` interfaces, their counters and the frame queue.
+
+A source delivers `(Frame, arrival_ns)` pairs from `get()` (None at end of stream) and may
+learn its skeleton from the wire (`skeleton_ready`). Every task a source runs goes through
+`spawn`: an exception inside it is counted and, if the task ends, the source `die`s, which
+ends the stream with a reason (`fatal`) instead of leaving the engine waiting forever.
+
+A sink takes typed events (`KeyframeEvent`, `GapEvent`, `StatusEvent`) with `offer()`,
+which never blocks: live sinks drop the oldest pending message when they fall behind and
+count it; the JSON Lines sink never drops. A sink that raises is that sink's fault: the
+engine counts it in the sink's `SinkStats` and disables the sink after
+`SINK_FAILURE_LIMIT` failures in a row; the keyframers never see it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections import Counter
+from collections.abc import Coroutine
+from dataclasses import dataclass, field
+from typing import Any
+
+from .keyframes import Event
+from .motion import Frame, Skeleton
+
+__all__ = ["Source", "Sink", "SourceStats", "SinkStats", "FrameQueue", "put_drop_oldest",
+           "frame_numbers_problem", "fps_problem", "MAX_SEQ", "MAX_TIME", "MIN_FPS", "MAX_FPS",
+           "SINK_FAILURE_LIMIT"]
+
+MAX_SEQ = 2**53 - 1          # exact in a float64 and an int64: JSON and NumPy agree on it
+MAX_TIME = 1e9               # seconds (31 years of stream)
+MIN_FPS, MAX_FPS = 0.1, 10_000.0   # frame time 1e-4 .. 10 s
+SINK_FAILURE_LIMIT = 10      # consecutive failures before a sink is disabled
+
+
+def frame_numbers_problem(seq: Any, time_s: Any) -> str | None:
+    """Why a frame's seq / time cannot be used (None if they can): seq an integer in
+    0..MAX_SEQ, time a finite number of seconds in -MAX_TIME..MAX_TIME."""
+    if isinstance(seq, float) and math.isfinite(seq) and seq.is_integer():
+        seq = int(seq)
+    if isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= MAX_SEQ:
+        return f"seq must be an integer in 0..{MAX_SEQ}, got {str(seq)[:40]}"
+    if isinstance(time_s, bool) or not isinstance(time_s, (int, float)) or not (
+            math.isfinite(time_s) and abs(time_s) <= MAX_TIME):
+        return f"time must be a finite number of seconds (|t| <= {MAX_TIME:g}), got " \
+               f"{str(time_s)[:40]}"
+    return None
+
+
+def fps_problem(fps: Any) -> str | None:
+    """Why a frame rate cannot be used (None if it can): a number in MIN_FPS..MAX_FPS."""
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not (
+            math.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
+        return f"fps must be a number in {MIN_FPS:g}..{MAX_FPS:g}, got {str(fps)[:40]}"
+    return None
+
+
+@dataclass
+class SourceStats:
+    """Counters of a source: frames received, dropped (queue full), malformed by kind, the
+    kernel's receive-buffer drops (None where the platform does not say), the last error."""
+
+    received: int = 0
+    queue_drops: int = 0
+    malformed: Counter[str] = field(default_factory=Counter)
+    last_error: str = ""
+    kernel_drops: int | None = None
+    task_errors: int = 0
+
+    def reject(self, kind: str, message: str) -> None:
+        """Count a malformed message of `kind` and remember why."""
+        self.malformed[kind] += 1
+        self.last_error = message
+
+    def as_dict(self) -> dict[str, Any]:
+        """Counters as a plain dict."""
+        return {"received": self.received, "queue_drops": self.queue_drops,
+                "malformed": dict(self.malformed), "last_error": self.last_error,
+                "kernel_drops": self.kernel_drops, "task_errors": self.task_errors}
+
+
+@dataclass
+class SinkStats:
+    """Counters of a sink: events sent, dropped (slow or absent peer), errors, disabled."""
+
+    sent: int = 0
+    dropped: int = 0
+    errors: int = 0
+    last_error: str = ""
+    disabled: bool = False
+    unseen_drops: str = ""   # drops this sink cannot count, and why (empty: it counts all)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Counters as a plain dict."""
+        return dict(self.__dict__)
+
+
+def put_drop_oldest(queue: asyncio.Queue[Any], item: Any) -> int:
+    """Put `item` without waiting, dropping the oldest entries to make room; returns how
+    many were dropped (live consumers want the newest data, not a backlog)."""
+    dropped = 0
+    while True:
+        try:
+            queue.put_nowait(item)
+            return dropped
+        except asyncio.QueueFull:
+            queue.get_nowait()
+            dropped += 1
+
+
+class FrameQueue:
+    """Bounded frame queue between a network callback and the engine: drop-oldest when full.
+
+    A real-time keyframer wants the newest frames, not a backlog (notes/ecosystem.md: big
+    buffers only make frames stale).
+    """
+
+    def __init__(self, stats: SourceStats, maxsize: int = 256) -> None:
+        self.queue: asyncio.Queue[tuple[Frame, int] | None] = asyncio.Queue(maxsize)
+        self.stats = stats
+
+    def put(self, frame: Frame | None, arrival_ns: int | None = None) -> None:
+        """Enqueue a frame stamped with its arrival (monotonic ns; now if not given), or the
+        end-of-stream marker."""
+        item = None if frame is None else (
+            frame, time.monotonic_ns() if arrival_ns is None else arrival_ns)
+        self.stats.queue_drops += put_drop_oldest(self.queue, item)
+
+    async def get(self) -> tuple[Frame, int] | None:
+        """Next frame and its arrival time (ns, monotonic), or None at end of stream."""
+        return await self.queue.get()
+
+
+class Source:
+    """Base of frame sources: a queue, counters, and the skeleton (given or from the wire)."""
+
+    name = "source"
+
+    def __init__(self, skeleton: Skeleton | None = None, fps: float | None = None) -> None:
+        self.stats = SourceStats()
+        self.frames = FrameQueue(self.stats)
+        self.skeleton = skeleton
+        self.fps = fps
+        self.skeleton_ready = asyncio.Event()
+        self.fatal: str | None = None
+        self.dead = asyncio.Event()
+        self.tasks: set[asyncio.Task[Any]] = set()
+        if skeleton is not None:
+            self.skeleton_ready.set()
+
+    def set_skeleton(self, skeleton: Skeleton, fps: float) -> None:
+        """Adopt a skeleton announced on the wire (first good one wins; a bad or changed one
+        is counted and ignored)."""
+        problem = fps_problem(fps)
+        if problem is not None:
+            self.stats.reject("skeleton", f"skeleton ignored: {problem}")
+        elif self.skeleton is None:
+            self.skeleton, self.fps = skeleton, float(fps)
+            self.skeleton_ready.set()
+        elif skeleton.n_channels != self.skeleton.n_channels:
+            self.stats.reject("skeleton_mismatch",
+                              f"skeleton with {skeleton.n_channels} channels ignored; stream has "
+                              f"{self.skeleton.n_channels}")
+
+    def refuse_skeleton(self, why: str) -> None:
+        """The engine cannot use the adopted skeleton: count it and wait for another."""
+        self.stats.reject("skeleton", f"skeleton ignored: {why}")
+        self.skeleton, self.fps = None, None
+        self.skeleton_ready.clear()
+
+    def spawn(self, coro: Coroutine[Any, Any, None]) -> asyncio.Task[None]:
+        """Run a source task; if it ends by an exception the source dies saying why."""
+        task = asyncio.create_task(coro)
+        self.tasks.add(task)
+        task.add_done_callback(self._task_done)
+        return task
+
+    def _task_done(self, task: asyncio.Task[Any]) -> None:
+        self.tasks.discard(task)
+        if not task.cancelled() and task.exception() is not None:
+            exc = task.exception()
+            self.stats.task_errors += 1
+            self.die(f"{self.name} source stopped: {type(exc).__name__}: {exc}")
+
+    def die(self, why: str) -> None:
+        """End the stream because the source cannot go on (the run reports `why`)."""
+        if self.fatal is None:
+            self.fatal = why
+        self.dead.set()
+        self.frames.put(None)
+
+    async def start(self) -> str:
+        """Open the transport; returns a description for the ready line."""
+        raise NotImplementedError
+
+    async def get(self) -> tuple[Frame, int] | None:
+        """Next frame and its arrival time, or None when the stream ends."""
+        return await self.frames.get()
+
+    async def close(self) -> None:
+        """Release the transport and stop the source's tasks."""
+        for task in list(self.tasks):
+            task.cancel()
+
+    def counters(self) -> SourceStats:
+        """The counters, refreshed from the transport where it keeps its own (kernel drops)."""
+        return self.stats
+
+
+class Sink:
+    """Base of event sinks. `offer` must never block the engine."""
+
+    name = "sink"
+    live = True  # live sinks may drop under backpressure; the log sink never does
+
+    def __init__(self) -> None:
+        self.stats = SinkStats()
+
+    async def start(self) -> str:
+        """Open the transport; returns a description for the ready line."""
+        return self.name
+
+    def offer(self, event: Event) -> None:
+        """Hand over one typed event; must not block (may raise: the engine counts it)."""
+        raise NotImplementedError
+
+    async def close(self) -> None:
+        """Drain (bounded time) and release the transport."""
