@@ -49,10 +49,16 @@ class JsonlSink(Sink):
         self.stats.sent += 1
 
     async def close(self) -> None:
-        if not self.file.closed:
+        if self.file.closed:
+            return
+        try:
             self.file.flush()
             os.fsync(self.file.fileno())
-            self.file.close()
+        finally:
+            try:
+                self.file.close()
+            except OSError:  # the unwritable tail was reported by flush (or by offer)
+                pass
 
 
 class StdoutSink(Sink):

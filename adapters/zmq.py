@@ -14,19 +14,32 @@ publisher, reconnecting by itself when the publisher restarts.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
-import math
+import threading
+import time
+from collections import deque
 
 import numpy as np
 import zmq
-import zmq.asyncio
 
 from streamkey.bvh import parse_bvh
-from streamkey.errors import BVHError, InputError, UsageError
+from streamkey.errors import InputError, UsageError
 from streamkey.keyframes import Event
 from streamkey.motion import Frame, Skeleton
 
-from .base import MAX_CHANNELS, MAX_MESSAGE_BYTES, Address, Sink, SinkStats, Source, bind_host
+from .base import (
+    MAX_CHANNELS,
+    MAX_MESSAGE_BYTES,
+    Address,
+    Sink,
+    SinkStats,
+    Source,
+    SourceStats,
+    bind_host,
+    fps_problem,
+    frame_numbers_problem,
+)
 
 __all__ = ["ZmqSource", "ZmqEventSink", "ZmqFrameSender", "encode_frame_parts",
            "decode_frame_parts"]
@@ -41,27 +54,41 @@ def encode_frame_parts(frame: Frame, dtype: str = "<f4") -> list[bytes]:
     return [b"frame", json.dumps(header).encode(), values.tobytes()]
 
 
+MAX_HEADER_BYTES = 4096
+_INBOX = 256  # messages between the reader thread and the loop (drop-oldest, counted)
+
+
 def decode_frame_parts(parts: list[bytes]) -> Frame:
     """Frame of a multipart message; raises ValueError saying what is wrong."""
     if len(parts) != 3:
         raise ValueError(f"frame message has {len(parts)} parts, expected 3")
+    if len(parts[1]) > MAX_HEADER_BYTES:
+        raise ValueError(f"frame header of {len(parts[1])} bytes, more than {MAX_HEADER_BYTES}")
     header = json.loads(parts[1])
     if not isinstance(header, dict):
         raise ValueError("frame header is not a JSON object")
-    dtype = _DTYPES.get(header.get("dtype", "<f4"))
+    dtype_name = header.get("dtype", "<f4")
+    dtype = _DTYPES.get(dtype_name) if isinstance(dtype_name, str) else None
     n = header.get("n")
-    if dtype is None or not isinstance(n, int) or not 0 < n <= MAX_CHANNELS:
+    if dtype is None or isinstance(n, bool) or not isinstance(n, int) or not 0 < n <= MAX_CHANNELS:
         raise ValueError(f"frame header needs n (1..{MAX_CHANNELS}) and dtype <f4 or <f8")
     if len(parts[2]) != n * dtype.itemsize:
         raise ValueError(f"payload of {len(parts[2])} bytes, expected {n} x {dtype.itemsize}")
-    seq, time = header.get("seq"), header.get("time")
-    if not isinstance(seq, int) or not isinstance(time, (int, float)) or not math.isfinite(time):
-        raise ValueError("frame header needs an integer seq and a finite time")
-    return Frame(seq, float(time), np.frombuffer(parts[2], dtype).astype(np.float64))
+    seq, time_s = header.get("seq"), header.get("time")
+    problem = frame_numbers_problem(seq, time_s)
+    if problem is not None:
+        raise ValueError(f"frame header: {problem}")
+    return Frame(int(seq), float(time_s), np.frombuffer(parts[2], dtype).astype(np.float64))
 
 
 class ZmqSource(Source):
-    """Frames from ZeroMQ: SUB (connects to a publisher) or PULL (binds)."""
+    """Frames from ZeroMQ: SUB (connects to a publisher) or PULL (binds).
+
+    A dedicated reader thread receives and stamps each message's arrival, so frames waiting
+    while the loop is busy (a re-analysis) count in the wall latency; libzmq offers no kernel
+    timestamp. Every message that does not become a frame is counted by kind, and an
+    exception in decoding never stops the reader.
+    """
 
     name = "zmq"
 
@@ -75,12 +102,17 @@ class ZmqSource(Source):
         if self.pattern == "pull" and address.scheme == "zmq+tcp":
             bind_host(address, listen)
         self.listen = listen
-        self.context = zmq.asyncio.Context.instance()
-        self.socket: zmq.asyncio.Socket | None = None
-        self.task: asyncio.Task[None] | None = None
+        self.socket: zmq.Socket[bytes] | None = None
+        self.thread: threading.Thread | None = None
+        self.inbox: deque[tuple[list[bytes], int]] = deque()
+        self.inbox_drops = 0
+        self._inbox_counted = 0
+        self._scheduled = False
+        self._closing = threading.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     async def start(self) -> str:
-        sock = self.context.socket(zmq.SUB if self.pattern == "sub" else zmq.PULL)
+        sock = zmq.Context.instance().socket(zmq.SUB if self.pattern == "sub" else zmq.PULL)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.MAXMSGSIZE, MAX_MESSAGE_BYTES)
         sock.setsockopt(zmq.RCVHWM, 256)
@@ -98,44 +130,102 @@ class ZmqSource(Source):
                 sock.close(linger=0)
                 raise InputError(f"{self.address}: cannot bind {endpoint}: {exc}") from None
         self.socket = sock
-        self.task = asyncio.create_task(self._receive())
+        self._loop = asyncio.get_running_loop()
+        self.thread = threading.Thread(target=self._read, name="streamkey-zmq-reader",
+                                       daemon=True)
+        self.thread.start()
         return f"zmq+{self.pattern} {endpoint}"
 
-    async def _receive(self) -> None:
-        assert self.socket is not None
-        while True:
-            parts = await self.socket.recv_multipart()
-            self.handle(parts)
-
-    def handle(self, parts: list[bytes]) -> None:
-        """Decode one multipart message; never raises."""
+    def _read(self) -> None:
+        """Reader thread: receive, stamp, hand over to the loop (never blocks the loop)."""
+        assert self.socket is not None and self._loop is not None
+        poller = zmq.Poller()
+        poller.register(self.socket, zmq.POLLIN)
         try:
-            if parts and parts[0] == b"skeleton":
-                info = json.loads(parts[1])
-                skeleton = parse_bvh(info["bvh"], source="zmq skeleton").skeleton
-                self.set_skeleton(skeleton, float(info.get("fps", 120.0)))
-                return
-            if not parts or parts[0] != b"frame":
-                raise ValueError(f"unknown topic {parts[0][:32]!r}" if parts else "empty message")
-            frame = decode_frame_parts(parts)
-        except (ValueError, KeyError, IndexError, TypeError, BVHError) as exc:
-            self.stats.reject("malformed", f"zmq: {exc}")
-            return
-        self.stats.received += 1
-        self.frames.put(frame)
-
-    async def close(self) -> None:
-        if self.task is not None:
-            self.task.cancel()
-        if self.socket is not None:
+            while not self._closing.is_set():
+                if not poller.poll(100):
+                    continue
+                parts = self.socket.recv_multipart(zmq.NOBLOCK)
+                if len(self.inbox) >= _INBOX:
+                    self.inbox.popleft()
+                    self.inbox_drops += 1
+                self.inbox.append((parts, time.monotonic_ns()))
+                if not self._scheduled:
+                    self._scheduled = True
+                    self._loop.call_soon_threadsafe(self._drain)
+        except Exception as exc:  # the socket itself failed: the source dies and says so
+            if not self._closing.is_set():
+                with contextlib.suppress(RuntimeError):  # the loop may be closing
+                    self._loop.call_soon_threadsafe(
+                        self.die, f"zmq source stopped: {type(exc).__name__}: {exc}")
+        finally:
             self.socket.close(linger=0)
 
+    def _drain(self) -> None:
+        self._scheduled = False
+        while self.inbox:
+            parts, arrival = self.inbox.popleft()
+            self.handle(parts, arrival)
 
-def _pub_socket(address: Address, listen: str | None) -> tuple[zmq.Socket[bytes], str]:
+    def handle(self, parts: list[bytes], arrival_ns: int | None = None) -> None:
+        """Decode one multipart message; never raises (every failure counted by kind)."""
+        try:
+            if parts and parts[0] == b"skeleton":
+                self._skeleton(parts)
+                return
+            if not parts or parts[0] != b"frame":
+                self.stats.reject("topic", "zmq: " + (f"unknown topic {parts[0][:32]!r}"
+                                                      if parts else "empty message"))
+                return
+            frame = decode_frame_parts(parts)
+        except (ValueError, KeyError, IndexError, TypeError, RecursionError) as exc:
+            self.stats.reject("malformed", f"zmq: {type(exc).__name__}: {str(exc)[:200]}")
+            return
+        except Exception as exc:  # a decoder bug: counted, the source goes on
+            self.stats.reject("internal", f"zmq: {type(exc).__name__}: {str(exc)[:200]}")
+            return
+        self.stats.received += 1
+        self.frames.put(frame, arrival_ns)
+
+    def _skeleton(self, parts: list[bytes]) -> None:
+        try:
+            if len(parts) != 2:
+                raise ValueError(f"skeleton message has {len(parts)} parts, expected 2")
+            info = json.loads(parts[1])
+            if not isinstance(info, dict) or not isinstance(info.get("bvh"), str):
+                raise ValueError("skeleton message needs a JSON object with a 'bvh' string")
+            fps = info.get("fps", 120.0)
+            problem = fps_problem(fps)
+            if problem is not None:
+                raise ValueError(problem)
+            skeleton = parse_bvh(info["bvh"], source="zmq skeleton").skeleton
+        except Exception as exc:  # any failure of a hostile skeleton: counted, ignored
+            self.stats.reject("skeleton", f"zmq skeleton ignored: {type(exc).__name__}: "
+                              f"{str(exc)[:200]}")
+            return
+        self.set_skeleton(skeleton, float(fps))
+
+    def counters(self) -> SourceStats:
+        fresh = self.inbox_drops - self._inbox_counted  # the reader thread only ever adds
+        self._inbox_counted += fresh
+        self.stats.queue_drops += fresh
+        return self.stats
+
+    async def close(self) -> None:
+        await super().close()
+        self._closing.set()
+        if self.thread is not None:
+            await asyncio.to_thread(self.thread.join, 2.0)
+
+
+def _pub_socket(address: Address, listen: str | None,
+                nodrop: bool = False) -> tuple[zmq.Socket[bytes], str]:
     host = bind_host(address, listen) if address.scheme == "zmq+tcp" else ""
     sock = zmq.Context.instance().socket(zmq.XPUB)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.SNDHWM, 1000)
+    if nodrop:
+        sock.setsockopt(zmq.XPUB_NODROP, 1)
     if address.scheme == "zmq+tcp":
         endpoint = f"tcp://{host}:{address.port}"
     else:
@@ -148,8 +238,22 @@ def _pub_socket(address: Address, listen: str | None) -> tuple[zmq.Socket[bytes]
     return sock, endpoint
 
 
+UNSEEN_PUB_DROPS = ("a subscriber whose queue is full (1000 messages) loses events silently: "
+                    "libzmq's PUB socket keeps no drop counter (add ?nodrop=1 to count them, "
+                    "at the cost that an event refused for one slow subscriber is refused for "
+                    "all)")
+
+
 class ZmqEventSink(Sink):
-    """Events as `[b"event", JSON]` on a publisher socket (binds; subscribers connect)."""
+    """Events as `[b"event", JSON]` on a publisher socket (binds; subscribers connect).
+
+    What can be known about drops: libzmq's PUB/XPUB socket drops a message silently for
+    each subscriber whose queue is at its high-water mark; `send` still succeeds and there
+    is no counter, no monitor event and no per-peer statistic. With `?nodrop=1`
+    (`ZMQ_XPUB_NODROP`) a send that any subscriber's full queue would drop fails instead
+    (EAGAIN) and is counted here, but then nobody gets that event; by default the summary
+    says which drops it cannot see (`unseen_drops`).
+    """
 
     name = "zmq"
 
@@ -157,10 +261,12 @@ class ZmqEventSink(Sink):
         super().__init__()
         self.address = address
         self.listen = listen
+        self.nodrop = address.options.get("nodrop", "0") in ("1", "true", "yes")
         self.socket: zmq.Socket[bytes] | None = None
+        self.stats.unseen_drops = "" if self.nodrop else UNSEEN_PUB_DROPS
 
     async def start(self) -> str:
-        self.socket, endpoint = _pub_socket(self.address, self.listen)
+        self.socket, endpoint = _pub_socket(self.address, self.listen, self.nodrop)
         return f"zmq+pub {endpoint}"
 
     def offer(self, event: Event) -> None:

@@ -6,7 +6,7 @@ import asyncio
 import itertools
 import time
 
-from streamkey.adapters.base import Source
+from streamkey.io import Source
 from streamkey.motion import Motion
 
 from .pacing import apaced, frame_stream
@@ -31,7 +31,7 @@ class MotionSource(Source):
         self.frames.queue = asyncio.Queue(8)  # in-process: backpressure instead of drops
 
     async def start(self) -> str:
-        self.task = asyncio.create_task(self._produce())
+        self.task = self.spawn(self._produce())
         return f"replay of {self.motion.name or 'motion'} at {self.rate * self.speed:g} frames/s"
 
     async def _produce(self) -> None:
@@ -41,6 +41,3 @@ class MotionSource(Source):
             await self.frames.queue.put((frame, time.monotonic_ns()))
         await self.frames.queue.put(None)
 
-    async def close(self) -> None:
-        if self.task is not None:
-            self.task.cancel()

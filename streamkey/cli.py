@@ -160,6 +160,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(summary.text(), file=sys.stderr)
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
+    if summary.source_error:  # the source died: say so and fail, never idle on
+        print(f"error: {args.source}: {summary.source_error}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -242,3 +242,196 @@ def test_a_busy_port_is_a_clear_input_error_not_a_traceback(tmp_path):
             assert result.returncode == 2, result.stderr
             assert "Traceback" not in result.stderr
             assert result.stderr.strip().splitlines()[-1].startswith(f"error: {target}: cannot")
+
+
+# ---------------------------------------------------------------- hostile packets (issue 9 §4)
+
+FRAME = encode_frame(7, 7 / 120, MOTION.channels[7])
+
+
+def test_every_truncation_of_a_frame_is_counted_by_kind_and_never_raises():
+    source = OscSource(parse_address("osc://127.0.0.1:9"), skeleton=MOTION.skeleton,
+                       fps=MOTION.fps)
+    packets = [FRAME[:n] for n in range(len(FRAME))]
+    packets += [b"/streamkey/frame\0\0\0\0,idf", FRAME + b"\0\0\0\0", FRAME[:-4] + b"\xff" * 3]
+    for packet in packets:
+        source.receive(packet)  # on the event loop, an exception here is a traceback per packet
+    assert source.stats.received == 0
+    assert sum(source.stats.malformed.values()) == len(packets)
+    assert source.stats.malformed["truncated"] >= 4  # shorter by 1..4 bytes: not padded
+    assert source.stats.malformed["trailing"] == 1
+    source.receive(FRAME)
+    assert source.stats.received == 1
+
+
+def test_bundles_with_empty_or_overlong_elements_are_counted_without_log_lines(caplog):
+    source = OscSource(parse_address("osc://127.0.0.1:9"), skeleton=MOTION.skeleton,
+                       fps=MOTION.fps)
+    head = b"#bundle\0" + b"\0" * 8
+    good = head + len(FRAME).to_bytes(4, "big") + FRAME
+    nested = head + len(good).to_bytes(4, "big") + good
+    deep = good
+    for _ in range(12):
+        deep = head + len(deep).to_bytes(4, "big") + deep
+    bad = [head + b"\0\0\0\0", head + b"\0\0\0\0" + len(FRAME).to_bytes(4, "big") + FRAME,
+           head + b"\x00\x00\x10\x00" + FRAME, head + b"\xff\xff\xff\xf0", head[:12], deep]
+    for packet in [good, nested, *bad]:
+        source.receive(packet)
+    assert source.stats.received == 2
+    assert source.stats.malformed["bundle"] == len(bad)
+    assert not caplog.records  # python-osc logged "WARNING:root" for zero-size elements
+
+
+def test_frame_numbers_out_of_range_are_malformed_at_the_adapter():
+    from pythonosc.osc_message_builder import OscMessageBuilder
+
+    from streamkey.adapters.zmq import encode_frame_parts
+
+    source = OscSource(parse_address("osc://127.0.0.1:9"), skeleton=MOTION.skeleton,
+                       fps=MOTION.fps)
+    for seq, t in ((1e30, 0.0), (1.5, 0.0), (-1, 0.0), (3, 1e300)):
+        builder = OscMessageBuilder("/streamkey/frame")
+        builder.add_arg(seq, "f" if isinstance(seq, float) else "i")
+        builder.add_arg(t, "d")
+        builder.add_arg(1.0, "f")
+        source.receive(builder.build().dgram)
+    assert source.stats.malformed["range"] == 4 and source.stats.received == 0
+    zsource = ZmqSource(parse_address("zmq+tcp://127.0.0.1:9"), skeleton=MOTION.skeleton,
+                        fps=MOTION.fps)
+    parts = encode_frame_parts(next(iter(MOTION.frames())))
+    for header in (b'{"seq": 1e30, "time": 0, "n": 96}', b'{"seq": 2.5, "time": 0, "n": 96}',
+                   b'{"seq": 1, "time": 1e308, "n": 96}', b'{"seq": true, "time": 0, "n": 96}'):
+        zsource.handle([b"frame", header, parts[2]])
+    assert zsource.stats.malformed["malformed"] == 4 and zsource.stats.received == 0
+
+
+def test_zmq_messages_that_blow_the_json_stack_are_counted_and_reading_goes_on():
+    source = ZmqSource(parse_address("zmq+tcp://127.0.0.1:9"))
+    nested = json.dumps({"bvh": "x", "fps": 120}).replace('"x"', "[" * 50_000 + "]" * 50_000)
+    for parts in ([b"frame", b"[" * 50_000, b""], [b"frame", b"[" * 3000, b""],
+                  [b"skeleton", nested.encode()], [b"skeleton", b"[" * 50_000],
+                  [b"skeleton", b'{"bvh": 1}'], [], [b"other"]):
+        source.handle(parts)
+    assert sum(source.stats.malformed.values()) == 7 and source.skeleton is None
+
+
+@pytest.mark.parametrize("fps", [0, float("nan"), 1e9, -120, "120", None])
+def test_a_skeleton_with_an_unusable_frame_rate_is_counted_and_ignored(fps):
+    from streamkey.adapters.osc import skeleton_header
+
+    source = ZmqSource(parse_address("zmq+tcp://127.0.0.1:9"))
+    header = skeleton_header(MOTION.skeleton, 120.0)
+    source.handle([b"skeleton", json.dumps({"bvh": header, "fps": fps}).encode()])
+    assert source.skeleton is None and source.stats.malformed["skeleton"] == 1
+    source.handle([b"skeleton", json.dumps({"bvh": header, "fps": 120.0}).encode()])
+    assert source.skeleton is not None and source.fps == 120.0
+
+
+async def test_a_skeleton_the_keyframers_cannot_use_is_ignored_and_the_next_one_taken(tmp_path):
+    from streamkey.adapters.osc import encode_skeleton
+    from streamkey.bvh import parse_bvh
+
+    port = free_port()
+    source = OscSource(parse_address(f"osc://127.0.0.1:{port}"))
+    log = tmp_path / "log.jsonl"
+    engine = Engine(source, keyframers(), [make_sink(parse_address(f"jsonl:{log}"))])
+    task = asyncio.create_task(engine.run())
+    await until(lambda: source.sock is not None)
+    lonely = parse_bvh("HIERARCHY\nROOT hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition "
+                       "Yposition Zposition\n End Site\n {\n  OFFSET 0 1 0\n }\n}\nMOTION\n"
+                       "Frames: 0\nFrame Time: 0.0083333\n").skeleton
+    out = sender()
+    out.sendto(encode_skeleton(lonely, 120.0), ("127.0.0.1", port))  # no feet, no pelvis
+    await until(lambda: source.stats.malformed["skeleton"] == 1)
+    out.sendto(encode_skeleton(MOTION.skeleton, MOTION.fps), ("127.0.0.1", port))
+    await until(lambda: engine.pipeline is not None)
+    for i in range(1, MOTION.n_frames):
+        out.sendto(encode_frame(i, i / 120, MOTION.channels[i]), ("127.0.0.1", port))
+        await until(lambda i=i: engine.summary.frames_in >= i - 10)
+    await until(lambda: engine.summary.frames_in == MOTION.n_frames - 1)
+    out.close()
+    engine.stop()
+    summary = await task
+    assert summary.source_error is None and summary.source["malformed"] == {"skeleton": 1}
+    assert summary.events["speed"] > 0 and summary.events["simplify"] > 0
+
+
+def test_run_from_a_file_without_frames_says_the_source_died_and_exits_2(tmp_path):
+    import subprocess
+    import sys
+
+    lines = (DATA / "07_01.bvh").read_text().splitlines()
+    empty = tmp_path / "z.bvh"
+    motion_at = lines.index("MOTION")
+    empty.write_text("\n".join(lines[: motion_at + 1] + ["Frames: 0", "Frame Time: .0083333"])
+                     + "\n")
+    result = subprocess.run([sys.executable, "-m", "streamkey", "run", "--from", str(empty),
+                             "--fast", "--idle-exit", "1"], capture_output=True, text=True,
+                            timeout=60 * MS)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines()[-1].startswith(f"error: {empty}: ")
+
+
+# ---------------------------------------------------------------- sinks' faults (§6), exposure (§9)
+
+async def test_a_failing_log_sink_is_that_sinks_fault_not_a_keyframer_restart(tmp_path):
+    from streamkey.keyframes import KeyframeEvent
+    from streamkey.replay.source import MotionSource
+
+    seen = []
+    engine = Engine(MotionSource(MOTION, rate=0.0), keyframers(),
+                    [make_sink(parse_address("jsonl:/dev/full")),
+                     make_sink(parse_address(f"jsonl:{tmp_path / 'ok.jsonl'}"))],
+                    on_event=seen.append)
+    summary = await engine.run()
+    assert summary.errors == [] and summary.error_count == 0
+    full = summary.sinks["jsonl"]
+    assert full["disabled"] and full["errors"] >= 10 and "No space" in full["last_error"]
+    assert full["errors"] + full["sent"] <= full["dropped"] + full["sent"]
+    logged = read_jsonl(tmp_path / "ok.jsonl")
+    keys = [e for e in logged if e["type"] == "keyframe"]
+    assert len(keys) == summary.events["speed"] + summary.events["simplify"] > 5
+    assert all(e["wall_latency_ms"] is not None for e in keys)  # stamped by the engine
+    assert all(isinstance(e, dict) for e in seen)
+    assert KeyframeEvent.__dataclass_fields__["wall_latency_ms"]
+
+
+def test_senders_are_bound_to_loopback_and_connected_to_their_peer():
+    from streamkey.adapters.osc import OscEventSink, OscFrameSender
+
+    port = free_port()
+    for make in (OscEventSink, OscFrameSender):
+        peer = make(parse_address(f"osc://127.0.0.1:{port}"))
+        sock = peer.sender.sock
+        try:
+            assert sock.getsockname()[0] == "127.0.0.1"
+            assert sock.getpeername() == ("127.0.0.1", port)
+        finally:
+            sock.close()
+
+
+async def test_kernel_receive_drops_are_read_and_every_datagram_is_accounted_for():
+    import sys
+
+    source = OscSource(parse_address(f"osc://127.0.0.1:{free_port()}"),
+                       skeleton=MOTION.skeleton, fps=MOTION.fps)
+    await source.start()
+    if sys.platform != "linux":
+        assert source.stats.kernel_drops is None
+        return
+    assert source.stats.kernel_drops == 0
+    loop = asyncio.get_running_loop()
+    loop.remove_reader(source.sock.fileno())  # the loop is busy: nobody reads the socket
+    source.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    out = sender()
+    sent = 2000
+    for i in range(sent):
+        out.sendto(encode_frame(i, i / 120, MOTION.channels[i % MOTION.n_frames]),
+                   source.sock.getsockname())
+    out.close()
+    source.frames.queue = asyncio.Queue()  # keep every frame that gets through, for counting
+    loop.add_reader(source.sock.fileno(), source._readable)
+    await until(lambda: source.counters().received + (source.stats.kernel_drops or 0) == sent)
+    await source.close()
+    assert source.stats.kernel_drops > 0 and source.stats.received > 0
