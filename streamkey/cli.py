@@ -98,9 +98,13 @@ def _dashboard(args: argparse.Namespace, source: Any, methods: list[str], to: li
         args.listen, stream, rate=rate, port=port, log=log, loop=loop,
         idle_exit=getattr(args, "idle_exit", None)))
     print(summary.text(), file=sys.stderr)
-    print(f"annotations: {len(board.annotations)}", file=sys.stderr)
+    print(f"annotations: {board.annotator.count}", file=sys.stderr)
     if getattr(args, "summary", None):
         Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
+    if summary.source_error:
+        print(f"error: {getattr(args, 'source', 'source')}: {summary.source_error}",
+              file=sys.stderr)
+        return 2
     return 0
 
 

@@ -27,20 +27,18 @@ page URL carries `?token=...` and the page and the WebSocket refuse requests wit
 
 from __future__ import annotations
 
-import hmac
 import json
-import secrets
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from importlib import resources
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import urlsplit
 
 import numpy as np
 
 from .adapters import make_sink, parse_address
-from .adapters.base import LOOPBACK, Address, Source, bind_host
+from .adapters.base import LOOPBACK, Address, Source
 from .adapters.sinks import JsonlSink
 from .adapters.websocket import WebSocketSink
 from .engine import Engine, RunSummary
@@ -54,13 +52,14 @@ __all__ = ["Annotator", "LiveView", "DashboardSink", "run_dashboard", "METHOD_CO
            "default_log"]
 
 MAX_TEXT = 500            # characters of a label or a reason
+MAX_KEYS = 10_000         # keyed frames remembered for labels and rejections
+MAX_ANNOTATIONS = 1000    # annotations kept in memory (all of them are in the log)
 MAX_CLIENT_MESSAGE = 4096  # bytes of one operator message
 ACTIONS = ("label", "key", "reject")
 METHOD_COLORS = {"saliency": "#d62728", "speed": "#1f77b4", "simplify": "#2ca02c",
                  "manual": "#9467bd"}
 _SPARE_COLORS = ("#ff7f0e", "#8c564b", "#e377c2", "#17becf")
 _STATIC = {"dashboard.js": "text/javascript", "dashboard.css": "text/css"}
-_LOOPBACK_NAMES = {"127.0.0.1", "localhost", "::1", "[::1]"}
 
 
 def method_color(method: str, methods: list[str]) -> str:
@@ -81,7 +80,8 @@ class Annotator:
         self.last_seq: int | None = None
         self.last_time = 0.0
         self.fps = 0.0
-        self.keys: dict[int, set[str]] = {}   # frame -> methods that keyed it (and "manual")
+        # frame -> methods that keyed it (and "manual"); the newest MAX_KEYS frames only
+        self.keys: OrderedDict[int, set[str]] = OrderedDict()
         self.count = 0
 
     def see_frame(self, seq: int, time_s: float) -> None:
@@ -94,6 +94,8 @@ class Annotator:
     def see_key(self, method: str, frame: int) -> None:
         """Remember a keyframe (labels and rejections must name one)."""
         self.keys.setdefault(int(frame), set()).add(method)
+        while len(self.keys) > MAX_KEYS:
+            self.keys.popitem(last=False)
 
     def handle(self, text: str) -> tuple[dict[str, Any] | None, dict[str, Any]]:
         """Validate one client message: (annotation event or None, reply to the sender)."""
@@ -106,6 +108,8 @@ class Annotator:
                 msg = json.loads(text)
             except json.JSONDecodeError as exc:
                 raise _Reject(f"malformed JSON: {exc.msg} at character {exc.pos}") from None
+            except RecursionError:
+                raise _Reject("malformed JSON: nested too deeply") from None
             if not isinstance(msg, dict):
                 raise _Reject("expected a JSON object like {\"action\": \"label\", ...}")
             request_id = msg.get("id") if isinstance(msg.get("id"), (int, str)) else None
@@ -227,12 +231,8 @@ class DashboardSink(WebSocketSink):
     def __init__(self, port: int = 8765, listen: str | None = None, stream: str = "default",
                  methods: list[str] | None = None, log: JsonlSink | None = None,
                  token: str | None = None, rate: float = 30.0, recent: int = 24) -> None:
-        address = Address("ws", LOOPBACK, port)
-        super().__init__(address, listen, on_message=self.annotate)
-        self.host = bind_host(address, listen)
-        self.loopback = self.host in _LOOPBACK_NAMES
-        self.token = token if token is not None else (None if self.loopback
-                                                      else secrets.token_urlsafe(16))
+        super().__init__(Address("ws", LOOPBACK, port), listen, on_message=self.annotate,
+                         token=token)
         self.methods = list(methods or [])
         self.log = log
         self.rate = rate
@@ -241,22 +241,14 @@ class DashboardSink(WebSocketSink):
         self.engine: Engine | None = None
         self.recent: deque[dict[str, Any]] = deque(maxlen=recent)
         self.latency: deque[float] = deque(maxlen=2000)
-        self.annotations: list[dict[str, Any]] = []
+        self.annotations: deque[dict[str, Any]] = deque(maxlen=MAX_ANNOTATIONS)
         self.signals: deque[dict[str, Any]] = deque(maxlen=round(10 * rate) + 1)  # 10 s chart
         self.saliency: deque[list[float]] = deque(maxlen=1500)  # 10 s at up to 150 Hz
-        self.refused: list[str] = []
         self._last_stats = 0
 
     # ------------------------------------------------------------------ engine side
     async def start(self) -> str:
-        from websockets.asyncio.server import serve
-
-        from .adapters.base import MAX_MESSAGE_BYTES
-
-        self.server = await serve(self._handle, self.host, self.address.port,
-                                  compression=None, max_size=MAX_MESSAGE_BYTES,
-                                  process_request=self._http, ping_interval=5, ping_timeout=10,
-                                  write_limit=4096, close_timeout=1)
+        await super().start()
         return self.url
 
     @property
@@ -323,7 +315,7 @@ class DashboardSink(WebSocketSink):
         """The counters message of the page."""
         out: dict[str, Any] = {"type": "stats", "frames": 0, "drops": 0, "gaps": 0,
                                "events": {}, "lookahead": {}, "latency_ms": {},
-                               "annotations": len(self.annotations), "clients": len(self.clients)}
+                               "annotations": self.annotator.count, "clients": len(self.clients)}
         eng = self.engine
         if eng is None:
             return out
@@ -354,7 +346,7 @@ class DashboardSink(WebSocketSink):
                 "colors": {m: method_color(m, self.methods) for m in methods},
                 "bones": self.view.bones if self.view else None,
                 "fps": self.view.fps if self.view else None, "max_text": MAX_TEXT,
-                "recent": list(self.recent), "annotations": self.annotations[-50:],
+                "recent": list(self.recent), "annotations": list(self.annotations)[-50:],
                 "signals": list(self.signals), "saliency": list(self.saliency)}
 
     # ------------------------------------------------------------------ client side
@@ -378,37 +370,23 @@ class DashboardSink(WebSocketSink):
 
     def _http(self, connection: Any, request: Any) -> Any:
         """Route `/`, `/static/...` and `/ws`; refuse foreign hosts, origins and bad tokens."""
-        parts = urlsplit(request.path)
-        host = request.headers.get("Host", "")
-        hostname = urlsplit(f"//{host}").hostname or ""
-        if self.loopback and hostname not in _LOOPBACK_NAMES:
-            return self._refuse(connection, f"host {host!r} refused: this dashboard answers "
-                                "to 127.0.0.1 / localhost only")
-        token = parse_qs(parts.query).get("token", [""])[-1]
-        token_ok = self.token is None or hmac.compare_digest(token, self.token)
-        if parts.path == "/ws":
-            origin = request.headers.get("Origin")
-            if origin is not None and origin != f"http://{host}":
-                return self._refuse(connection, f"cross-origin WebSocket refused: origin "
-                                    f"{origin} is not http://{host}")
-            if not token_ok:
-                return self._refuse(connection, "WebSocket refused: missing or wrong token")
-            return None
-        if parts.path in ("/", "/index.html"):
-            if not token_ok:
-                return self._refuse(connection, "missing or wrong token: open the URL printed "
-                                    "by streamkey (it ends with ?token=...)")
+        why = self.host_problem(request)
+        if why is not None:
+            return self.refuse(connection, *why)
+        path = urlsplit(request.path).path
+        if path == "/ws":
+            return super()._http(connection, request)
+        if path in ("/", "/index.html"):
+            if not self.token_ok(request):
+                return self.refuse(connection, "token", "missing or wrong token: open the URL "
+                                   "printed by streamkey (it ends with ?token=...)")
             return _asset(connection, "dashboard.html", "text/html")
-        name = parts.path.removeprefix("/static/")
+        name = path.removeprefix("/static/")
         if name in _STATIC:
             return _asset(connection, name, _STATIC[name])
-        if parts.path == "/favicon.ico":
+        if path == "/favicon.ico":
             return connection.respond(204, "")
-        return connection.respond(404, f"not found: {parts.path}\n")
-
-    def _refuse(self, connection: Any, why: str) -> Any:
-        self.refused.append(why)
-        return connection.respond(403, why + "\n")
+        return connection.respond(404, f"not found: {path[:200]}\n")
 
 
 def _asset(connection: Any, name: str, kind: str) -> Any:

@@ -365,3 +365,103 @@ def test_run_with_a_dashboard_serves_the_page_and_logs_to_the_jsonl_sink(
     assert not list(tmp_path.glob("session-*.jsonl"))  # the jsonl: sink is the session log
     methods = {e["method"] for e in read_jsonl(log) if e["type"] == "keyframe"}
     assert methods == set(LIVE) and "annotations: 0" in err
+
+
+# ------------------------------------------------------------- hostile clients (issue 9 §7)
+
+def test_annotator_memory_is_bounded_and_deep_json_is_refused() -> None:
+    from streamkey.dashboard import MAX_KEYS
+
+    a = annotator_with_keys()
+    for frame in range(3 * MAX_KEYS):
+        a.see_key("speed", frame)
+    assert len(a.keys) == MAX_KEYS and 3 * MAX_KEYS - 1 in a.keys
+    record, reply = a.handle("[" * 2040 + "]" * 2040)
+    assert record is None and "nested too deeply" in reply["error"]
+
+
+async def test_refusals_deep_json_and_odd_tokens_never_grow_memory_nor_end_connections(
+        tmp_path: Path) -> None:
+    from streamkey.adapters.websocket import RECENT_REFUSALS
+    from streamkey.dashboard import MAX_ANNOTATIONS
+
+    async with serving(tmp_path) as (url, board):
+        refusals = 3 * RECENT_REFUSALS
+        for _ in range(refusals):
+            with pytest.raises(InvalidStatus):
+                async with connect(ws_url(url), origin="http://evil." + "x" * 7000):  # type: ignore[arg-type]
+                    pass
+        assert board.refusals["origin"] == refusals and len(board.refused) == RECENT_REFUSALS
+        assert all(len(reason) <= 300 for reason in board.refused)
+        status, body = await asyncio.to_thread(http_get, url + "?token=%C3%A9t%C3%A9")
+        assert status == 200  # no token needed on loopback; a non-ASCII one is harmless
+        async with connect(ws_url(url)) as ws:
+            await next_of(ws, ("hello",))
+            key = await next_of(ws, ("keyframe",))
+            await ws.send("[" * 2040 + "]" * 2040)
+            assert "nested too deeply" in (await next_of(ws, ("error",)))["error"]
+            for i in range(MAX_ANNOTATIONS + 50):
+                await ws.send(json.dumps({"id": i, "action": "key", "frame": key["frame"]}))
+            while (await next_of(ws, ("ack", "error")))["id"] != MAX_ANNOTATIONS + 49:
+                pass
+        assert board.annotator.count == MAX_ANNOTATIONS + 50
+        assert len(board.annotations) == MAX_ANNOTATIONS
+
+
+async def test_listening_beyond_loopback_refuses_a_non_ascii_token_with_403(
+        tmp_path: Path) -> None:
+    async with serving(tmp_path, listen="127.0.0.2") as (url, board):
+        bare = url.split("?")[0]
+        status, body = await asyncio.to_thread(http_get, bare + "?token=%C3%A9t%C3%A9")
+        assert status == 403 and "token" in body
+        with pytest.raises(InvalidStatus) as refused:
+            async with connect(ws_url(bare + "?token=%C3%A9")):
+                pass
+        assert refused.value.response.status_code == 403
+
+
+async def test_the_websocket_event_sink_applies_the_dashboards_origin_host_and_token_rules(
+        ) -> None:
+    import socket as socket_module
+
+    from live_helpers import free_port
+
+    from streamkey.adapters import make_sink, parse_address
+    from streamkey.keyframes import KeyframeEvent
+
+    port = free_port(socket_module.SOCK_STREAM)
+    sink = make_sink(parse_address(f"ws://127.0.0.1:{port}"))
+    assert await sink.start() == f"ws://127.0.0.1:{port}"
+    try:
+        with pytest.raises(InvalidStatus) as refused:
+            async with connect(f"ws://127.0.0.1:{port}", origin="http://evil.example"):  # type: ignore[arg-type]
+                pass
+        assert refused.value.response.status_code == 403
+        base = f"http://127.0.0.1:{port}/"
+        status, _ = await asyncio.to_thread(http_get, base, {"Host": f"evil.example:{port}"})
+        assert status == 403  # DNS rebinding
+        with pytest.raises(InvalidStatus) as twice:  # two Host headers: 403, not a 500
+            async with connect(f"ws://127.0.0.1:{port}",
+                               additional_headers={"Host": f"127.0.0.1:{port}"}):
+                pass
+        assert twice.value.response.status_code == 403
+        assert sink.refusals == {"origin": 1, "host": 1, "header": 1}
+        async with connect(f"ws://127.0.0.1:{port}") as ws:  # a non-browser client
+            async with asyncio.timeout(10 * MS):
+                while not sink.clients:  # noqa: ASYNC110 (the server registers it next)
+                    await asyncio.sleep(0.005)
+            sink.offer(KeyframeEvent("s", "speed", 5, 0.1, 1.0, 9, 4, "p"))
+            assert json.loads(await asyncio.wait_for(ws.recv(), 10 * MS))["frame"] == 5
+    finally:
+        await sink.close()
+    wide = make_sink(parse_address(f"ws://127.0.0.2:{port}"), listen="127.0.0.2")
+    ready = await wide.start()
+    try:
+        assert wide.token and ready.endswith(f"/?token={wide.token}")
+        with pytest.raises(InvalidStatus):
+            async with connect(f"ws://127.0.0.2:{port}"):
+                pass
+        async with connect(f"ws://127.0.0.2:{port}/?token={wide.token}"):
+            pass
+    finally:
+        await wide.close()
