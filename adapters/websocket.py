@@ -1,10 +1,12 @@
 """WebSocket server sink: every event as JSON text to every connected client.
 
 Broadcast is O(1) on the frame path: a message is serialised once and appended to one
-shared ring; each client's sender task follows the ring with its own cursor, woken once per
-loop turn (not once per message). A client that falls more than the ring's length behind
-loses its oldest messages (counted), never slowing the engine or other clients
-(websockets' `broadcast()` has no backpressure, notes/ecosystem.md). Compression is off.
+shared ring; each client's sender task follows the ring with its own cursor. After the
+frame's work, one fan-out task wakes the senders `FANOUT_CHUNK` at a time, one chunk per
+loop turn, so a frame arriving meanwhile waits for a chunk of sends, not for all of them.
+A client that falls more than the ring's length behind loses its oldest messages
+(counted), never slowing the engine or other clients (websockets' `broadcast()` has no
+backpressure, notes/ecosystem.md). Compression is off.
 
 Who may connect (the same rules as the dashboard): the server binds to loopback unless
 `listen` says otherwise; on loopback only the host names 127.0.0.1, localhost and [::1] are
@@ -41,6 +43,7 @@ __all__ = ["WebSocketSink", "Client", "CLIENT_QUEUE", "LOOPBACK_NAMES", "RECENT_
 
 CLIENT_QUEUE = 256          # messages a client may fall behind before it loses the oldest
 RECENT_REFUSALS = 20        # refusal reasons kept (counters keep the totals)
+FANOUT_CHUNK = 16           # client senders woken per loop turn
 LOOPBACK_NAMES = {"127.0.0.1", "localhost", "::1", "[::1]"}
 
 
@@ -52,12 +55,14 @@ class Client:
         self.cursor = cursor      # seq of the last broadcast message handed to this client
         self.replies: deque[str] = deque(maxlen=64)
         self.dropped = 0
+        self.wake = asyncio.Event()
 
     def put(self, text: str) -> None:
         """Queue a message for this client only (a reply or the greeting)."""
         if len(self.replies) == self.replies.maxlen:
             self.dropped += 1
         self.replies.append(text)
+        self.wake.set()
 
 
 class WebSocketSink(Sink):
@@ -83,8 +88,8 @@ class WebSocketSink(Sink):
         self.client_drops = 0
         self.ring: deque[str] = deque(maxlen=client_queue)
         self.ring_seq = 0
-        self._wake: asyncio.Event | None = None
-        self._wake_scheduled = False
+        self._fanout_pending = False
+        self._fanout: asyncio.Task[None] | None = None
         self.refused: deque[str] = deque(maxlen=RECENT_REFUSALS)
         self.refusals: Counter[str] = Counter()
 
@@ -177,6 +182,9 @@ class WebSocketSink(Sink):
         finally:
             sender.cancel()
             self.clients.discard(client)
+            lag = self.ring_seq - client.cursor  # broadcast but never handed to this client
+            client.dropped += lag
+            self.stats.dropped += lag
             self.client_drops += client.dropped
 
     def greeting(self) -> dict[str, Any] | None:
@@ -195,7 +203,6 @@ class WebSocketSink(Sink):
                      "error": f"message refused: {type(exc).__name__}"}
         if reply is not None:
             client.put(json.dumps(reply))
-            self._notify()
 
     async def _send_loop(self, client: Client) -> None:
         try:
@@ -203,9 +210,8 @@ class WebSocketSink(Sink):
                 while client.replies:
                     await client.connection.send(client.replies.popleft())
                 if client.cursor == self.ring_seq:
-                    if self._wake is None:
-                        self._wake = asyncio.Event()
-                    await self._wake.wait()
+                    client.wake.clear()
+                    await client.wake.wait()
                     continue
                 oldest = self.ring_seq - len(self.ring) + 1
                 if client.cursor + 1 < oldest:  # fell behind the ring: its oldest are gone
@@ -230,15 +236,19 @@ class WebSocketSink(Sink):
         self._notify()
 
     def _notify(self) -> None:
-        if not self._wake_scheduled and self._wake is not None:
-            self._wake_scheduled = True
-            asyncio.get_running_loop().call_soon(self._wake_all)
+        if not self._fanout_pending and self.clients:
+            self._fanout_pending = True
+            self._fanout = asyncio.get_running_loop().create_task(self._fan_out())
 
-    def _wake_all(self) -> None:
-        self._wake_scheduled = False
-        wake, self._wake = self._wake, None
-        if wake is not None:
-            wake.set()
+    async def _fan_out(self) -> None:
+        """Wake the clients' senders a chunk per loop turn, so a frame that arrives in the
+        meantime waits for one chunk of sends, not for every client's."""
+        await asyncio.sleep(0)  # after the current frame's work
+        self._fanout_pending = False  # a broadcast from now on schedules another pass
+        for i, client in enumerate(list(self.clients)):
+            client.wake.set()
+            if i % FANOUT_CHUNK == FANOUT_CHUNK - 1:
+                await asyncio.sleep(0)
 
     def _behind(self, client: Client) -> bool:
         return bool(client.replies) or client.cursor < self.ring_seq
@@ -252,8 +262,7 @@ class WebSocketSink(Sink):
         for client in list(self.clients):
             transport = client.connection.transport
             if self._behind(client) or transport.get_write_buffer_size():
-                self.stats.dropped += self.ring_seq - client.cursor
-                transport.abort()  # a stalled reader would hold the close handshake up
+                transport.abort()  # its lag is counted when its handler ends  # a stalled reader would hold the close handshake up
         if self.server is not None:
             self.server.close()
             await self.server.wait_closed()

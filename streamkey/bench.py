@@ -228,8 +228,11 @@ def _markdown(kind: str, result: dict[str, Any]) -> str:
 
 
 def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
-              data: str | None = None, stream_frames: int = 432_000) -> list[Path]:
+              data: str | None = None, stream_frames: int = 432_000,
+              quick: bool = False) -> list[Path]:
     """Run the chosen benchmarks; write `bench_<kind>.json` and `.md` into `output`."""
+    from .bench_live import LIVE_KINDS, run_live_bench
+
     data_dir = Path(data) if data else default_data_dir()
     output.mkdir(parents=True, exist_ok=True)
     written = []
@@ -237,7 +240,9 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
         if kind == "agreement":
             written += _bench_agreement(data_dir, output)
             continue
-        if kind == "offline":
+        if kind in LIVE_KINDS:  # live engine benches (memory, latency, ws_clients)
+            result = run_live_bench(kind, data_dir, quick)
+        elif kind == "offline":
             result = bench_offline(frames, data_dir)
         else:
             result = bench_online(data_dir, stream_frames)

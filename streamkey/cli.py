@@ -187,9 +187,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """`streamkey bench`: time and memory of the offline and/or online methods, to files."""
     from .bench import run_bench
 
-    kinds = [k for k in ("offline", "online", "agreement") if getattr(args, k)] or [
-        "offline", "online"]
-    for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data):
+    kinds = [k for k in ("offline", "online", "agreement") if getattr(args, k)]
+    kinds += [k for k in ("memory", "latency", "ws_clients") if getattr(args, k)]
+    kinds = kinds or ["offline", "online"]
+    for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data,
+                          quick=args.quick):
         print(f"wrote {path}")
     return 0
 
@@ -368,6 +370,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--online", action="store_true")
     p.add_argument("--agreement", action="store_true",
                    help="online vs offline F1 against lookahead on every shared clip (slow)")
+    p.add_argument("--memory", action="store_true",
+                   help="live: RSS over an accelerated 1-hour stream with every sink")
+    p.add_argument("--latency", action="store_true", help="live: replay and run as processes, "
+                   "an external receiver, OSC and ZeroMQ at 120 Hz, all methods")
+    p.add_argument("--ws-clients", dest="ws_clients", action="store_true",
+                   help="live: event latency with 0, 100 and 300 WebSocket clients")
+    p.add_argument("--quick", action="store_true", help="live benches: shorter runs")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")
     p.add_argument("--data", help="folder of CMU clips (default: ../shared/data/cmu if present)")
     p.add_argument("-o", "--output", default="results", help="output folder")

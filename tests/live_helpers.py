@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import socket
@@ -64,3 +65,11 @@ def wait_udp_bound(port: int, what: str, timeout: float = 20.0) -> None:
                 return
         time.sleep(0.02)
     raise AssertionError(f"{what} did not bind UDP port {port}")
+
+
+async def until(predicate, seconds: float = 10.0) -> None:
+    """Wait (on the running loop) until `predicate()` holds; fail after `seconds`."""
+    deadline = asyncio.get_running_loop().time() + seconds * MS
+    while not predicate():
+        assert asyncio.get_running_loop().time() < deadline, "condition not reached in time"
+        await asyncio.sleep(0.002)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import zmq
 from cmu import DATA
-from live_helpers import MS, free_port, read_jsonl
+from live_helpers import MS, free_port, read_jsonl, until
 from websockets.asyncio.client import connect
 
 from streamkey.adapters import make_sink, parse_address
@@ -31,13 +31,6 @@ def keyframers(methods=("speed", "simplify")):
         m = Motion(source.skeleton, np.zeros((0, source.skeleton.n_channels)), source.fps)
         return make_keyframers(m, list(methods))
     return make
-
-
-async def until(predicate, seconds=10.0):
-    deadline = asyncio.get_running_loop().time() + seconds * MS
-    while not predicate():
-        assert asyncio.get_running_loop().time() < deadline, "condition not reached in time"
-        await asyncio.sleep(0.002)
 
 
 async def osc_engine(tmp_path):

@@ -15,11 +15,11 @@ import socket
 import struct
 
 import numpy as np
-import zmq
+import pytest
 from cmu import DATA
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from live_helpers import MS, free_port, keyframes_of
+from live_helpers import MS, free_port, keyframes_of, until
 from pythonosc.osc_message_builder import OscMessageBuilder
 
 from streamkey.adapters import parse_address
@@ -97,13 +97,6 @@ def _interleave(frames_and_packets):
     return schedule
 
 
-async def until(predicate, seconds=20.0):
-    deadline = asyncio.get_running_loop().time() + seconds * MS
-    while not predicate():
-        assert asyncio.get_running_loop().time() < deadline, "condition not reached in time"
-        await asyncio.sleep(0.002)
-
-
 def _run_with_handler(coro):
     """asyncio.run, failing on any exception that reached the loop (a traceback)."""
     problems = []
@@ -117,41 +110,49 @@ def _run_with_handler(coro):
     return result
 
 
+async def _live(source, ready, send_frame, send_hostile, schedule, connected=None):
+    """A live engine on `source`: every valid frame, the scheduled hostile packets after
+    it (`send_hostile` returns how many it sent), paced by the engine's progress."""
+    events: list[dict] = []
+    engine = Engine(source, make, [], on_event=events.append)
+    task = asyncio.create_task(engine.run())
+    await until(ready)
+    if connected is not None:
+        assert await connected()
+    hostile = 0
+    for i, frame in enumerate(FRAMES):
+        send_frame(frame)
+        for packet in schedule.get(i, []):
+            hostile += send_hostile(packet)
+        # stay inside the socket buffer: wait for the engine to catch up
+        await until(lambda i=i: engine.summary.frames_in >= i - 8)
+    await until(lambda: source.stats.received + sum(source.stats.malformed.values())
+                >= len(FRAMES) + hostile, 20.0)
+    engine.stop()
+    return await task, events, hostile
+
+
+def _check(summary, events, hostile) -> None:
+    assert keyframes_of(events) == CLEAN  # the valid frames gave a clean run's events
+    assert sum(summary.source["malformed"].values()) == hostile, summary.source
+    assert summary.frames_in == len(FRAMES) and summary.source["queue_drops"] == 0
+    assert summary.guard["invalid"] == 0 and summary.errors == []
+    assert summary.source_error is None
+
+
 async def _osc_run(schedule):
     port = free_port()
     source = OscSource(parse_address(f"osc://127.0.0.1:{port}"), skeleton=MOTION.skeleton,
                        fps=MOTION.fps)
-    events: list[dict] = []
-    engine = Engine(source, make, [], on_event=events.append)
-    task = asyncio.create_task(engine.run())
-    await until(lambda: source.sock is not None)
     out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    hostile = 0
-    for i, frame in enumerate(FRAMES):
-        out.sendto(encode_frame(frame.seq, frame.time, frame.channels), ("127.0.0.1", port))
-        for packet in schedule.get(i, []):
-            out.sendto(packet, ("127.0.0.1", port))
-            hostile += 1
-        # stay inside the socket buffer: wait for the engine to catch up
-        await until(lambda i=i: engine.summary.frames_in >= i - 8)
-    await until(lambda: source.stats.received + sum(source.stats.malformed.values())
-                >= len(FRAMES) + hostile)
-    out.close()
-    engine.stop()
-    summary = await task
-    return summary, events, hostile
-
-
-@settings(max_examples=EXAMPLES, derandomize=True, deadline=None,
-          suppress_health_check=[HealthCheck.too_slow])
-@given(st.lists(st.tuples(st.integers(0, 10_000), osc_packets), min_size=1, max_size=60))
-def test_osc_packet_fuzz_during_a_live_run(packets):
-    summary, events, hostile = _run_with_handler(_osc_run(_interleave(packets)))
-    assert keyframes_of(events) == CLEAN
-    malformed = summary.source["malformed"]
-    assert sum(malformed.values()) == hostile, malformed
-    assert summary.frames_in == len(FRAMES) and summary.source["kernel_drops"] in (0, None)
-    assert summary.guard["invalid"] == 0 and summary.errors == []
+    out.connect(("127.0.0.1", port))
+    try:
+        return await _live(
+            source, lambda: source.sock is not None,
+            lambda frame: out.send(encode_frame(frame.seq, frame.time, frame.channels)),
+            lambda packet: bool(out.send(packet)) or 1, schedule)
+    finally:
+        out.close()
 
 
 # ------------------------------------------------------------------ hostile ZeroMQ messages
@@ -187,35 +188,33 @@ async def _zmq_run(schedule):
     port = free_port(socket.SOCK_STREAM)
     address = parse_address(f"zmq+tcp://127.0.0.1:{port}")
     source = ZmqSource(address, skeleton=MOTION.skeleton, fps=MOTION.fps)
-    events: list[dict] = []
-    engine = Engine(source, make, [], on_event=events.append)
     pub = ZmqFrameSender(address)
-    task = asyncio.create_task(engine.run())
-    await until(lambda: source.socket is not None)
-    assert await asyncio.to_thread(pub.subscribers, 10.0 * MS) >= 1
-    hostile = 0
-    for i, frame in enumerate(FRAMES):
-        pub.send_frame(frame)
-        for parts in schedule.get(i, []):
-            if parts[0].startswith((b"frame", b"skeleton")):  # what the SUB subscribes to
-                pub.socket.send_multipart(parts)
-                hostile += 1
-        await until(lambda i=i: engine.summary.frames_in >= i - 8)
-    await until(lambda: source.stats.received + sum(source.stats.malformed.values())
-                >= len(FRAMES) + hostile)
-    engine.stop()
-    summary = await task
-    pub.close()
-    return summary, events, hostile
+
+    async def subscribed():
+        return await asyncio.to_thread(pub.subscribers, 10 * MS) >= 1
+
+    def send_hostile(parts):
+        if not parts[0].startswith((b"frame", b"skeleton")):  # not subscribed: never arrives
+            return 0
+        pub.socket.send_multipart(parts)
+        return 1
+
+    try:
+        return await _live(source, lambda: source.socket is not None, pub.send_frame,
+                           send_hostile, schedule, subscribed)
+    finally:
+        pub.close()
 
 
+@pytest.mark.parametrize("transport", ["osc", "zmq"])
 @settings(max_examples=EXAMPLES, derandomize=True, deadline=None,
-          suppress_health_check=[HealthCheck.too_slow])
-@given(st.lists(st.tuples(st.integers(0, 10_000), zmq_messages), min_size=1, max_size=60))
-def test_zmq_message_fuzz_during_a_live_run(messages):
-    summary, events, hostile = _run_with_handler(_zmq_run(_interleave(messages)))
-    assert keyframes_of(events) == CLEAN
-    assert sum(summary.source["malformed"].values()) == hostile, summary.source
-    assert summary.frames_in == len(FRAMES) and summary.source["queue_drops"] == 0
-    assert summary.errors == [] and summary.source_error is None
-    assert zmq.zmq_version()
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_packet_fuzz_during_a_live_run(transport, data):
+    hostile = osc_packets if transport == "osc" else zmq_messages
+    packets = data.draw(st.lists(st.tuples(st.integers(0, 10_000), hostile), min_size=1,
+                                 max_size=60))
+    run = _osc_run if transport == "osc" else _zmq_run
+    summary, events, sent = _run_with_handler(run(_interleave(packets)))
+    _check(summary, events, sent)
+    assert summary.source["kernel_drops"] in (0, None)  # None: not UDP (ZeroMQ)
