@@ -101,6 +101,11 @@ async def test_duplicates_out_of_order_and_silence_do_not_stop_the_stream(tmp_pa
     summary = await task
     assert summary.guard["duplicates"] == 1 and summary.guard["out_of_order"] == 2
     assert summary.guard["gaps"] == 1 and summary.guard["bridged_frames"] == 5
+    accounting = summary.accounting()  # every packet that arrived, and the frames that did not
+    assert accounting["never_arrived"] == 5 and accounting["processed"] == len(order) - 3 + (
+        MOTION.n_frames - 205)
+    assert accounting["arrived"] == accounting["processed"] + 3
+    assert "5 frames never arrived" in summary.text()
     events = read_jsonl(log)
     gaps = [e for e in events if e["type"] == "gap"]
     assert [(g["first"], g["last"], g["bridged"]) for g in gaps] == [(200, 204, True)]
@@ -428,3 +433,28 @@ async def test_kernel_receive_drops_are_read_and_every_datagram_is_accounted_for
     await until(lambda: source.counters().received + (source.stats.kernel_drops or 0) == sent)
     await source.close()
     assert source.stats.kernel_drops > 0 and source.stats.received > 0
+
+
+async def test_zmq_event_sink_says_which_drops_it_cannot_see_and_counts_them_with_nodrop():
+    from streamkey.keyframes import KeyframeEvent
+
+    event = KeyframeEvent("s", "speed", 5, 0.1, 1.0, 9, 4, "p")
+    for option in ("", "?nodrop=1"):
+        port = free_port(socket.SOCK_STREAM)
+        sink = make_sink(parse_address(f"zmq+tcp://127.0.0.1:{port}{option}"))
+        await sink.start()
+        lazy = zmq.Context.instance().socket(zmq.SUB)
+        lazy.setsockopt(zmq.RCVHWM, 10)
+        lazy.setsockopt(zmq.SUBSCRIBE, b"event")
+        lazy.connect(f"tcp://127.0.0.1:{port}")
+        await until(lambda s=sink: s.socket.poll(10) != 0)  # the subscription reached XPUB
+        sink.socket.recv()
+        for _ in range(100_000):  # a subscriber that never reads
+            sink.offer(event)
+        lazy.close(linger=0)
+        await sink.close()
+        if option:
+            assert sink.stats.dropped > 0 and not sink.stats.unseen_drops
+            assert sink.stats.sent + sink.stats.dropped == 100_000
+        else:
+            assert sink.stats.dropped == 0 and "no drop counter" in sink.stats.unseen_drops
