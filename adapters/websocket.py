@@ -262,7 +262,8 @@ class WebSocketSink(Sink):
         for client in list(self.clients):
             transport = client.connection.transport
             if self._behind(client) or transport.get_write_buffer_size():
-                transport.abort()  # its lag is counted when its handler ends  # a stalled reader would hold the close handshake up
+                transport.abort()  # a stalled reader would hold the close up; its lag
+                # is counted when its handler ends
         if self.server is not None:
             self.server.close()
             await self.server.wait_closed()

@@ -134,8 +134,8 @@ class RunSummary:
         lat = self.latency_percentiles()
         a = self.accounting()
         malformed = ", ".join(f"{k} {v}" for k, v in sorted(a["malformed"].items()))
-        kernel = ("not counted on this platform" if a["kernel_drops"] is None
-                  else str(a["kernel_drops"]))
+        kernel = ("not counted (this source is not a UDP socket on Linux)"
+                  if a["kernel_drops"] is None else str(a["kernel_drops"]))
         lines = [
             f"frames in: {self.frames_in} in {self.seconds:.1f} s; dropped: "
             f"{a['duplicates']} duplicate, {a['out_of_order']} out of order, "

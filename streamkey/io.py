@@ -72,7 +72,7 @@ class SourceStats:
     def reject(self, kind: str, message: str) -> None:
         """Count a malformed message of `kind` and remember why."""
         self.malformed[kind] += 1
-        self.last_error = message
+        self.last_error = message[:300]
 
     def as_dict(self) -> dict[str, Any]:
         """Counters as a plain dict."""
