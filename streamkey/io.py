@@ -159,10 +159,13 @@ class Source:
         elif self.skeleton is None:
             self.skeleton, self.fps = skeleton, float(fps)
             self.skeleton_ready.set()
-        elif skeleton.n_channels != self.skeleton.n_channels:
+        elif (skeleton.names != self.skeleton.names
+              or skeleton.channels != self.skeleton.channels):
             self.stats.reject("skeleton_mismatch",
-                              f"skeleton with {skeleton.n_channels} channels ignored; stream has "
-                              f"{self.skeleton.n_channels}")
+                              f"another skeleton ({len(skeleton.names)} joints, "
+                              f"{skeleton.n_channels} channels) ignored; the stream keeps its "
+                              f"first ({len(self.skeleton.names)} joints, "
+                              f"{self.skeleton.n_channels} channels)")
 
     def refuse_skeleton(self, why: str) -> None:
         """The engine cannot use the adopted skeleton: count it and wait for another."""

@@ -458,3 +458,18 @@ async def test_zmq_event_sink_says_which_drops_it_cannot_see_and_counts_them_wit
             assert sink.stats.sent + sink.stats.dropped == 100_000
         else:
             assert sink.stats.dropped == 0 and "no drop counter" in sink.stats.unseen_drops
+
+
+def test_a_different_skeleton_after_the_first_good_one_is_counted_and_ignored():
+    from streamkey.adapters.osc import encode_skeleton
+
+    source = OscSource(parse_address("osc://127.0.0.1:9"))
+    source.receive(encode_skeleton(MOTION.skeleton, MOTION.fps))
+    for _ in range(3):  # replay re-sends the same skeleton every second: not counted
+        source.receive(encode_skeleton(MOTION.skeleton, MOTION.fps))
+    renamed = MOTION.skeleton
+    renamed = type(renamed)(names=[n + "_x" for n in renamed.names], parents=renamed.parents,
+                            offsets=renamed.offsets, channels=renamed.channels)
+    source.receive(encode_skeleton(renamed, MOTION.fps))
+    assert source.skeleton.names == MOTION.skeleton.names
+    assert source.stats.malformed == {"skeleton_mismatch": 1}
