@@ -143,7 +143,7 @@ class RunSummary:
             f"malformed: {sum(a['malformed'].values())}" + (f" ({malformed})" if malformed
                                                             else ""),
             f"gaps: {a['gaps']} ({a['bridged']} frames bridged, {a['restarts']} restarts)",
-            f"accounting: {a['arrived']} packets arrived = "
+            f"accounting: {a['arrived']} frames or packets arrived = "
             f"{sum(a['malformed'].values())} malformed + {a['queue_drops']} queue drops + "
             f"{a['left_in_queue']} unread at stop + {a['duplicates']} duplicate + "
             f"{a['out_of_order']} out of order + {a['invalid']} invalid + "
@@ -164,8 +164,9 @@ class RunSummary:
         if self.error_count > 5:
             lines.append(f"... {self.error_count - 5} more keyframer errors")
         if lat["p50"] is not None:
-            lines.append(f"wall latency (from arrival at the socket): p50 {lat['p50']:.3f} ms, "
-                         f"p99 {lat['p99']:.3f} ms, max {lat['max']:.3f} ms")
+            lines.append(f"wall latency (from the deciding frame's arrival): "
+                         f"p50 {lat['p50']:.3f} ms, p99 {lat['p99']:.3f} ms, "
+                         f"max {lat['max']:.3f} ms")
         if self.source_error:
             lines.append(f"source died: {self.source_error}")
         return "\n".join(lines)
