@@ -473,3 +473,19 @@ def test_a_different_skeleton_after_the_first_good_one_is_counted_and_ignored():
     source.receive(encode_skeleton(renamed, MOTION.fps))
     assert source.skeleton.names == MOTION.skeleton.names
     assert source.stats.malformed == {"skeleton_mismatch": 1}
+
+
+def test_latency_histogram_percentiles_are_within_half_a_percent_in_fixed_memory():
+    from streamkey.engine import LatencyHistogram
+
+    rng = np.random.default_rng(7)
+    values = np.concatenate([rng.lognormal(0.0, 1.0, 200_000), [1e-5, 3e5]])
+    hist = LatencyHistogram()
+    size = hist.counts.nbytes
+    for v in values:
+        hist.add(float(v))
+    assert hist.counts.nbytes == size < 16_000 and hist.count == len(values)
+    for q in (50, 90, 99, 99.9):
+        exact = float(np.percentile(values, q, method="inverted_cdf"))
+        assert abs(hist.percentile(q) - exact) <= 0.0051 * exact, q
+    assert hist.summary()["max"] == 3e5
