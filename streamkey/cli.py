@@ -43,11 +43,14 @@ def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
 
 
 def _write(text: str, output: str) -> None:
+    # File names that are not UTF-8 come back out as the bytes they were (surrogateescape).
+    data = text.encode("utf-8", "surrogateescape")
     if output == "-":
-        sys.stdout.write(text)
         sys.stdout.flush()
+        sys.stdout.buffer.write(data)
+        sys.stdout.buffer.flush()
     else:
-        Path(output).write_text(text, encoding="utf-8")
+        Path(output).write_bytes(data)
 
 
 def cmd_extract(args: argparse.Namespace) -> int:
@@ -120,10 +123,24 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """`streamkey replay`: a recorded file as a paced frame stream."""
-    from .amc import read_motion
+    from .amc import bvh_equivalent
+    from .batch import load_motion
+    from .errors import UsageError
     from .live import replay
 
-    motion = read_motion(args.file)
+    for name, low, high in (("--rate", 0.1, 1e5), ("--speed", 1e-3, 1e6)):
+        value = getattr(args, name[2:])
+        if value is not None and not low <= value <= high:
+            raise UsageError(f"replay {name} must lie in {low:g}..{high:g}, got {value:g}")
+    if args.frames is not None and args.frames < 0 or not 0 <= args.wait <= 3600:
+        raise UsageError("replay --frames must be >= 0 and --wait in 0..3600 seconds")
+    motion = bvh_equivalent(load_motion(args.file))
+    if (args.rate or motion.fps) * args.speed < 0.1:
+        raise UsageError(f"replay: {(args.rate or motion.fps) * args.speed:g} frames/s is too"
+                         " slow (at least 0.1 frames/s; give --rate or --speed)")
+    if round(motion.fps) < 1:
+        raise UsageError(f"{args.file}: replay needs at least 0.5 frames/s in the file (the"
+                         f" skeleton is re-sent every round(fps) frames), got {motion.fps:g}")
     result = replay(motion, args.to, rate=args.rate, speed=args.speed, loop=args.loop,
                     start=args.start, end=args.end, listen=args.listen,
                     wait_subscribers=args.wait, count=args.frames)
@@ -137,15 +154,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     import json
 
     from .adapters import make_source, parse_address
-    from .amc import read_motion
+    from .amc import bvh_equivalent, read_motion
+    from .batch import load_motion
     from .live import run_live
     from .methods import parse_methods
 
     methods = parse_methods(args.method, online=True)
-    skeleton_motion = read_motion(args.skeleton) if args.skeleton else None
+    # Frames on the wire come from `replay`, which sends AMC clips as their BVH equivalent.
+    skeleton_motion = bvh_equivalent(read_motion(args.skeleton)) if args.skeleton else None
     source: Any
     if Path(args.source).suffix.lower() in (".bvh", ".amc"):
-        source = read_motion(args.source)
+        source = load_motion(args.source)  # fully read and checked before the engine starts
     else:
         source = make_source(parse_address(args.source), args.listen,
                              skeleton_motion.skeleton if skeleton_motion else None,
@@ -170,10 +189,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     paths = find_motion_files([args.folder])
     out = Path(args.output)
-    written = evaluate_files(paths, out, progress=_progress(args.quiet))
+    errors: list[str] = []
+    written = evaluate_files(paths, out, progress=_progress(args.quiet), errors=errors)
     for p in written:
         print(f"wrote {p}")
-    return 0
+    for line in errors:
+        print(f"error: {line}", file=sys.stderr)
+    return 2 if errors else 0
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -188,18 +210,22 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _keyframes_of(path: str, method: str, args: argparse.Namespace) -> tuple[Any, Any]:
-    from .amc import read_motion
-    from .batch import extract_motion
+    from .batch import extract_motion, file_error, load_motion
+    from .errors import InputError
     from .methods import parse_methods
 
-    motion = read_motion(path)
     names = parse_methods(method)
-    return motion, extract_motion(motion, names, _method_params(args))
+    motion = load_motion(path)
+    try:
+        return motion, extract_motion(motion, names, _method_params(args))
+    except StreamkeyError as exc:
+        raise InputError(file_error(Path(path), exc)) from None
 
 
 def cmd_sheet(args: argparse.Namespace) -> int:
     """`streamkey sheet`: the keyposes of one clip as a contact sheet of stick figures."""
     from .errors import UsageError
+    from .inputs import display_name
     from .methods import parse_methods
     from .sheet import contact_sheet
 
@@ -209,7 +235,7 @@ def cmd_sheet(args: argparse.Namespace) -> int:
     motion, results = _keyframes_of(args.file, args.method, args)
     keys = results[names[0]]
     sheet = contact_sheet(motion, keys, args.output, columns=args.columns, view=args.view,
-                          title=f"{motion.name}: {len(keys)} {names[0]} keyposes")
+                          title=f"{display_name(motion.name)}: {len(keys)} {names[0]} keyposes")
     print(f"wrote {sheet.path} ({sheet.figures} keyposes: {sheet.frames})", file=sys.stderr)
     return 0
 
@@ -381,3 +407,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as exc:  # the environment, not the data: an output path, a port, a disk
+        from .inputs import os_reason
+
+        where = exc.filename if exc.filename is not None else args.command
+        print(f"error: {where}: {os_reason(exc)}", file=sys.stderr)
+        return 2
