@@ -96,7 +96,8 @@ def extract_motion(motion: Motion, methods: list[str],
             if "saliency" not in results:
                 results["saliency"] = offline_method("saliency")(
                     motion, features=features, **params.get("saliency", {}))
-            kwargs["count"] = len(results["saliency"])
+            # At least first and last: a still clip has no salient pose but still two ends.
+            kwargs["count"] = max(len(results["saliency"]), 2)
         if name in ("uniform", "decimate"):
             results[name] = offline_method(name)(motion, **kwargs)
         else:

@@ -224,7 +224,7 @@ def _keyframes_of(path: str, method: str, args: argparse.Namespace) -> tuple[Any
 
 def cmd_sheet(args: argparse.Namespace) -> int:
     """`streamkey sheet`: the keyposes of one clip as a contact sheet of stick figures."""
-    from .errors import UsageError
+    from .errors import InputError, UsageError
     from .inputs import display_name
     from .methods import parse_methods
     from .sheet import contact_sheet
@@ -234,6 +234,8 @@ def cmd_sheet(args: argparse.Namespace) -> int:
         raise UsageError("sheet: choose one method (--method saliency, speed, ...)")
     motion, results = _keyframes_of(args.file, args.method, args)
     keys = results[names[0]]
+    if len(keys) == 0:
+        raise InputError(f"{args.file}: {names[0]} finds no keypose to draw in this clip")
     sheet = contact_sheet(motion, keys, args.output, columns=args.columns, view=args.view,
                           title=f"{display_name(motion.name)}: {len(keys)} {names[0]} keyposes")
     print(f"wrote {sheet.path} ({sheet.figures} keyposes: {sheet.frames})", file=sys.stderr)

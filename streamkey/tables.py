@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from .batch import FileResult, load_motion, per_file
-from .errors import StreamkeyError
+from .errors import InputError, StreamkeyError
 from .evaluate import Evaluator, Scores
 from .features import compute_features
 from .methods import OFFLINE_METHODS, offline_method
@@ -38,8 +38,12 @@ def evaluate_clip(path: Path) -> dict[str, Any]:
         if name not in OFFLINE_METHODS:
             continue
         keys = offline_method(name)(motion, features=features)
+        if len(keys) == 0:
+            raise InputError(f"{path}: {name} finds no keyframe in this clip"
+                             f" ({motion.n_frames - motion.first_frame} captured frames), so"
+                             " the clip cannot be scored")
         natural[name] = _curvefit_scores(motion, keys, ev) if name == "curvefit" else ev.score(keys)
-    count = natural["saliency"].count
+    count = max(natural["saliency"].count, 2)  # counted methods keep at least both ends
     equal = {"saliency": natural["saliency"]}
     for name in EQUAL_COUNT_METHODS[1:]:
         fn = offline_method(name)
