@@ -75,9 +75,11 @@ def _numbers(words: list[str], count: int, source: str, line: int, what: str) ->
     out = []
     for w in words:
         v = parse_number(w)
-        if v is None or abs(v) > VALUE_LIMIT:
-            raise _err(source, line, f"expected a finite number within +-{VALUE_LIMIT:g} for"
-                       f" {what}, got {w!r}")
+        if v is None:
+            raise _err(source, line, f"expected a number for {what}, got {w!r}")
+        if abs(v) > VALUE_LIMIT:
+            raise _err(source, line, f"expected a number within +-{VALUE_LIMIT:g} for {what},"
+                       f" got {w!r}")
         out.append(v)
     return out
 
@@ -357,8 +359,9 @@ def _to_values(state: _AmcState) -> np.ndarray:
     bad = ~(np.abs(values) <= VALUE_LIMIT)
     if bad.any():
         i, col = np.argwhere(bad)[0]
-        raise _err(state.source, state.lines[i][col], f"expected a finite number within"
-                   f" +-{VALUE_LIMIT:g}, got {state.rows[i][col]!r}")
+        limit = f" within +-{VALUE_LIMIT:g}" if np.isfinite(values[i, col]) else ""
+        raise _err(state.source, state.lines[i][col], f"expected a finite number{limit}, got"
+                   f" {state.rows[i][col]!r}")
     return values
 
 

@@ -182,8 +182,8 @@ def _parse_motion_values(lines: list[str], first_line: int, n_frames: int, n_cha
         for i, row in enumerate(rows):
             for col, word in enumerate(row.split()):
                 if parse_number(word) is None:
-                    raise BVHError(f"{source}:{first_line + i}: expected a number in column"
-                                   f" {col + 1}, got {word!r}")
+                    raise BVHError(f"{source}:{first_line + i}: expected a finite number in"
+                                   f" column {col + 1}, got {word!r}")
         raise AssertionError("unreachable: every word parsed")
     values = values.reshape(n_frames, n_channels)
     bad = ~(np.abs(values) <= VALUE_LIMIT)
