@@ -45,12 +45,15 @@ def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
 def _write(text: str, output: str) -> None:
     # File names that are not UTF-8 come back out as the bytes they were (surrogateescape).
     data = text.encode("utf-8", "surrogateescape")
-    if output == "-":
+    if output != "-":
+        Path(output).write_bytes(data)
+    elif hasattr(sys.stdout, "buffer"):
         sys.stdout.flush()
         sys.stdout.buffer.write(data)
         sys.stdout.buffer.flush()
-    else:
-        Path(output).write_bytes(data)
+    else:  # a text-only stream (a StringIO in a caller's redirect)
+        sys.stdout.write(data.decode("utf-8", "replace"))
+        sys.stdout.flush()
 
 
 def cmd_extract(args: argparse.Namespace) -> int:

@@ -142,13 +142,16 @@ def direct_events(motion: Motion) -> list[tuple[str, int, int]]:
                   if isinstance(e, KeyframeEvent))
 
 
-@pytest.mark.parametrize("scheme", ["osc", "zmq+tcp"])
-def test_run_receiving_an_amc_replay_keys_what_was_sent(tmp_path, scheme) -> None:
+@pytest.mark.parametrize(("scheme", "skeleton"), [("osc", False), ("zmq+tcp", False),
+                                                  ("osc", True)])
+def test_run_receiving_an_amc_replay_keys_what_was_sent(tmp_path, scheme, skeleton) -> None:
+    """From the wire's skeleton message, or from `--skeleton CLIP.amc` (converted alike)."""
     port = free_port(socket.SOCK_DGRAM if scheme == "osc" else socket.SOCK_STREAM)
     address = f"{scheme}://127.0.0.1:{port}"
     log = tmp_path / "events.jsonl"
+    given = ["--skeleton", str(AMC)] if skeleton else []
     run = streamkey("run", "--from", address, "--to", f"jsonl:{log}", "--idle-exit",
-                    str(1.5 * MS))
+                    str(1.5 * MS), *given)
     try:
         wait_ready(run)
         started = time.monotonic()
@@ -164,5 +167,8 @@ def test_run_receiving_an_amc_replay_keys_what_was_sent(tmp_path, scheme) -> Non
     assert run.returncode == 0, err
     assert f"frames in: {read_motion(AMC).n_frames}" in err
     got = keyframes_of(read_jsonl(log))
-    assert got == direct_events(wire_motion())
+    wire = wire_motion()
+    if skeleton:  # run holds the converted skeleton itself, offsets not rounded to 6 decimals
+        wire.skeleton = bvh_equivalent(read_motion(AMC)).skeleton
+    assert got == direct_events(wire)
     assert {m for m, _, _ in got} >= {"saliency", "simplify"}
