@@ -23,15 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from . import inputs
 from .errors import AMCError, InputError, UsageError
-from .inputs import (
-    FRAME_TIME_RANGE,
-    VALUE_LIMIT,
-    numbers_only,
-    parse_count,
-    parse_number,
-    read_text_file,
-)
 from .kinematics import euler_matrices, skeleton_defect
 from .motion import Motion, Skeleton
 
@@ -74,12 +67,12 @@ def _numbers(words: list[str], count: int, source: str, line: int, what: str) ->
         raise _err(source, line, f"expected {count} numbers for {what}, got {len(words)}")
     out = []
     for w in words:
-        v = parse_number(w)
+        v = inputs.parse_number(w)
         if v is None:
             raise _err(source, line, f"expected a number for {what}, got {w!r}")
-        if abs(v) > VALUE_LIMIT:
-            raise _err(source, line, f"expected a number within +-{VALUE_LIMIT:g} for {what},"
-                       f" got {w!r}")
+        if abs(v) > inputs.VALUE_LIMIT:
+            raise _err(source, line, f"expected a number within +-{inputs.VALUE_LIMIT:g}"
+                       f" for {what}, got {w!r}")
         out.append(v)
     return out
 
@@ -257,7 +250,7 @@ def _build_skeleton(asf: _Asf, last_line: int) -> Skeleton:
     pre += [b.axis if b.dof and not np.allclose(b.axis, np.eye(3)) else None for b in bones]
     ends = {j: vectors[j] for j in range(1, len(names)) if j not in parents}
     skeleton = Skeleton(names, parents, offsets, channels, ends, order, pre)
-    defect = skeleton_defect(skeleton, VALUE_LIMIT)
+    defect = skeleton_defect(skeleton, inputs.VALUE_LIMIT)
     if defect:
         raise _err(asf.source, last_line, defect.replace("OFFSET", "bone direction x length"))
     return skeleton
@@ -289,7 +282,7 @@ def parse_asf(text: str, source: str = "<string>") -> Skeleton:
 
 
 def _read_text(path: Path, kind: str) -> str:
-    return read_text_file(path, kind, AMCError)
+    return inputs.read_text_file(path, kind, AMCError)
 
 
 def read_asf(path: str | os.PathLike[str]) -> Skeleton:
@@ -348,7 +341,7 @@ class _AmcState:
 def _to_values(state: _AmcState) -> np.ndarray:
     flat = [w for row in state.rows for w in row]
     values = None
-    if numbers_only(" ".join(flat)):
+    if inputs.numbers_only(" ".join(flat)):
         try:
             values = np.array(flat, dtype=np.float64)
         except ValueError:
@@ -356,17 +349,17 @@ def _to_values(state: _AmcState) -> np.ndarray:
     if values is None:
         values = np.array([_float_or_nan(w) for w in flat])
     values = values.reshape(len(state.rows), state.skel.n_channels)
-    bad = ~(np.abs(values) <= VALUE_LIMIT)
+    bad = ~(np.abs(values) <= inputs.VALUE_LIMIT)
     if bad.any():
         i, col = np.argwhere(bad)[0]
-        limit = f" within +-{VALUE_LIMIT:g}" if np.isfinite(values[i, col]) else ""
+        limit = f" within +-{inputs.VALUE_LIMIT:g}" if np.isfinite(values[i, col]) else ""
         raise _err(state.source, state.lines[i][col], f"expected a finite number{limit}, got"
                    f" {state.rows[i][col]!r}")
     return values
 
 
 def _float_or_nan(word: str) -> float:
-    value = parse_number(word)
+    value = inputs.parse_number(word)
     return math.nan if value is None else value
 
 
@@ -388,7 +381,7 @@ def parse_amc(text: str, skeleton: Skeleton, source: str = "<string>", *,
                 raise _err(source, number, f"expected a frame, got header line {words[0]!r}")
             key = words[0].upper()
             angle_scale = {":DEGREES": 1.0, ":RADIANS": 180.0 / math.pi}.get(key, angle_scale)
-        elif len(words) == 1 and parse_count(words[0]) is not None:
+        elif len(words) == 1 and inputs.parse_count(words[0]) is not None:
             state.close_frame(number, f"frame {words[0]}")
             state.start_frame(int(words[0]), number)
         else:
@@ -410,7 +403,7 @@ def read_amc(amc_path: str | os.PathLike[str], asf_path: str | os.PathLike[str] 
 
     AMC files carry no frame rate: `fps` defaults to CMU's 120. There is no reference frame.
     """
-    low, high = FRAME_TIME_RANGE
+    low, high = inputs.FRAME_TIME_RANGE
     if not (isinstance(fps, int | float) and 1 / high <= fps <= 1 / low):
         raise UsageError(f"fps must be a number in {1 / high:g}..{1 / low:g}, got {fps!r}")
     amc = Path(amc_path)
