@@ -92,6 +92,10 @@ def extract_motion(motion: Motion, methods: list[str],
     order = sorted(methods, key=lambda m: m in COUNTED_METHODS)
     for name in order:
         kwargs = dict(params.get(name, {}))
+        captured = motion.n_frames - motion.first_frame
+        if name in ("uniform", "decimate") and captured < 2:
+            raise InputError(f"{name} keeps the first and last frame, so it needs at least 2"
+                             f" captured frames; the clip has {captured}")
         if name in ("uniform", "decimate") and kwargs.get("count") is None:
             if "saliency" not in results:
                 results["saliency"] = offline_method("saliency")(

@@ -16,6 +16,7 @@ import numpy as np
 from .errors import BVHError
 from .inputs import (
     FRAME_TIME_RANGE,
+    MAX_HEADER_CHARS,
     VALUE_LIMIT,
     numbers_only,
     parse_count,
@@ -200,6 +201,9 @@ def parse_bvh(text: str, source: str = "<string>", name: str = "") -> Motion:
     motion_at = next((i for i, ln in enumerate(lines) if ln.strip() == "MOTION"), None)
     if motion_at is None:
         raise BVHError(f"{source}:{len(lines) or 1}: expected a MOTION section, found none")
+    if sum(len(line) for line in lines[:motion_at]) > MAX_HEADER_CHARS:
+        raise BVHError(f"{source}:{motion_at + 1}: expected a hierarchy of at most"
+                       f" {MAX_HEADER_CHARS >> 10} KiB before MOTION, got more")
     skeleton = _parse_header(lines[:motion_at], source)
     frames_line = lines[motion_at + 1] if motion_at + 1 < len(lines) else ""
     m = _FRAMES.match(frames_line)

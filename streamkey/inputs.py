@@ -15,10 +15,12 @@ import re
 import stat
 from pathlib import Path
 
-__all__ = ["MAX_FILE_BYTES", "VALUE_LIMIT", "FRAME_TIME_RANGE", "read_text_file",
-           "parse_number", "parse_count", "numbers_only", "display_name", "os_reason"]
+__all__ = ["MAX_FILE_BYTES", "MAX_HEADER_CHARS", "VALUE_LIMIT", "FRAME_TIME_RANGE",
+           "read_text_file", "parse_number", "parse_count", "numbers_only", "display_name",
+           "os_reason"]
 
-MAX_FILE_BYTES = 256 * 2**20
+MAX_FILE_BYTES = 64 * 2**20  # CMU clips are < 10 MiB; parsing costs ~8x the size in memory
+MAX_HEADER_CHARS = 2**20  # a BVH hierarchy: ~10,000 joints
 VALUE_LIMIT = 1e6  # |channel value|, |offset coordinate|: beyond this FK sums overflow squares
 FRAME_TIME_RANGE = (1e-4, 10.0)  # seconds; fps 0.1 .. 10,000
 

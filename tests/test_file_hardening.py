@@ -229,6 +229,8 @@ def test_os_errors_become_one_line_naming_the_path(tmp_path, capsys):
         code, _, err = cli(capsys, "extract", str(path))
         assert_named_error(code, err, path)
         assert reason in err
+    code, _, err = cli(capsys, "extract", str(folder))
+    assert_named_error(code, err, folder)
     code, _, err = cli(capsys, "extract", str(CLIP), "-o", str(tmp_path / "no" / "k.json"))
     assert_named_error(code, err, tmp_path / "no" / "k.json")
 
