@@ -168,6 +168,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     source: Any
     if Path(args.source).suffix.lower() in (".bvh", ".amc"):
         source = load_motion(args.source)  # fully read and checked before the engine starts
+        _check_keyframers(source, methods, args)
     else:
         source = make_source(parse_address(args.source), args.listen,
                              skeleton_motion.skeleton if skeleton_motion else None,
@@ -183,6 +184,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
     return 0
+
+
+def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace) -> None:
+    """The keyframers can be built on this file's skeleton (roles, parameters), or its error."""
+    from .batch import file_error
+    from .errors import InputError
+    from .streaming import make_keyframers
+
+    try:
+        make_keyframers(motion, methods, _method_params(args), args.lookahead)
+    except StreamkeyError as exc:
+        raise InputError(file_error(Path(args.source), exc)) from None
 
 
 def cmd_eval(args: argparse.Namespace) -> int:

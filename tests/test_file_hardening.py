@@ -361,3 +361,11 @@ def test_a_clip_error_from_a_method_names_the_clip(tmp_path, capsys):
     code, _, err = cli(capsys, "extract", str(short), "--method", "uniform")
     assert_named_error(code, err, short)
 
+
+
+def test_run_from_a_file_whose_skeleton_lacks_roles_names_the_file(tmp_path, capsys):
+    path = mutate(tmp_path, "LeftUpLeg", "Yyy", count=2)
+    code, _, err = cli(capsys, "run", "--from", str(path), "--fast", "--to",
+                       f"jsonl:{tmp_path / 'e.jsonl'}")
+    assert_named_error(code, err, path)
+    assert "roles" in err and not (tmp_path / "e.jsonl").exists()
