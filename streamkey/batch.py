@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import errno
 import io
@@ -22,7 +23,7 @@ from .motion import Motion
 
 __all__ = ["MOTION_SUFFIXES", "find_motion_files", "extract_motion", "FileResult",
            "extract_files", "results_json", "results_csv", "file_error", "per_file",
-           "load_motion"]
+           "load_motion", "naming"]
 
 MOTION_SUFFIXES = (".bvh", ".amc")
 
@@ -63,6 +64,15 @@ def file_error(path: Path, exc: BaseException) -> str:
         return (f"{path}: internal error ({type(exc).__name__}: {text}); please report this"
                 " file")
     return text if text.startswith(f"{path}:") else f"{path}: {text}"
+
+
+@contextlib.contextmanager
+def naming(path: str | os.PathLike[str]) -> Iterator[None]:
+    """Re-raise a `StreamkeyError` of the body as an `InputError` that names `path`."""
+    try:
+        yield
+    except StreamkeyError as exc:
+        raise InputError(file_error(Path(path), exc)) from None
 
 
 def per_file(paths: list[Path], work: Callable[[Path], FileResult],

@@ -188,14 +188,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace) -> None:
     """The keyframers can be built on this file's skeleton (roles, parameters), or its error."""
-    from .batch import file_error
-    from .errors import InputError
+    from .batch import naming
     from .streaming import make_keyframers
 
-    try:
+    with naming(args.source):
         make_keyframers(motion, methods, _method_params(args), args.lookahead)
-    except StreamkeyError as exc:
-        raise InputError(file_error(Path(args.source), exc)) from None
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -226,16 +223,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _keyframes_of(path: str, method: str, args: argparse.Namespace) -> tuple[Any, Any]:
-    from .batch import extract_motion, file_error, load_motion
-    from .errors import InputError
+    from .batch import extract_motion, load_motion, naming
     from .methods import parse_methods
 
     names = parse_methods(method)
     motion = load_motion(path)
-    try:
+    with naming(path):
         return motion, extract_motion(motion, names, _method_params(args))
-    except StreamkeyError as exc:
-        raise InputError(file_error(Path(path), exc)) from None
 
 
 def cmd_sheet(args: argparse.Namespace) -> int:
