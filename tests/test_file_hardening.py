@@ -235,6 +235,15 @@ def test_os_errors_become_one_line_naming_the_path(tmp_path, capsys):
     assert_named_error(code, err, tmp_path / "no" / "k.json")
 
 
+def test_an_os_error_while_reading_is_named(tmp_path, capsys):
+    """/proc/self/mem is a regular file whose first read fails (EIO), even for root."""
+    path = tmp_path / "mem.bvh"
+    path.symlink_to("/proc/self/mem")
+    code, _, err = cli(capsys, "extract", str(path))
+    assert_named_error(code, err, path)
+    assert "input/output error" in err
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root reads files without read permission")
 def test_an_unreadable_file_is_named(tmp_path, capsys):
     path = tmp_path / "locked.bvh"
