@@ -39,12 +39,19 @@ def frame_stream(motion: Motion, start: int | None = None, end: int | None = Non
             return
 
 
+MAX_INTERVAL = 10.0  # seconds between frames: 0.1 frames/s, the slowest file rate accepted
+
+
+def _check_interval(interval: float) -> None:
+    if not 0 <= interval <= MAX_INTERVAL:
+        raise UsageError(f"frame interval must lie in 0..{MAX_INTERVAL:g} s, got {interval!r}")
+
+
 def paced(frames: Iterable[Frame], interval: float,
           clock: Callable[[], float] = time.monotonic,
           sleep: Callable[[float], None] = time.sleep) -> Iterator[tuple[Frame, float]]:
     """Yield (frame, deadline) with frame i due at t0 + i * interval (no drift)."""
-    if interval < 0:
-        raise UsageError("interval must not be negative")
+    _check_interval(interval)
     t0 = clock()
     for i, frame in enumerate(frames):
         deadline = t0 + i * interval
@@ -57,6 +64,7 @@ def paced(frames: Iterable[Frame], interval: float,
 async def apaced(frames: Iterable[Frame], interval: float,
                  clock: Callable[[], float] = time.monotonic) -> AsyncIterator[tuple[Frame, float]]:
     """`paced` for an asyncio loop: awaits instead of blocking between frames."""
+    _check_interval(interval)
     t0 = clock()
     for i, frame in enumerate(frames):
         deadline = t0 + i * interval

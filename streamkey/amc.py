@@ -17,16 +17,18 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from . import inputs
 from .errors import AMCError, InputError, UsageError
-from .kinematics import euler_matrices
+from .kinematics import euler_matrices, skeleton_defect
 from .motion import Motion, Skeleton
 
-__all__ = ["read_asf", "parse_asf", "read_amc", "parse_amc", "read_motion"]
+__all__ = ["read_asf", "parse_asf", "read_amc", "parse_amc", "read_motion", "bvh_equivalent"]
 
 _DOF = {"rx": "Xrotation", "ry": "Yrotation", "rz": "Zrotation"}
 _ROOT_ORDER = {"TX": "Xposition", "TY": "Yposition", "TZ": "Zposition",
@@ -65,12 +67,12 @@ def _numbers(words: list[str], count: int, source: str, line: int, what: str) ->
         raise _err(source, line, f"expected {count} numbers for {what}, got {len(words)}")
     out = []
     for w in words:
-        try:
-            v = float(w)
-        except ValueError:
-            raise _err(source, line, f"expected a number for {what}, got {w!r}") from None
-        if not math.isfinite(v):
-            raise _err(source, line, f"expected a finite number for {what}, got {w!r}")
+        v = inputs.parse_number(w)
+        if v is None:
+            raise _err(source, line, f"expected a number for {what}, got {w!r}")
+        if abs(v) > inputs.VALUE_LIMIT:
+            raise _err(source, line, f"expected a number within +-{inputs.VALUE_LIMIT:g}"
+                       f" for {what}, got {w!r}")
         out.append(v)
     return out
 
@@ -247,7 +249,11 @@ def _build_skeleton(asf: _Asf, last_line: int) -> Skeleton:
     pre: list[np.ndarray | None] = [None if np.allclose(root_c, np.eye(3)) else root_c]
     pre += [b.axis if b.dof and not np.allclose(b.axis, np.eye(3)) else None for b in bones]
     ends = {j: vectors[j] for j in range(1, len(names)) if j not in parents}
-    return Skeleton(names, parents, offsets, channels, ends, order, pre)
+    skeleton = Skeleton(names, parents, offsets, channels, ends, order, pre)
+    defect = skeleton_defect(skeleton, inputs.VALUE_LIMIT)
+    if defect:
+        raise _err(asf.source, last_line, defect.replace("OFFSET", "bone direction x length"))
+    return skeleton
 
 
 def _parse_asf_full(text: str, source: str) -> tuple[Skeleton, float]:
@@ -276,15 +282,7 @@ def parse_asf(text: str, source: str = "<string>") -> Skeleton:
 
 
 def _read_text(path: Path, kind: str) -> str:
-    try:
-        return path.read_text(encoding="utf-8", errors="strict")
-    except FileNotFoundError:
-        raise AMCError(f"{path}: no such file (expected an {kind} file)") from None
-    except IsADirectoryError:
-        raise AMCError(f"{path}: is a directory, expected an {kind} file") from None
-    except UnicodeDecodeError as exc:
-        raise AMCError(f"{path}: expected a text file, got undecodable bytes ({exc.reason})"
-                       ) from None
+    return inputs.read_text_file(path, kind, AMCError)
 
 
 def read_asf(path: str | os.PathLike[str]) -> Skeleton:
@@ -342,24 +340,27 @@ class _AmcState:
 
 def _to_values(state: _AmcState) -> np.ndarray:
     flat = [w for row in state.rows for w in row]
-    try:
-        values = np.array(flat, dtype=np.float64)
-    except ValueError:
+    values = None
+    if inputs.numbers_only(" ".join(flat)):
+        try:
+            values = np.array(flat, dtype=np.float64)
+        except ValueError:
+            pass
+    if values is None:
         values = np.array([_float_or_nan(w) for w in flat])
     values = values.reshape(len(state.rows), state.skel.n_channels)
-    bad = ~np.isfinite(values)
+    bad = ~(np.abs(values) <= inputs.VALUE_LIMIT)
     if bad.any():
         i, col = np.argwhere(bad)[0]
-        raise _err(state.source, state.lines[i][col], f"expected a finite number, got"
+        limit = f" within +-{inputs.VALUE_LIMIT:g}" if np.isfinite(values[i, col]) else ""
+        raise _err(state.source, state.lines[i][col], f"expected a finite number{limit}, got"
                    f" {state.rows[i][col]!r}")
     return values
 
 
 def _float_or_nan(word: str) -> float:
-    try:
-        return float(word)
-    except ValueError:
-        return math.nan
+    value = inputs.parse_number(word)
+    return math.nan if value is None else value
 
 
 def parse_amc(text: str, skeleton: Skeleton, source: str = "<string>", *,
@@ -380,7 +381,7 @@ def parse_amc(text: str, skeleton: Skeleton, source: str = "<string>", *,
                 raise _err(source, number, f"expected a frame, got header line {words[0]!r}")
             key = words[0].upper()
             angle_scale = {":DEGREES": 1.0, ":RADIANS": 180.0 / math.pi}.get(key, angle_scale)
-        elif len(words) == 1 and words[0].isdigit():
+        elif len(words) == 1 and inputs.parse_count(words[0]) is not None:
             state.close_frame(number, f"frame {words[0]}")
             state.start_frame(int(words[0]), number)
         else:
@@ -402,8 +403,9 @@ def read_amc(amc_path: str | os.PathLike[str], asf_path: str | os.PathLike[str] 
 
     AMC files carry no frame rate: `fps` defaults to CMU's 120. There is no reference frame.
     """
-    if not (isinstance(fps, int | float) and math.isfinite(fps) and fps > 0):
-        raise UsageError(f"fps must be a positive number, got {fps!r}")
+    low, high = inputs.FRAME_TIME_RANGE
+    if not (isinstance(fps, int | float) and 1 / high <= fps <= 1 / low):
+        raise UsageError(f"fps must be a number in {1 / high:g}..{1 / low:g}, got {fps!r}")
     amc = Path(amc_path)
     if asf_path is None:
         asf = amc.with_name(amc.stem.split("_", 1)[0] + ".asf")
@@ -429,3 +431,48 @@ def read_motion(path: str | os.PathLike[str]) -> Motion:
     if suffix == ".amc":
         return read_amc(p)
     raise InputError(f"{p}: expected a .bvh or .amc file, got suffix {p.suffix or '(none)'!r}")
+
+
+def bvh_equivalent(motion: Motion) -> Motion:
+    """The same motion on a plain BVH skeleton: no axis pre-rotations, channels in BVH order.
+
+    A joint with a pre-rotation C gets three rotation channels (Z, Y, X, applied in that
+    order) whose angles are the Euler decomposition of its local rotation C·M·Cᵀ, unwrapped
+    over time; other joints keep their values, reordered so the rotation channels list the
+    order in which they compose (BVH's rule). Names, offsets and end sites stay, so FK
+    positions are equal to rounding (tested against the AMC reader). A motion that is
+    already plain BVH is returned as is.
+    """
+    skel = motion.skeleton
+    assert skel.rotation_order is not None and skel.pre_rotations is not None
+    if skel.bvh_compatible():
+        return motion
+    from scipy.spatial.transform import Rotation
+
+    from .kinematics import local_rotations
+
+    local = local_rotations(skel, motion.channels) if motion.n_frames else None
+    channels: list[list[str]] = []
+    columns: list[np.ndarray] = []
+    for j, (chans, order) in enumerate(zip(skel.channels, skel.rotation_order, strict=True)):
+        start = skel.channel_start[j]
+        positions = [c for c in chans if c not in order]
+        columns += [motion.channels[:, start + chans.index(c)] for c in positions]
+        if skel.pre_rotations[j] is None:
+            channels.append(positions + list(order))
+            columns += [motion.channels[:, start + chans.index(c)] for c in order]
+            continue
+        channels.append(positions + ["Zrotation", "Yrotation", "Xrotation"])
+        if local is None:
+            columns += [np.zeros(0)] * 3
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # gimbal lock: still exact
+            angles = Rotation.from_matrix(local[:, j]).as_euler("ZYX", degrees=True)
+        angles = np.unwrap(angles, period=360.0, axis=0)
+        columns += [angles[:, 0], angles[:, 1], angles[:, 2]]
+    values = np.stack(columns, axis=1) if columns else np.zeros((motion.n_frames, 0))
+    plain_skel = Skeleton(list(skel.names), list(skel.parents), skel.offsets.copy(), channels,
+                          dict(skel.end_sites))
+    return Motion(plain_skel, values.reshape(motion.n_frames, plain_skel.n_channels), motion.fps,
+                  motion.first_frame, motion.name)

@@ -2,43 +2,91 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import errno
 import io
 import json
 import os
+import stat
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from .amc import read_motion
-from .errors import InputError, StreamkeyError, UsageError
+from .errors import InputError, StreamkeyError
 from .features import compute_features
 from .keyframes import SCHEMA_VERSION, Keyframes
 from .methods import COUNTED_METHODS, offline_method
 from .motion import Motion
 
 __all__ = ["MOTION_SUFFIXES", "find_motion_files", "extract_motion", "FileResult",
-           "extract_files", "results_json", "results_csv"]
+           "extract_files", "results_json", "results_csv", "file_error", "per_file",
+           "load_motion", "naming"]
 
 MOTION_SUFFIXES = (".bvh", ".amc")
 
 
 def find_motion_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
-    """Expand folders to the motion files inside (sorted); files are kept as given."""
+    """Expand folders to the motion files inside (sorted); files are kept as given.
+
+    A path that is not a folder is kept even if it cannot be read: its reader reports why,
+    as that file's own error, and the other files still run.
+    """
     out: list[Path] = []
     for raw in paths:
         p = Path(raw)
-        if p.is_dir():
+        try:
+            if not stat.S_ISDIR(os.stat(p).st_mode):
+                out.append(p)
+                continue
             found = sorted(q for q in p.iterdir() if q.suffix.lower() in MOTION_SUFFIXES)
-            if not found:
-                raise InputError(f"{p}: no .bvh or .amc files in this folder")
-            out.extend(found)
-        elif p.exists():
-            out.append(p)
-        else:
-            raise InputError(f"{p}: no such file or folder")
+        except OSError as exc:
+            if os.path.lexists(p) or exc.errno != errno.ENOENT:
+                out.append(p)
+                continue
+            raise InputError(f"{p}: no such file or folder") from None
+        if not found:
+            raise InputError(f"{p}: no .bvh or .amc files in this folder")
+        out.extend(found)
     return out
+
+
+def file_error(path: Path, exc: BaseException) -> str:
+    """One error line for one file of a batch, naming the file once.
+
+    Anything but a `StreamkeyError` is a bug that this file triggered: it is reported as an
+    internal error (the fuzz tests count these and require none) so the batch goes on.
+    """
+    text = str(exc)
+    if not isinstance(exc, StreamkeyError):
+        return (f"{path}: internal error ({type(exc).__name__}: {text}); please report this"
+                " file")
+    return text if text.startswith(f"{path}:") else f"{path}: {text}"
+
+
+@contextlib.contextmanager
+def naming(path: str | os.PathLike[str]) -> Iterator[None]:
+    """Re-raise a `StreamkeyError` of the body as an `InputError` that names `path`."""
+    try:
+        yield
+    except StreamkeyError as exc:
+        raise InputError(file_error(Path(path), exc)) from None
+
+
+def per_file(paths: list[Path], work: Callable[[Path], FileResult],
+             progress: Callable[[int, int, Path], None] | None = None) -> Iterator[FileResult]:
+    """`work(path)` for every file; a file that fails yields its named error, the rest go on."""
+    for i, path in enumerate(paths):
+        if progress:
+            progress(i, len(paths), path)
+        try:
+            yield work(path)
+        except (KeyboardInterrupt, MemoryError):
+            raise
+        except Exception as exc:  # noqa: BLE001 - one file must not lose the batch
+            yield FileResult(path, None, {}, file_error(path, exc))
 
 
 def extract_motion(motion: Motion, methods: list[str],
@@ -54,11 +102,16 @@ def extract_motion(motion: Motion, methods: list[str],
     order = sorted(methods, key=lambda m: m in COUNTED_METHODS)
     for name in order:
         kwargs = dict(params.get(name, {}))
+        captured = motion.n_frames - motion.first_frame
+        if name in ("uniform", "decimate") and captured < 2:
+            raise InputError(f"{name} keeps the first and last frame, so it needs at least 2"
+                             f" captured frames; the clip has {captured}")
         if name in ("uniform", "decimate") and kwargs.get("count") is None:
             if "saliency" not in results:
                 results["saliency"] = offline_method("saliency")(
                     motion, features=features, **params.get("saliency", {}))
-            kwargs["count"] = len(results["saliency"])
+            # At least first and last: a still clip has no salient pose but still two ends.
+            kwargs["count"] = max(len(results["saliency"]), 2)
         if name in ("uniform", "decimate"):
             results[name] = offline_method(name)(motion, **kwargs)
         else:
@@ -80,16 +133,22 @@ def extract_files(paths: list[Path], methods: list[str],
                   params: dict[str, dict[str, Any]] | None = None,
                   progress: Callable[[int, int, Path], None] | None = None) -> Iterator[FileResult]:
     """Extract keyframes from every file; a bad file yields its error and the rest go on."""
-    for i, path in enumerate(paths):
-        if progress:
-            progress(i, len(paths), path)
-        try:
-            motion = read_motion(path)
-            yield FileResult(path, motion, extract_motion(motion, methods, params))
-        except UsageError:
-            raise
-        except StreamkeyError as exc:
-            yield FileResult(path, None, {}, str(exc))
+    def work(path: Path) -> FileResult:
+        motion = load_motion(path)
+        return FileResult(path, motion, extract_motion(motion, methods, params))
+
+    return per_file(paths, work, progress)
+
+
+def load_motion(path: str | os.PathLike[str], min_frames: int = 1) -> Motion:
+    """`read_motion`, refusing a file with fewer than `min_frames` captured frames."""
+    motion = read_motion(path)
+    captured = motion.n_frames - motion.first_frame
+    if captured < min_frames:
+        raise InputError(f"{path}: expected at least {min_frames} captured frame"
+                         f"{'s' if min_frames > 1 else ''}, got {captured}"
+                         + (" (a skeleton-only file)" if motion.n_frames == 0 else ""))
+    return motion
 
 
 def results_json(results: list[FileResult]) -> str:

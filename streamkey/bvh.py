@@ -14,6 +14,16 @@ from pathlib import Path
 import numpy as np
 
 from .errors import BVHError
+from .inputs import (
+    FRAME_TIME_RANGE,
+    MAX_HEADER_CHARS,
+    VALUE_LIMIT,
+    numbers_only,
+    parse_count,
+    parse_number,
+    read_text_file,
+)
+from .kinematics import MAX_DEPTH, skeleton_defect
 from .motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton, detect_reference_frame
 
 __all__ = ["read_bvh", "parse_bvh", "write_bvh", "format_bvh"]
@@ -57,47 +67,59 @@ class _Tokens:
 
     def number(self, what: str) -> float:
         tok, line = self.next(what)
-        try:
-            value = float(tok)
-        except ValueError:
+        value = parse_number(tok)
+        if value is None or abs(value) > VALUE_LIMIT:
             self.pos -= 1
-            raise self.error(what) from None
-        if not np.isfinite(value):
-            self.pos -= 1
-            raise self.error(f"a finite {what}")
+            raise self.error(f"{what} (a finite decimal number within +-{VALUE_LIMIT:g})")
         return value
 
     def peek(self) -> str | None:
         return self.items[self.pos][0] if self.pos < len(self.items) else None
 
 
-def _parse_joint(tok: _Tokens, parent: int, skel: dict[str, list]) -> None:
-    tok.expect("{")
-    index = len(skel["names"]) - 1
-    tok.expect("OFFSET")
-    skel["offsets"].append([tok.number("an OFFSET number") for _ in range(3)])
-    tok.expect("CHANNELS")
-    count_tok, count_line = tok.next("a channel count")
-    if not count_tok.isdigit():
+def _parse_channels(tok: _Tokens) -> list[str]:
+    count_tok, _ = tok.next("a channel count")
+    count = parse_count(count_tok)
+    if count is None or count > len(_KNOWN_CHANNELS):
         tok.pos -= 1
-        raise tok.error("a channel count (integer)")
-    chans = []
-    for _ in range(int(count_tok)):
-        name, line = tok.next("a channel name")
-        if name not in _KNOWN_CHANNELS:
+        raise tok.error(f"a channel count (an integer 0..{len(_KNOWN_CHANNELS)})")
+    chans: list[str] = []
+    for _ in range(count):
+        name, _ = tok.next("a channel name")
+        if name not in _KNOWN_CHANNELS or name in chans:
             tok.pos -= 1
-            raise tok.error("a channel name (Xposition..Zrotation)")
+            raise tok.error("a channel name (Xposition..Zrotation), each at most once a joint")
         chans.append(name)
-    skel["channels"].append(chans)
+    return chans
+
+
+def _parse_joints(tok: _Tokens, skel: dict[str, list]) -> None:
+    """The joint blocks from the root's '{', iteratively (no recursion on hostile depth)."""
+    stack: list[int] = []
+    opening = 0  # the joint whose '{' comes next
     while True:
-        word, line = tok.next("JOINT, End Site or '}'")
+        if opening >= 0:
+            tok.expect("{")
+            if len(stack) >= MAX_DEPTH:
+                tok.pos -= 1
+                raise tok.error(f"at most {MAX_DEPTH} nested joints")
+            stack.append(opening)
+            tok.expect("OFFSET")
+            skel["offsets"].append([tok.number("an OFFSET number") for _ in range(3)])
+            tok.expect("CHANNELS")
+            skel["channels"].append(_parse_channels(tok))
+            opening = -1
+        index = stack[-1]
+        word, _ = tok.next("JOINT, End Site or '}'")
         if word == "}":
-            return
-        if word == "JOINT":
+            stack.pop()
+            if not stack:
+                return
+        elif word == "JOINT":
             name, _ = tok.next("a joint name")
             skel["names"].append(name)
             skel["parents"].append(index)
-            _parse_joint(tok, index, skel)
+            opening = len(skel["names"]) - 1
         elif word == "End":
             tok.expect("Site")
             tok.expect("{")
@@ -116,11 +138,15 @@ def _parse_header(lines: list[str], source: str) -> Skeleton:
     name, _ = tok.next("a root joint name")
     skel: dict[str, list] = {"names": [name], "parents": [-1], "offsets": [], "channels": [],
                              "end_sites": {}}
-    _parse_joint(tok, -1, skel)
+    _parse_joints(tok, skel)
     if tok.peek() is not None:
         raise tok.error("MOTION after the hierarchy")
-    return Skeleton(skel["names"], skel["parents"], np.array(skel["offsets"]), skel["channels"],
-                    end_sites=skel["end_sites"])
+    skeleton = Skeleton(skel["names"], skel["parents"], np.array(skel["offsets"]),
+                        skel["channels"], end_sites=skel["end_sites"])
+    defect = skeleton_defect(skeleton, VALUE_LIMIT)
+    if defect:
+        raise BVHError(f"{source}:{tok.last_line()}: {defect}")
+    return skeleton
 
 
 _FRAMES = re.compile(r"^\s*Frames\s*:\s*(\S+)\s*$")
@@ -146,23 +172,26 @@ def _parse_motion_values(lines: list[str], first_line: int, n_frames: int, n_cha
             what = "truncated frame" if i == len(rows) - 1 and count < n_channels else "frame"
             raise BVHError(f"{source}:{first_line + i}: expected {n_channels} values"
                            f" (the CHANNELS of the hierarchy), got {count} ({what})")
-    try:
-        values = np.array(" ".join(rows).split(), dtype=np.float64)
-    except ValueError:
+    joined = " ".join(rows)
+    values = None
+    if numbers_only(joined):
+        try:
+            values = np.array(joined.split(), dtype=np.float64)
+        except ValueError:
+            pass
+    if values is None:
         for i, row in enumerate(rows):
             for col, word in enumerate(row.split()):
-                try:
-                    float(word)
-                except ValueError:
-                    raise BVHError(f"{source}:{first_line + i}: expected a number in column"
-                                   f" {col + 1}, got {word!r}") from None
-        raise
-    values = values.reshape(n_frames, n_channels) if n_frames else values.reshape(0, n_channels)
-    bad = ~np.isfinite(values)
+                if parse_number(word) is None:
+                    raise BVHError(f"{source}:{first_line + i}: expected a finite number in"
+                                   f" column {col + 1}, got {word!r}")
+        raise AssertionError("unreachable: every word parsed")
+    values = values.reshape(n_frames, n_channels)
+    bad = ~(np.abs(values) <= VALUE_LIMIT)
     if bad.any():
         i, col = np.argwhere(bad)[0]
-        raise BVHError(f"{source}:{first_line + i}: expected a finite number in column"
-                       f" {col + 1}, got {rows[i].split()[col]!r}")
+        raise BVHError(f"{source}:{first_line + i}: expected a finite number within"
+                       f" +-{VALUE_LIMIT:g} in column {col + 1}, got {rows[i].split()[col]!r}")
     return values
 
 
@@ -172,22 +201,23 @@ def parse_bvh(text: str, source: str = "<string>", name: str = "") -> Motion:
     motion_at = next((i for i, ln in enumerate(lines) if ln.strip() == "MOTION"), None)
     if motion_at is None:
         raise BVHError(f"{source}:{len(lines) or 1}: expected a MOTION section, found none")
+    if sum(len(line) for line in lines[:motion_at]) > MAX_HEADER_CHARS:
+        raise BVHError(f"{source}:{motion_at + 1}: expected a hierarchy of at most"
+                       f" {MAX_HEADER_CHARS >> 10} KiB before MOTION, got more")
     skeleton = _parse_header(lines[:motion_at], source)
     frames_line = lines[motion_at + 1] if motion_at + 1 < len(lines) else ""
     m = _FRAMES.match(frames_line)
-    if not m or not m.group(1).isdigit():
+    n_frames = parse_count(m.group(1)) if m else None
+    if n_frames is None:
         raise BVHError(f"{source}:{motion_at + 2}: expected 'Frames: N' (N an integer),"
                        f" got {frames_line.strip()!r}")
-    n_frames = int(m.group(1))
     time_line = lines[motion_at + 2] if motion_at + 2 < len(lines) else ""
     t = _FRAME_TIME.match(time_line)
-    try:
-        frame_time = float(t.group(1)) if t else float("nan")
-    except ValueError:
-        frame_time = float("nan")
-    if not (np.isfinite(frame_time) and frame_time > 0):
-        raise BVHError(f"{source}:{motion_at + 3}: expected 'Frame Time: T' (T > 0 seconds),"
-                       f" got {time_line.strip()!r}")
+    frame_time = parse_number(t.group(1)) if t else None
+    low, high = FRAME_TIME_RANGE
+    if frame_time is None or not low <= frame_time <= high:
+        raise BVHError(f"{source}:{motion_at + 3}: expected 'Frame Time: T' ({low:g} <= T <="
+                       f" {high:g} seconds), got {time_line.strip()!r}")
     values = _parse_motion_values(lines[motion_at + 3 :], motion_at + 4, n_frames,
                                   skeleton.n_channels, source)
     fps = 1.0 / frame_time
@@ -199,41 +229,42 @@ def parse_bvh(text: str, source: str = "<string>", name: str = "") -> Motion:
 def read_bvh(path: str | os.PathLike[str]) -> Motion:
     """Read a BVH file; raises `BVHError` (missing file, malformed content) naming the line."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8", errors="strict")
-    except FileNotFoundError:
-        raise BVHError(f"{p}: no such file") from None
-    except IsADirectoryError:
-        raise BVHError(f"{p}: is a directory, expected a BVH file") from None
-    except UnicodeDecodeError as exc:
-        raise BVHError(f"{p}: expected a text file, got undecodable bytes ({exc.reason})") from None
-    return parse_bvh(text, str(p), p.stem)
+    return parse_bvh(read_text_file(p, "BVH", BVHError), str(p), p.stem)
 
 
-def _format_joint(skel: Skeleton, j: int, depth: int, out: list[str]) -> None:
-    pad = "\t" * depth
-    kind = "ROOT" if skel.parents[j] < 0 else "JOINT"
-    out.append(f"{pad}{kind} {skel.names[j]}")
-    out.append(f"{pad}{{")
-    x, y, z = skel.offsets[j]
-    out.append(f"{pad}\tOFFSET {x:.6f} {y:.6f} {z:.6f}")
-    out.append(f"{pad}\tCHANNELS {len(skel.channels[j])} {' '.join(skel.channels[j])}")
-    for c in skel.children(j):
-        _format_joint(skel, c, depth + 1, out)
-    if j in skel.end_sites:
-        x, y, z = skel.end_sites[j]
-        out += [f"{pad}\tEnd Site", f"{pad}\t{{", f"{pad}\t\tOFFSET {x:.6f} {y:.6f} {z:.6f}",
-                f"{pad}\t}}"]
-    out.append(f"{pad}}}")
+def _format_joints(skel: Skeleton, out: list[str]) -> None:
+    children: list[list[int]] = [[] for _ in skel.names]
+    for j, p in enumerate(skel.parents):
+        if p >= 0:
+            children[p].append(j)
+    stack: list[tuple[int, int, bool]] = [(0, 0, False)]
+    while stack:
+        j, depth, closing = stack.pop()
+        pad = "\t" * depth
+        if closing:
+            if j in skel.end_sites:
+                x, y, z = skel.end_sites[j]
+                out += [f"{pad}\tEnd Site", f"{pad}\t{{",
+                        f"{pad}\t\tOFFSET {x:.6f} {y:.6f} {z:.6f}", f"{pad}\t}}"]
+            out.append(f"{pad}}}")
+            continue
+        kind = "ROOT" if skel.parents[j] < 0 else "JOINT"
+        x, y, z = skel.offsets[j]
+        out += [f"{pad}{kind} {skel.names[j]}", f"{pad}{{",
+                f"{pad}\tOFFSET {x:.6f} {y:.6f} {z:.6f}",
+                f"{pad}\tCHANNELS {len(skel.channels[j])} {' '.join(skel.channels[j])}"]
+        stack.append((j, depth, True))
+        stack += [(c, depth + 1, False) for c in reversed(children[j])]
 
 
 def format_bvh(motion: Motion, frames: np.ndarray | None = None) -> str:
     """BVH text of `motion` (or of its `frames` rows only); values with 6 decimals."""
     skel = motion.skeleton
-    if any(p is not None for p in (skel.pre_rotations or [])):
-        raise BVHError("cannot write an ASF/AMC skeleton with axis pre-rotations as BVH")
+    if not skel.bvh_compatible():
+        raise BVHError("cannot write an ASF/AMC skeleton (axis pre-rotations or dof order) as"
+                       " BVH as is: convert the motion with streamkey.amc.bvh_equivalent")
     out = ["HIERARCHY"]
-    _format_joint(skel, 0, 0, out)
+    _format_joints(skel, out)
     values = motion.channels if frames is None else motion.channels[frames]
     out += ["MOTION", f"Frames: {len(values)}", f"Frame Time: {1.0 / motion.fps:.7f}"]
     text = "\n".join(out) + "\n"

@@ -43,11 +43,17 @@ def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
 
 
 def _write(text: str, output: str) -> None:
-    if output == "-":
-        sys.stdout.write(text)
+    # File names that are not UTF-8 come back out as the bytes they were (surrogateescape).
+    data = text.encode("utf-8", "surrogateescape")
+    if output != "-":
+        Path(output).write_bytes(data)
+    elif hasattr(sys.stdout, "buffer"):
         sys.stdout.flush()
-    else:
-        Path(output).write_text(text, encoding="utf-8")
+        sys.stdout.buffer.write(data)
+        sys.stdout.buffer.flush()
+    else:  # a text-only stream (a StringIO in a caller's redirect)
+        sys.stdout.write(data.decode("utf-8", "replace"))
+        sys.stdout.flush()
 
 
 def cmd_extract(args: argparse.Namespace) -> int:
@@ -124,10 +130,24 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """`streamkey replay`: a recorded file as a paced frame stream."""
-    from .amc import read_motion
+    from .amc import bvh_equivalent
+    from .batch import load_motion
+    from .errors import UsageError
     from .live import replay
 
-    motion = read_motion(args.file)
+    for name, low, high in (("--rate", 0.1, 1e5), ("--speed", 1e-3, 1e6)):
+        value = getattr(args, name[2:])
+        if value is not None and not low <= value <= high:
+            raise UsageError(f"replay {name} must lie in {low:g}..{high:g}, got {value:g}")
+    if args.frames is not None and args.frames < 0 or not 0 <= args.wait <= 3600:
+        raise UsageError("replay --frames must be >= 0 and --wait in 0..3600 seconds")
+    motion = bvh_equivalent(load_motion(args.file))
+    if (args.rate or motion.fps) * args.speed < 0.1:
+        raise UsageError(f"replay: {(args.rate or motion.fps) * args.speed:g} frames/s is too"
+                         " slow (at least 0.1 frames/s; give --rate or --speed)")
+    if round(motion.fps) < 1:
+        raise UsageError(f"{args.file}: replay needs at least 0.5 frames/s in the file (the"
+                         f" skeleton is re-sent every round(fps) frames), got {motion.fps:g}")
     result = replay(motion, args.to, rate=args.rate, speed=args.speed, loop=args.loop,
                     start=args.start, end=args.end, listen=args.listen,
                     wait_subscribers=args.wait, count=args.frames)
@@ -141,15 +161,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     import json
 
     from .adapters import make_source, parse_address
-    from .amc import read_motion
+    from .amc import bvh_equivalent, read_motion
+    from .batch import load_motion
     from .live import run_live
     from .methods import parse_methods
 
     methods = parse_methods(args.method, online=True)
-    skeleton_motion = read_motion(args.skeleton) if args.skeleton else None
+    # Frames on the wire come from `replay`, which sends AMC clips as their BVH equivalent.
+    skeleton_motion = bvh_equivalent(read_motion(args.skeleton)) if args.skeleton else None
     source: Any
     if Path(args.source).suffix.lower() in (".bvh", ".amc"):
-        source = read_motion(args.source)
+        source = load_motion(args.source)  # fully read and checked before the engine starts
+        _check_keyframers(source, methods, args)
     else:
         source = make_source(parse_address(args.source), args.listen,
                              skeleton_motion.skeleton if skeleton_motion else None,
@@ -170,6 +193,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace) -> None:
+    """The keyframers can be built on this file's skeleton (roles, parameters), or its error."""
+    from .batch import naming
+    from .streaming import make_keyframers
+
+    with naming(args.source):
+        make_keyframers(motion, methods, _method_params(args), args.lookahead)
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     """`streamkey eval`: the thesis-style tables (Markdown + CSV) for every clip of a folder."""
     from .batch import find_motion_files
@@ -177,10 +209,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     paths = find_motion_files([args.folder])
     out = Path(args.output)
-    written = evaluate_files(paths, out, progress=_progress(args.quiet))
+    errors: list[str] = []
+    written = evaluate_files(paths, out, progress=_progress(args.quiet), errors=errors)
     for p in written:
         print(f"wrote {p}")
-    return 0
+    for line in errors:
+        print(f"error: {line}", file=sys.stderr)
+    return 2 if errors else 0
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -197,18 +232,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _keyframes_of(path: str, method: str, args: argparse.Namespace) -> tuple[Any, Any]:
-    from .amc import read_motion
-    from .batch import extract_motion
+    from .batch import extract_motion, load_motion, naming
     from .methods import parse_methods
 
-    motion = read_motion(path)
     names = parse_methods(method)
-    return motion, extract_motion(motion, names, _method_params(args))
+    motion = load_motion(path)
+    with naming(path):
+        return motion, extract_motion(motion, names, _method_params(args))
 
 
 def cmd_sheet(args: argparse.Namespace) -> int:
     """`streamkey sheet`: the keyposes of one clip as a contact sheet of stick figures."""
-    from .errors import UsageError
+    from .errors import InputError, UsageError
+    from .inputs import display_name
     from .methods import parse_methods
     from .sheet import contact_sheet
 
@@ -217,8 +253,10 @@ def cmd_sheet(args: argparse.Namespace) -> int:
         raise UsageError("sheet: choose one method (--method saliency, speed, ...)")
     motion, results = _keyframes_of(args.file, args.method, args)
     keys = results[names[0]]
+    if len(keys) == 0:
+        raise InputError(f"{args.file}: {names[0]} finds no keypose to draw in this clip")
     sheet = contact_sheet(motion, keys, args.output, columns=args.columns, view=args.view,
-                          title=f"{motion.name}: {len(keys)} {names[0]} keyposes")
+                          title=f"{display_name(motion.name)}: {len(keys)} {names[0]} keyposes")
     print(f"wrote {sheet.path} ({sheet.figures} keyposes: {sheet.frames})", file=sys.stderr)
     return 0
 
@@ -397,3 +435,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as exc:  # the environment, not the data: an output path, a port, a disk
+        from .inputs import os_reason
+
+        where = exc.filename if exc.filename is not None else args.command
+        print(f"error: {where}: {os_reason(exc)}", file=sys.stderr)
+        return 2

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .amc import bvh_equivalent
 from .bvh import write_bvh
 from .errors import UsageError
 from .evaluate import reconstruct
@@ -58,7 +59,7 @@ def export_keyframes_bvh(motion: Motion, keys: Keyframes | list[int] | np.ndarra
                          path: str | os.PathLike[str], method: str | None = None) -> Path:
     """Write the keyposes-only BVH and its `.keys.json` sidecar; returns the BVH path."""
     frames = _frames(motion, keys)
-    write_bvh(motion, path, frames)
+    write_bvh(bvh_equivalent(motion), path, frames)
     meta: dict[str, Any] = {
         "schema": SCHEMA_VERSION, "source": motion.name,
         "method": method or (keys.method if isinstance(keys, Keyframes) else None),
@@ -72,8 +73,8 @@ def export_reconstructed_bvh(motion: Motion, keys: Keyframes | list[int] | np.nd
                              path: str | os.PathLike[str], mode: str = "slerp") -> Path:
     """Write the full-length motion interpolated from the keyframes only."""
     rebuilt = reconstruct(motion, _frames(motion, keys), mode)
-    write_bvh(Motion(motion.skeleton, rebuilt, motion.fps, motion.first_frame, motion.name),
-              path)
+    write_bvh(bvh_equivalent(Motion(motion.skeleton, rebuilt, motion.fps, motion.first_frame,
+                                    motion.name)), path)
     return Path(path)
 
 

@@ -7,7 +7,10 @@ import numpy as np
 from .motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 
 __all__ = ["euler_matrices", "local_rotations", "forward_kinematics", "FKResult", "body_height",
-           "pelvis_frame", "point_names"]
+           "pelvis_frame", "point_names", "skeleton_defect", "MAX_DEPTH", "MIN_BODY_HEIGHT"]
+
+MAX_DEPTH = 256  # joints from the root to the deepest leaf; real skeletons stay under 40
+MIN_BODY_HEIGHT = 1e-3  # file units; methods divide positions by the body height
 
 _AXIS = {"Xrotation": 0, "Yrotation": 1, "Zrotation": 2}
 
@@ -166,6 +169,24 @@ def body_height(skeleton: Skeleton) -> float:
     zero = np.zeros((1, skeleton.n_channels))
     pts = forward_kinematics(skeleton, zero).positions[0]
     return float(pts[:, 1].max() - pts[:, 1].min())
+
+
+def skeleton_defect(skeleton: Skeleton, limit: float = 1e6) -> str | None:
+    """Why FK and the methods cannot use `skeleton` (too deep, huge or flat), or None."""
+    depth = [0] * skeleton.n_joints
+    for j, p in enumerate(skeleton.parents):
+        depth[j] = 0 if p < 0 else depth[p] + 1
+        if depth[j] > MAX_DEPTH:
+            return f"expected a hierarchy at most {MAX_DEPTH} joints deep, got deeper"
+    ends = list(skeleton.end_sites.values())
+    vectors = np.concatenate([skeleton.offsets.reshape(-1, 3), np.reshape(ends, (-1, 3))])
+    if not np.all(np.abs(vectors) <= limit):
+        return f"expected OFFSET values within +-{limit:g}, got {np.abs(vectors).max():g}"
+    height = body_height(skeleton)
+    if not height >= MIN_BODY_HEIGHT:
+        return (f"expected a skeleton with a body height (zero pose, Y extent) of at least"
+                f" {MIN_BODY_HEIGHT:g}, got {height:g} (all OFFSETs zero or degenerate?)")
+    return None
 
 
 def motion_fk(motion: Motion) -> FKResult:

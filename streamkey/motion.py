@@ -90,6 +90,13 @@ class Skeleton:
         labels = [c for chans in self.channels for c in chans]
         return np.array([i for i, c in enumerate(labels) if c in POSITION_CHANNELS], dtype=int)
 
+    def bvh_compatible(self) -> bool:
+        """True if BVH text can say this skeleton: no pre-rotations, channels in compose order."""
+        assert self.rotation_order is not None and self.pre_rotations is not None
+        return all(p is None for p in self.pre_rotations) and all(
+            [c for c in ch if c in ROTATION_CHANNELS] == order
+            for ch, order in zip(self.channels, self.rotation_order, strict=True))
+
     def children(self, joint: int) -> list[int]:
         """Direct children of `joint`."""
         return [j for j, p in enumerate(self.parents) if p == joint]

@@ -8,9 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .amc import read_motion
-from .batch import FileResult
-from .errors import StreamkeyError, UsageError
+from .batch import FileResult, load_motion, per_file
 from .keyframes import KeyframeEvent, Keyframes
 from .methods import online_class
 from .motion import Motion
@@ -59,13 +57,8 @@ def extract_files_online(paths: list[Path], methods: list[str],
                          progress: Callable[[int, int, Path], None] | None = None
                          ) -> Iterator[FileResult]:
     """`run_online` over files; a bad file yields its error and the rest go on."""
-    for i, path in enumerate(paths):
-        if progress:
-            progress(i, len(paths), path)
-        try:
-            motion = read_motion(path)
-            yield FileResult(path, motion, run_online(motion, methods, params, lookahead))
-        except UsageError:
-            raise
-        except StreamkeyError as exc:
-            yield FileResult(path, None, {}, str(exc))
+    def work(path: Path) -> FileResult:
+        motion = load_motion(path)
+        return FileResult(path, motion, run_online(motion, methods, params, lookahead))
+
+    return per_file(paths, work, progress)

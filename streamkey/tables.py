@@ -16,8 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .amc import read_motion
-from .errors import StreamkeyError
+from .batch import FileResult, load_motion, per_file
+from .errors import InputError, StreamkeyError
 from .evaluate import Evaluator, Scores
 from .features import compute_features
 from .methods import OFFLINE_METHODS, offline_method
@@ -30,7 +30,7 @@ NATURAL_METHODS = ("saliency", "speed", "simplify", "isodata", "curvefit")
 
 def evaluate_clip(path: Path) -> dict[str, Any]:
     """Scores of one clip: equal-count rows and natural-count rows."""
-    motion = read_motion(path)
+    motion = load_motion(path)
     features = compute_features(motion)
     ev = Evaluator(motion)
     natural: dict[str, Any] = {}
@@ -38,8 +38,12 @@ def evaluate_clip(path: Path) -> dict[str, Any]:
         if name not in OFFLINE_METHODS:
             continue
         keys = offline_method(name)(motion, features=features)
+        if len(keys) == 0:
+            raise InputError(f"{path}: {name} finds no keyframe in this clip"
+                             f" ({motion.n_frames - motion.first_frame} captured frames), so"
+                             " the clip cannot be scored")
         natural[name] = _curvefit_scores(motion, keys, ev) if name == "curvefit" else ev.score(keys)
-    count = natural["saliency"].count
+    count = max(natural["saliency"].count, 2)  # counted methods keep at least both ends
     equal = {"saliency": natural["saliency"]}
     for name in EQUAL_COUNT_METHODS[1:]:
         fn = offline_method(name)
@@ -87,7 +91,8 @@ def _write_equal(rows: list[dict[str, Any]], out: Path) -> list[Path]:
             csv_rows.append([r["clip"], r["frames"], r["keyframes"], m, s[m].count, s[m].error,
                              s[m].error_normalised, s[m].psnr])
     md_path, csv_path = out / "equal_count.md", out / "equal_count.csv"
-    md_path.write_text("\n".join(md) + "\n" + _wins(rows), encoding="utf-8")
+    md_path.write_text("\n".join(md) + "\n" + _wins(rows), encoding="utf-8",
+                       errors="surrogateescape")
     _write_csv(csv_path, csv_rows)
     return [md_path, csv_path]
 
@@ -117,13 +122,13 @@ def _write_natural(rows: list[dict[str, Any]], out: Path) -> list[Path]:
             csv_rows.append([r["clip"], r["frames"], r["keyframes"], m, s[m].count, s[m].error,
                              s[m].error_normalised, s[m].psnr])
     md_path, csv_path = out / "natural_count.md", out / "natural_count.csv"
-    md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
+    md_path.write_text("\n".join(md) + "\n", encoding="utf-8", errors="surrogateescape")
     _write_csv(csv_path, csv_rows)
     return [md_path, csv_path]
 
 
 def _write_csv(path: Path, rows: list[list[Any]]) -> None:
-    with open(path, "w", newline="", encoding="utf-8") as fh:
+    with open(path, "w", newline="", encoding="utf-8", errors="surrogateescape") as fh:
         writer = csv.writer(fh)
         writer.writerow(["clip", "frames", "saliency_keyframes", "method", "keyframes", "E",
                          "E_over_h2", "psnr_db"])
@@ -131,22 +136,28 @@ def _write_csv(path: Path, rows: list[list[Any]]) -> None:
 
 
 def evaluate_files(paths: list[Path], out: Path,
-                   progress: Callable[[int, int, Path], None] | None = None) -> list[Path]:
-    """Evaluate every clip and write the Markdown + CSV tables into `out`."""
+                   progress: Callable[[int, int, Path], None] | None = None,
+                   errors: list[str] | None = None) -> list[Path]:
+    """Evaluate every clip and write the Markdown + CSV tables into `out`.
+
+    A clip that fails is left out of the tables; its error (naming it) goes to `errors`
+    and to `out/errors.txt`.
+    """
     out.mkdir(parents=True, exist_ok=True)
-    rows, errors = [], []
-    for i, path in enumerate(paths):
-        if progress:
-            progress(i, len(paths), path)
-        try:
-            rows.append(evaluate_clip(path))
-        except StreamkeyError as exc:
-            errors.append(f"{path}: {exc}")
+    rows: list[dict[str, Any]] = []
+    errors = [] if errors is None else errors
+
+    def work(path: Path) -> FileResult:
+        rows.append(evaluate_clip(path))
+        return FileResult(path, None, {})
+
+    errors += [r.error for r in per_file(paths, work, progress) if r.error]
     if not rows:
         raise StreamkeyError("no clip could be evaluated: " + "; ".join(errors))
     written = _write_equal(rows, out) + _write_natural(rows, out)
     if errors:
         err_path = out / "errors.txt"
-        err_path.write_text("\n".join(errors) + "\n", encoding="utf-8")
+        err_path.write_text("\n".join(errors) + "\n", encoding="utf-8",
+                            errors="surrogateescape")
         written.append(err_path)
     return written

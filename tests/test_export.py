@@ -76,17 +76,6 @@ def test_extract_refuses_an_export_name_that_several_results_would_share(
     assert not (tmp_path / "k.bvh").exists()
 
 
-def test_asf_amc_skeletons_are_refused_with_a_clear_message(
-        data_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code = main(["extract", str(data_dir / "05_11.amc"), "--method", "uniform", "--count", "5",
-                 "-q", "-o", str(tmp_path / "k.json"),
-                 "--export-bvh", str(tmp_path / "k.bvh")])
-    err = capsys.readouterr().err
-    assert code == 2
-    assert "error: cannot write an ASF/AMC skeleton" in err
-    assert "Traceback" not in err
-
-
 def _blender_example():  # type: ignore[no-untyped-def]
     spec = importlib.util.spec_from_file_location("blender_markers",
                                                   ROOT / "examples" / "blender_markers.py")
