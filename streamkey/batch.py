@@ -59,7 +59,7 @@ def extract_motion(motion: Motion, methods: list[str],
                 results["saliency"] = offline_method("saliency")(
                     motion, features=features, **params.get("saliency", {}))
             kwargs["count"] = len(results["saliency"])
-        if name in ("uniform", "decimate"):
+        if name == "uniform":
             results[name] = offline_method(name)(motion, **kwargs)
         else:
             results[name] = offline_method(name)(motion, features=features, **kwargs)

@@ -128,16 +128,21 @@ def test_default_tolerance_selects_a_few_percent_of_frames_on_walk():
     assert keys.frames[0] == 1  # the T-pose reference frame 0 is skipped
 
 
-def test_positions_space_is_body_coordinates_in_body_heights():
+def test_positions_space_is_root_relative_joints_in_rms_body_heights():
     name = "07_01.bvh"
-    x = simplify.curve(load(name), "positions", features(name))
-    f = features(name)
-    assert x.shape == (f.pelvis_positions.shape[0] - 1, f.pelvis_positions[0].size)
-    assert np.allclose(x[0], f.pelvis_positions[1].ravel() / f.body_height)
+    m, f = load(name), features(name)
+    x = simplify.curve(m, "positions", features(name))
+    assert np.array_equal(simplify.curve(m, features=f), x)  # the default space
+    nj = m.skeleton.n_joints  # 31 joints; the 5 End Sites are not in the curve
+    assert x.shape == (m.n_frames - 1, 3 * nj) and nj < f.fk.positions.shape[1]
+    rel = f.fk.positions[:, :nj] - f.fk.positions[:, :1]  # world orientation, root at 0
+    # a row distance is the RMS joint distance in body heights
+    rms = np.sqrt(np.mean(np.sum((rel[10] - rel[50]) ** 2, axis=-1))) / f.body_height
+    assert np.linalg.norm(x[9] - x[49]) == pytest.approx(rms, rel=1e-12)
 
 
 def test_long_clip_is_simplified_iteratively_without_recursion_limits():
-    x = simplify.curve(load("01_06.bvh"))
+    x = simplify.curve(load("01_06.bvh"), "channels")
     long = np.concatenate([x] * 10)  # ~51k frames
     keys = simplify.split_keys(long, 0, len(long) - 1, tolerance=40.0)
     rows = np.array(sorted({0, len(long) - 1} | set(keys)))
@@ -165,7 +170,7 @@ MIN_MEAN_F1, MIN_CLIP_F1, MAX_COUNT_RATIO = 0.92, 0.80, 1.2
 
 @cache
 def online_keys(name: str, lookahead: int = simplify.DEFAULT_LOOKAHEAD,
-                space: str = "channels") -> tuple[np.ndarray, np.ndarray]:
+                space: str = simplify.DEFAULT_SPACE) -> tuple[np.ndarray, np.ndarray]:
     """Online keyframes of a clip streamed in one block (== frame by frame), and latencies."""
     m = load(name)
     on = simplify.Online(m.skeleton, m.fps, lookahead=lookahead, space=space)
@@ -205,7 +210,7 @@ def test_online_keeps_the_guarantee_latency_and_count_bounds_on_every_clip():
         x = simplify.curve(m)
         assert frames[0] == m.first_frame and frames[-1] == m.n_frames - 1, name
         err = simplify.max_chord_error(x, frames - m.first_frame).max()
-        assert err <= simplify.DEFAULT_TOLERANCE["channels"] + _slack(x), name
+        assert err <= simplify.DEFAULT_TOLERANCE[simplify.DEFAULT_SPACE] + _slack(x), name
         assert latency.max() <= simplify.DEFAULT_LOOKAHEAD, name
         n_off, n_on, p, r, f1 = agreement(name)
         assert n_on <= MAX_COUNT_RATIO * n_off, (name, n_on, n_off)
@@ -214,7 +219,8 @@ def test_online_keeps_the_guarantee_latency_and_count_bounds_on_every_clip():
     f1s = [agreement(n)[4] for n in CLIPS]
     text = ["# Online vs offline curve simplification", "",
             f"Written by tests/test_simplify.py. Default tolerance "
-            f"{simplify.DEFAULT_TOLERANCE['channels']} (channel space), lookahead "
+            f"{simplify.DEFAULT_TOLERANCE[simplify.DEFAULT_SPACE]} ({simplify.DEFAULT_SPACE} "
+            "space), lookahead "
             f"{simplify.DEFAULT_LOOKAHEAD} frames. One-to-one matching within 1/4 of the median "
             "offline key interval (DESIGN §5). Every online frame is within the tolerance of "
             "its chord (checked).", "",
@@ -268,12 +274,12 @@ def test_online_window_stays_bounded_on_a_long_stream():
 
 
 @pytest.mark.parametrize("name", ["05_06.bvh", "131_03.bvh", "49_18.amc"])
-def test_online_keeps_the_guarantee_in_positions_space(name):
+def test_online_keeps_the_guarantee_in_channel_space(name):
     m = load(name)
-    frames, latency = online_keys(name, space="positions")
-    x = simplify.curve(m, "positions", features(name))
+    frames, latency = online_keys(name, space="channels")
+    x = simplify.curve(m, "channels", features(name))
     err = simplify.max_chord_error(x, frames - m.first_frame).max()
-    assert err <= simplify.DEFAULT_TOLERANCE["positions"] + _slack(x)
+    assert err <= simplify.DEFAULT_TOLERANCE["channels"] + _slack(x)
     assert latency.max() <= simplify.DEFAULT_LOOKAHEAD
 
 
@@ -289,7 +295,7 @@ def test_online_guarantee_and_latency_hold_for_short_lookaheads_and_spans(lookah
         x = simplify.curve(m)
         assert np.all(np.diff(frames) > 0) and frames[-1] == m.n_frames - 1, name
         err = simplify.max_chord_error(x, frames - m.first_frame).max()
-        assert err <= simplify.DEFAULT_TOLERANCE["channels"] + _slack(x), name
+        assert err <= simplify.DEFAULT_TOLERANCE[simplify.DEFAULT_SPACE] + _slack(x), name
         assert max(e.latency_frames for e in events) <= lookahead, name
 
 
