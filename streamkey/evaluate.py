@@ -274,8 +274,8 @@ def _builtin_methods() -> dict[str, Callable[[Motion, int], Keyframes]]:
 
     return {
         "uniform": baselines.uniform,
-        "decimation": baselines.decimate,
-        "simplification": lambda m, k: simplify.extract(m, count=k),
+        "decimation": lambda m, k: baselines.decimate(m, k, space="channels"),
+        "simplification": lambda m, k: simplify.extract(m, count=k, space="channels"),
         "decimation_positions": lambda m, k: baselines.decimate(m, k, space="positions"),
         "simplification_positions": lambda m, k: simplify.extract(m, count=k, space="positions"),
     }
@@ -317,7 +317,8 @@ def compare_at_equal_count(motion: Motion,
 
 def error_curve(motion: Motion, counts: Sequence[int], methods: Sequence[str] = ("uniform",
                 "decimation"), mode: str = "slerp") -> dict[str, list[Scores]]:
-    """Scores of built-in methods (`METHODS`) at each keyframe count.
+    """Scores of built-in methods (`METHODS`) at each keyframe count ("decimation" and
+    "simplification" in channel space, the `_positions` ones in position space).
 
     Decimation and count-mode simplification are nested in K, so each runs once per space.
     """
