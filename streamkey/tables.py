@@ -150,8 +150,8 @@ E_HEADER = ("E: thesis eq. 4.1, mean over captured frames and the skeleton's joi
 
 def _write_table(rows: list[dict[str, Any]], out: Path, table: str, methods: list[str],
                  title: list[str]) -> list[Path]:
-    head = ["clip", "frames", "saliency keys"]
     cols = [f"{m} keys" for m in methods] if table == "natural" else []
+    head = ["clip", "frames"] + ([] if cols else ["keys"])
     md = [*title, "", E_HEADER, "",
           "| " + " | ".join(head + cols + [f"E {m}" for m in methods]
                             + [f"E/h^2 {m}" for m in methods] + [f"PSNR {m}" for m in methods]
@@ -161,8 +161,8 @@ def _write_table(rows: list[dict[str, Any]], out: Path, table: str, methods: lis
     for r in rows:
         s = r[table]
         md.append("| " + " | ".join(
-            [r["clip"], str(r["frames"]), str(r["keyframes"])]
-            + ([str(s[m]["scores"].count) for m in methods] if cols else [])
+            [r["clip"], str(r["frames"])]
+            + ([str(s[m]["scores"].count) for m in methods] if cols else [str(r["keyframes"])])
             + [_fmt(s[m]["scores"].error) for m in methods]
             + [_fmt(s[m]["scores"].error_normalised * 1e6) for m in methods]
             + [_fmt(s[m]["scores"].psnr) for m in methods]
