@@ -25,8 +25,8 @@ def test_eval_tables_report_ratios_to_uniform_for_every_registered_method(tmp_pa
     assert "uniform_again" not in tables.natural_methods()  # it needs a count
     assert tables.equal_count_methods()[-1] == "uniform"
     assert {"saliency", "simplify", "decimate"} <= set(tables.equal_count_methods())
-    assert {"saliency", "speed", "simplify", "isodata", "curvefit"} == set(
-        tables.natural_methods())
+    assert {"saliency", "speed", "simplify", "isodata", "curvefit"} <= set(
+        tables.natural_methods()) and not {"uniform", "decimate"} & set(tables.natural_methods())
     clips = tmp_path / "clips"
     clips.mkdir()
     for name in ("07_01.bvh", "08_01.bvh"):
