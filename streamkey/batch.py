@@ -112,7 +112,7 @@ def extract_motion(motion: Motion, methods: list[str],
                     motion, features=features, **params.get("saliency", {}))
             # At least first and last: a still clip has no salient pose but still two ends.
             kwargs["count"] = max(len(results["saliency"]), 2)
-        if name in ("uniform", "decimate"):
+        if name == "uniform":
             results[name] = offline_method(name)(motion, **kwargs)
         else:
             results[name] = offline_method(name)(motion, features=features, **kwargs)

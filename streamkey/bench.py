@@ -84,6 +84,8 @@ def bench_offline(frames: int, data: Path | None) -> dict[str, Any]:
         fn = offline_method(name)
         kwargs: dict[str, Any] = ({"count": count} if name in ("uniform", "decimate")
                                   else {"features": feats})
+        if name == "decimate":
+            kwargs["features"] = feats  # positions space: the shared FK, as the others
         seconds, peak, keys = _measure(lambda fn=fn, kwargs=kwargs: fn(motion, **kwargs))
         if name == "saliency":
             count = len(keys)

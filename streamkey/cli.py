@@ -38,7 +38,8 @@ def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     isodata: dict[str, Any] = {}
     if getattr(args, "verbose", False):
         isodata = {"verbose": True, "log": lambda line: print(line, file=sys.stderr)}
-    return {"saliency": saliency, "simplify": simplify, "uniform": counted, "decimate": counted,
+    decimate = {**counted, "space": args.space}
+    return {"saliency": saliency, "simplify": simplify, "uniform": counted, "decimate": decimate,
             "isodata": isodata}
 
 
@@ -277,8 +278,9 @@ def _add_method_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tolerance", type=float, help="simplify: absolute error tolerance")
     p.add_argument("--ratio", type=float, help="simplify: error / chord length ratio (Önder)")
     p.add_argument("--count", type=int, help="simplify, uniform, decimate: keyframe count")
-    p.add_argument("--space", choices=("channels", "positions"), default="channels",
-                   help="simplify: curve of channel values or of body-frame joint positions")
+    p.add_argument("--space", choices=("positions", "channels"), default="positions",
+                   help="simplify, decimate: curve of body-frame (root-relative) joint positions "
+                        "in body heights (default) or of channel values (rotations unwrapped)")
 
 
 def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
@@ -313,8 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--count", type=int,
                    help="simplify, uniform, decimate: keyframe count (uniform and decimate "
                         "default to the saliency count)")
-    p.add_argument("--space", choices=("channels", "positions"), default="channels",
-                   help="simplify: curve of channel values or of body-frame joint positions")
+    p.add_argument("--space", choices=("positions", "channels"), default="positions",
+                   help="simplify, decimate: curve of body-frame (root-relative) joint positions "
+                        "in body heights (default) or of channel values (rotations unwrapped)")
     p.add_argument("--online", action="store_true",
                    help="run the online keyframers over each file as if streamed")
     p.add_argument("--lookahead", type=int, help="online: lookahead in frames (default: method's)")
@@ -364,7 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerance", type=float, help=argparse.SUPPRESS)
     p.add_argument("--ratio", type=float, help=argparse.SUPPRESS)
     p.add_argument("--count", type=int, help=argparse.SUPPRESS)
-    p.add_argument("--space", choices=("channels", "positions"), default="channels",
+    p.add_argument("--space", choices=("positions", "channels"), default="positions",
                    help=argparse.SUPPRESS)
     _add_dashboard_options(p)
     p.set_defaults(func=cmd_run)
@@ -383,7 +386,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", help="dashboard: bind to this host instead of 127.0.0.1 (the "
                    "page then needs the token printed in its URL)")
     p.set_defaults(func=cmd_demo, lookahead=None, sigma=None, k=None, no_contact=False,
-                   tolerance=None, ratio=None, count=None, space="channels")
+                   tolerance=None, ratio=None, count=None, space="positions")
 
     p = sub.add_parser("sheet", help="contact sheet: a clip's keyposes as stick figures (PNG)")
     p.add_argument("file")

@@ -15,15 +15,20 @@ Definitions this module settles:
   angle shifted by 360° multiples) nearest the linear interpolation of the unwrapped key
   angles, so Euler-space errors are not inflated by representation jumps. ``mode="linear"``
   interpolates every channel linearly (rotations unwrapped). Keyframes are copied exactly;
-  frames before the first / after the last keyframe hold that keyframe; the reference frame
-  (before `first_frame`) is copied and never scored.
-- E (eq. 4.1): mean over captured frames and FK points (joints and end sites) of the squared
-  distance between original and reconstructed root-relative positions (p - p_root, world
-  orientation, so root rotation errors count, root translation does not), file units squared.
-  The thesis divides by n x (number of dofs); we divide by n x (number of points), the brief's
-  "mean over frames and joints". Normalised: E / body_height^2 (squared body heights).
+  the first and last captured frames are always keys of a reconstruction (DESIGN §6, settled
+  in turn 2: every animation has them, so a method that does not pick them is not charged
+  for holding a key backwards or forwards); the reference frame (before `first_frame`) is
+  copied and never scored.
+- E (eq. 4.1): mean over captured frames and the skeleton's joints (ROOT and JOINT entries,
+  not End Sites) of the squared distance between original and reconstructed root-relative
+  positions (p - p_root, world orientation, so root rotation errors count, root translation
+  does not), file units squared. The thesis divides by n x (number of dofs); we divide by
+  n x (number of joints), the brief's "mean over frames and joints". Normalised:
+  E / body_height^2 (squared body heights).
 - PSNR (eq. 4.2): 20 log10(360 / sqrt(E_euler)), E_euler the mean over captured frames and
-  rotation channels of the squared angle difference, wrapped to [-180, 180).
+  rotation channels of the squared angle difference, wrapped to [-180, 180). Of the two
+  equivalent Euler triples of a reconstructed 3-rotation joint, the one nearest the
+  *original* channel values is scored (a near-gimbal joint is not charged for the branch).
 - F-measure: one-to-one matching (`match_one_to_one`, a match needs |a - b| <= tol; the greedy
   sweep over both sorted lists gives a maximum matching for this interval structure); Miura's
   tolerance is 1/4 of the keypose interval (the median difference of the truth frames).
@@ -39,7 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from .errors import UsageError
 from .keyframes import Keyframes
-from .kinematics import body_height, forward_kinematics
+from .kinematics import body_height, forward_kinematics, root_relative_joints
 from .motion import Motion, Skeleton
 from .signal import unwrap_degrees
 
@@ -51,7 +56,8 @@ _SEQ = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
 
 
 def _key_rows(motion: Motion, frames: Keyframes | Iterable[int]) -> np.ndarray:
-    """Keyframes as sorted unique captured-row indices (0 = motion.first_frame)."""
+    """Keys of the reconstruction as sorted unique captured-row indices (0 =
+    motion.first_frame): the given keyframes plus the first and last captured frames."""
     raw = frames.frames if isinstance(frames, Keyframes) else frames
     keys = np.unique(np.asarray(list(raw) if not isinstance(raw, np.ndarray) else raw,
                                 dtype=np.int64))
@@ -59,7 +65,8 @@ def _key_rows(motion: Motion, frames: Keyframes | Iterable[int]) -> np.ndarray:
         raise UsageError("need at least one keyframe")
     if keys[0] < motion.first_frame or keys[-1] >= motion.n_frames:
         raise UsageError(f"keyframes must lie in [{motion.first_frame}, {motion.n_frames - 1}]")
-    return keys - motion.first_frame
+    ends = [0, motion.n_frames - 1 - motion.first_frame]
+    return np.union1d(keys - motion.first_frame, ends)
 
 
 def _segments(keys: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -163,12 +170,13 @@ class Evaluator:
         self.first = motion.first_frame
         self.body_height = body_height(motion.skeleton)
         self.rotation_columns = motion.skeleton.rotation_columns()
+        self._groups = _rotation_groups(motion.skeleton)
         self._original = self._relative(motion.channels)
         self._unwrapped = _unwrapped(motion)
 
     def _relative(self, channels: np.ndarray) -> np.ndarray:
         pos = forward_kinematics(self.motion.skeleton, channels[self.first :]).positions
-        return pos - pos[:, :1]
+        return root_relative_joints(pos, self.motion.skeleton.n_joints)
 
     def error_e(self, reconstructed: np.ndarray, normalised: bool = False) -> float:
         """Thesis eq. 4.1 (file units^2), or divided by body height^2 when `normalised`."""
@@ -177,9 +185,16 @@ class Evaluator:
         return e / self.body_height**2 if normalised else e
 
     def euler_mse(self, reconstructed: np.ndarray) -> float:
-        """Mean squared wrapped angle difference (degrees^2) over rotation channels."""
+        """Mean squared wrapped angle difference (degrees^2) over rotation channels, each
+        3-rotation joint taken as its Euler triple nearest the original."""
         cols = self.rotation_columns
-        d = reconstructed[self.first :, cols] - self.motion.channels[self.first :, cols]
+        orig = self.motion.channels[self.first :]
+        rec = reconstructed[self.first :].copy()
+        for group in self._groups.values():
+            rec[:, group] = _nearest_euler(rec[:, group].reshape(-1, 3),
+                                           orig[:, group].reshape(-1, 3)).reshape(
+                len(rec), -1, 3)
+        d = rec[:, cols] - orig[:, cols]
         d = np.mod(d + 180.0, 360.0) - 180.0
         return float(np.mean(d * d))
 
@@ -198,7 +213,8 @@ class Evaluator:
 
 @dataclass(frozen=True)
 class Scores:
-    """Keyframe count, E (eq. 4.1), E / body height^2, PSNR (eq. 4.2, dB)."""
+    """Keys of the reconstruction (ends included), E (eq. 4.1), E / body height^2, PSNR
+    (eq. 4.2, dB)."""
 
     count: int
     error: float
@@ -207,7 +223,7 @@ class Scores:
 
 
 def error_e(motion: Motion, reconstructed: np.ndarray, *, normalised: bool = False) -> float:
-    """Thesis eq. 4.1: mean squared root-relative point distance over captured frames."""
+    """Thesis eq. 4.1: mean squared root-relative joint distance over captured frames."""
     return Evaluator(motion).error_e(reconstructed, normalised)
 
 
@@ -258,8 +274,8 @@ def _builtin_methods() -> dict[str, Callable[[Motion, int], Keyframes]]:
 
     return {
         "uniform": baselines.uniform,
-        "decimation": baselines.decimate,
-        "simplification": lambda m, k: simplify.extract(m, count=k),
+        "decimation": lambda m, k: baselines.decimate(m, k, space="channels"),
+        "simplification": lambda m, k: simplify.extract(m, count=k, space="channels"),
         "decimation_positions": lambda m, k: baselines.decimate(m, k, space="positions"),
         "simplification_positions": lambda m, k: simplify.extract(m, count=k, space="positions"),
     }
@@ -301,7 +317,8 @@ def compare_at_equal_count(motion: Motion,
 
 def error_curve(motion: Motion, counts: Sequence[int], methods: Sequence[str] = ("uniform",
                 "decimation"), mode: str = "slerp") -> dict[str, list[Scores]]:
-    """Scores of built-in methods (`METHODS`) at each keyframe count.
+    """Scores of built-in methods (`METHODS`) at each keyframe count ("decimation" and
+    "simplification" in channel space, the `_positions` ones in position space).
 
     Decimation and count-mode simplification are nested in K, so each runs once per space.
     """

@@ -7,7 +7,8 @@ import numpy as np
 from .motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 
 __all__ = ["euler_matrices", "local_rotations", "forward_kinematics", "FKResult", "body_height",
-           "pelvis_frame", "point_names", "skeleton_defect", "MAX_DEPTH", "MIN_BODY_HEIGHT"]
+           "pelvis_frame", "point_names", "skeleton_defect", "MAX_DEPTH", "MIN_BODY_HEIGHT",
+           "root_relative_joints"]
 
 MAX_DEPTH = 256  # joints from the root to the deepest leaf; real skeletons stay under 40
 MIN_BODY_HEIGHT = 1e-3  # file units; methods divide positions by the body height
@@ -162,6 +163,13 @@ def pelvis_frame(fk: FKResult, pelvis: int = 0) -> np.ndarray:
     """Positions in the pelvis-fixed frame: R_pelvis^T (p - p_pelvis), (n, points, 3)."""
     rel = fk.positions - fk.positions[:, pelvis : pelvis + 1]
     return np.einsum("fba,fpb->fpa", fk.root_rotation, rel)
+
+
+def root_relative_joints(positions: np.ndarray, n_joints: int) -> np.ndarray:
+    """Joint positions (ROOT and JOINT, not End Sites) minus the root's, world orientation:
+    the points of thesis eq. 4.1, (n, n_joints, 3)."""
+    joints = positions[:, :n_joints]
+    return joints - joints[:, :1]
 
 
 def body_height(skeleton: Skeleton) -> float:

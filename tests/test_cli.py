@@ -78,3 +78,22 @@ def test_offline_demo_prints_every_method(capsys):
     out = capsys.readouterr().out
     for method in ("saliency", "speed", "simplify", "uniform", "decimate"):
         assert f"{method}:" in out
+
+
+def test_decimate_and_simplify_take_the_space_switch_positions_by_default(tmp_path):
+    from streamkey.amc import read_motion
+    from streamkey.methods import baselines, simplify
+
+    m = read_motion(DATA / "06_15.bvh")
+    for space in (None, "channels"):
+        out = tmp_path / f"{space}.json"
+        args = ["extract", str(DATA / "06_15.bvh"), "--method", "decimate,simplify",
+                "--count", "20", "-o", str(out), "-q"] + (["--space", space] if space else [])
+        assert main(args) == 0
+        methods = json.loads(out.read_text())["files"][0]["methods"]
+        want = space or "positions"
+        for name, fn in (("decimate", baselines.decimate),
+                         ("simplify", lambda mo, k, space: simplify.extract(mo, count=k,
+                                                                           space=space))):
+            assert methods[name]["params"]["space"] == want
+            assert methods[name]["keyframes"] == fn(m, 20, space=want).frames.tolist()

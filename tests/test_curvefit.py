@@ -176,7 +176,7 @@ def test_curvefit_reduces_keys_on_07_01_and_writes_table_2() -> None:
     assert info["mean_keys_per_channel"] < 0.9 * info["mean_initial_keys_per_channel"]
     first, n = motion.first_frame, motion.n_frames - motion.first_frame
     ev = evaluator(name)
-    x = simplify.curve(motion)
+    x = simplify.curve(motion, "channels")
     counts = info["keys_per_channel"]
     per_pose = int(round(info["mean_keys_per_channel"]))
     lowe = motion.channels.copy()

@@ -48,8 +48,10 @@ def joint_sequences(m: Motion) -> list[tuple[str, list[int]]]:
 
 
 def reference_reconstruction(m: Motion, keys: np.ndarray, mode: str) -> np.ndarray:
-    """Per-frame reconstruction: scipy Rotation slerp via rotation vectors, one frame at a time."""
+    """Per-frame reconstruction: scipy Rotation slerp via rotation vectors, one frame at a time;
+    the first and last captured frames are keys whatever `keys` holds (DESIGN §6)."""
     raw = m.channels[m.first_frame :]
+    keys = np.array(sorted({0, len(raw) - 1, *keys.tolist()}))
     rot = m.skeleton.rotation_columns()
     x = raw.copy()
     x[:, rot] = np.unwrap(raw[:, rot], period=360.0, axis=0)
@@ -81,10 +83,9 @@ def reference_reconstruction(m: Motion, keys: np.ndarray, mode: str) -> np.ndarr
 
 
 def reference_positions(m: Motion, channels: np.ndarray) -> np.ndarray:
-    """Root-relative positions of joints then end sites, one frame at a time."""
+    """Root-relative positions of the joints (no End Sites), one frame at a time."""
     sk = m.skeleton
     seqs = joint_sequences(m)
-    ends = sorted(sk.end_sites)
     pos_cols = [sk.channel_index(0, c) for c in ("Xposition", "Yposition", "Zposition")]
     out = []
     for row in channels:
@@ -105,7 +106,6 @@ def reference_positions(m: Motion, channels: np.ndarray) -> np.ndarray:
             else:
                 world.append(world[p] @ local)
                 pos.append(pos[p] + world[p] @ sk.offsets[j])
-        pos += [pos[j] + world[j] @ sk.end_sites[j] for j in ends]
         pts = np.array(pos)
         out.append(pts - pts[0])
     return np.array(out)
@@ -119,9 +119,15 @@ def reference_scores(m: Motion, keys: np.ndarray, mode: str) -> tuple[float, flo
                              axis=-1)))
     sq = []
     for r, o in zip(rec, orig, strict=True):
-        for c in m.skeleton.rotation_columns():
-            d = (r[c] - o[c] + 180.0) % 360.0 - 180.0
-            sq.append(d * d)
+        for seq, cols in joint_sequences(m):
+            if not seq:
+                continue
+            cands = [r[cols]]
+            if len(set(seq)) == 3:  # the other Euler triple of the same rotation
+                cands.append(np.array([r[cols[0]] + 180.0, 180.0 - r[cols[1]],
+                                       r[cols[2]] + 180.0]))
+            d = [(c - o[cols] + 180.0) % 360.0 - 180.0 for c in cands]
+            sq.extend(min(d, key=lambda x: float(np.sum(x * x))) ** 2)
     return e, 20.0 * np.log10(360.0 / np.sqrt(np.mean(sq)))
 
 
@@ -131,8 +137,8 @@ def test_error_and_psnr_agree_with_an_independent_per_frame_computation(name, mo
     m = load(name)
     end = m.first_frame + 200  # a per-frame loop: keep it short
     m = Motion(m.skeleton, m.channels[:end], m.fps, m.first_frame, m.name)
-    keys = baselines.decimate(m, 12)
-    e_ref, psnr_ref = reference_scores(m, keys.frames - m.first_frame, mode)
+    keys = baselines.decimate(m, 12).frames[1:-1]  # the ends are added by the definition
+    e_ref, psnr_ref = reference_scores(m, keys - m.first_frame, mode)
     scores = evaluate.Evaluator(m).score(keys, mode)
     assert scores.error == pytest.approx(e_ref, rel=1e-9)
     assert scores.psnr == pytest.approx(psnr_ref, rel=1e-9)
@@ -162,6 +168,69 @@ def test_reconstruction_copies_keyframes_and_the_reference_frame():
         rec = evaluate.reconstruct(m, keys, mode)
         assert np.array_equal(rec[keys], m.channels[keys])
         assert np.array_equal(rec[0], m.channels[0])  # T-pose reference frame, never scored
+
+
+def test_first_and_last_captured_frames_are_keys_of_every_reconstruction():
+    m = load("07_01.bvh")  # frame 0 is the T-pose reference frame
+    interior = baselines.uniform(m, 12).frames[1:-1] + 3  # neither end is a key
+    last = m.n_frames - 1
+    for mode in evaluate.MODES:
+        rec = evaluate.reconstruct(m, interior, mode)
+        assert np.array_equal(rec[[m.first_frame, last]], m.channels[[m.first_frame, last]])
+        assert np.array_equal(rec[interior], m.channels[interior])
+        assert not np.allclose(rec[m.first_frame + 1], rec[m.first_frame])  # interpolated,
+        assert not np.allclose(rec[last - 1], rec[last])  # not held from the nearest key
+    ev = evaluate.Evaluator(m)
+    scores = ev.score(interior)
+    assert scores.count == len(interior) + 2
+    with_ends = np.concatenate([[m.first_frame], interior, [last]])
+    assert scores == ev.score(with_ends)
+
+
+def test_error_counts_joints_not_end_sites():
+    m = load("06_15.bvh")
+    sk = m.skeleton
+    leaves = [j for j in sk.end_sites if j not in sk.parents]  # a rotation moves End Sites only
+    assert {sk.names[j] for j in leaves} >= {"Head", "LThumb", "RThumb", "LeftToeBase"}
+    bent = m.channels.copy()
+    cols = [sk.channel_index(j, c) for j in leaves for c in sk.rotation_order[j]]
+    bent[m.first_frame :, cols] += 30.0
+    ev = evaluate.Evaluator(m)
+    assert ev.error_e(bent) == 0.0  # End Sites moved, every joint stayed
+    assert ev.psnr(bent) < 60.0  # the rotations are wrong
+    bent[m.first_frame :, sk.channel_index(sk.index("LeftHand"), "Zrotation")] += 30.0
+    assert ev.error_e(bent) > 0.0
+
+
+def test_psnr_scores_the_euler_triple_nearest_the_original():
+    m = load("06_15.bvh")  # LThumb jumps up to 180 degrees between frames (near gimbal)
+    sk = m.skeleton
+    ev = evaluate.Evaluator(m)
+    # the same rotations written as the other Euler triple (a + 180, 180 - b, c + 180)
+    other = m.channels.copy()
+    for j, order in enumerate(sk.rotation_order):
+        if len(set(order)) == 3:
+            c = [sk.channel_index(j, a) for a in order]
+            other[:, c] = other[:, c] + np.array([180.0, 0.0, 180.0])
+            other[:, c[1]] = 180.0 - m.channels[:, c[1]]
+    assert ev.error_e(other) < 1e-20 and ev.psnr(other) > 200.0
+    # a slerp reconstruction writes LThumb on the branch nearest the interpolated keys;
+    # scored on the branch nearest the original, PSNR rises by > 1 dB (29.9 -> 31.4 dB)
+    rec = evaluate.reconstruct(m, baselines.uniform(m, 20))
+    cols = sk.rotation_columns()
+    d = np.mod(rec[m.first_frame :, cols] - m.channels[m.first_frame :, cols] + 180.0,
+               360.0) - 180.0
+    naive = 20.0 * np.log10(360.0 / np.sqrt(np.mean(d * d)))
+    assert ev.psnr(rec) > naive + 1.0
+    j = sk.index("LThumb")
+    c = [sk.channel_index(j, a) for a in sk.rotation_order[j]]
+    seq = "".join(AXES[a] for a in sk.rotation_order[j])
+    scored = evaluate._nearest_euler(rec[m.first_frame :, c], m.channels[m.first_frame :, c])
+    changed = np.flatnonzero(np.abs(scored - rec[m.first_frame :, c]).max(axis=1) > 1.0)
+    assert len(changed) > 20  # frames where the other triple is the nearer one
+    r0 = Rotation.from_euler(seq, rec[m.first_frame :, c][changed], degrees=True)
+    r1 = Rotation.from_euler(seq, scored[changed], degrees=True)
+    assert np.allclose(r0.as_matrix(), r1.as_matrix(), atol=1e-9)  # the same rotations
 
 
 def counts_for(n: int) -> list[int]:

@@ -6,9 +6,9 @@ in the file's numbering (frames before `motion.first_frame` are skipped).
 
 Frame decimation, as settled here:
 
-- The curve is the one of curve simplification (`simplify.curve`): every channel with unwrapped
-  rotations (``space="channels"``), or pelvis-frame positions / body height
-  (``space="positions"``).
+- The curve is the one of curve simplification (`simplify.curve`): body-frame (root-relative)
+  joint positions in body heights (``space="positions"``, the default), or every channel with
+  unwrapped rotations (``space="channels"``, which spends keys on Euler flips).
 - Reconstruction error of a keyframe set = the sum over frames of the squared Euclidean distance
   between the frame and the linear interpolation of its enclosing keyframes (SSE). It is a sum
   over segments, so removing an interior keyframe k with neighbours p < k < q raises it by
@@ -31,7 +31,7 @@ from ..errors import UsageError
 from ..features import Features
 from ..keyframes import Keyframes
 from ..motion import Motion
-from .simplify import SPACES, curve
+from .simplify import DEFAULT_SPACE, SPACES, curve
 
 __all__ = ["uniform", "decimate", "decimation_order", "segment_sse", "reconstruction_sse"]
 
@@ -103,7 +103,7 @@ def decimation_order(x: np.ndarray, count: int = 2) -> tuple[np.ndarray, np.ndar
     return np.array(removed, dtype=np.int64), np.array(costs)
 
 
-def decimate(motion: Motion, count: int, *, space: str = "channels",
+def decimate(motion: Motion, count: int, *, space: str = DEFAULT_SPACE,
              features: Features | None = None) -> Keyframes:
     """Frame decimation to exactly `count` keyframes (see the module docstring)."""
     if space not in SPACES:

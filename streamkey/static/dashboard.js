@@ -185,9 +185,10 @@ function holdKeys(hold) {
 }
 
 function trimKeys(list) {
-  // Drop the oldest keyposes, but never one being typed into or already annotated.
-  const busy = (li) => li.dataset.annotated || li.contains(document.activeElement)
-    || li.querySelector("input").value;
+  // Drop the oldest keyposes, but never one being typed into, already annotated, or set by
+  // hand (a manual key is the user's annotation: a burst of method keys must not push it out).
+  const busy = (li) => li.dataset.annotated || li.dataset.method === "manual"
+    || li.contains(document.activeElement) || li.querySelector("input").value;
   const items = [...list.children].reverse();
   let extra = items.length - MAX_KEYS_SHOWN;
   for (const li of items) {
