@@ -50,6 +50,35 @@ def _write(text: str, output: str) -> None:
         Path(output).write_text(text, encoding="utf-8")
 
 
+def _roles(args: argparse.Namespace) -> dict[str, str] | None:
+    """`--roles FILE`: the role mapping, or None (built-in tables)."""
+    from .roles import load_role_mapping
+
+    path = getattr(args, "roles", None)
+    return load_role_mapping(path) if path else None
+
+
+def _read(path: str, args: argparse.Namespace) -> Any:
+    """A motion file, its skeleton carrying the `--roles` mapping."""
+    from .amc import read_motion
+
+    motion = read_motion(path)
+    motion.skeleton.roles = _roles(args) or motion.skeleton.roles
+    return motion
+
+
+def _online_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    """`_method_params` plus the `--roles` mapping for the online keyframers (wire skeletons)."""
+    from .methods import ONLINE_METHODS
+
+    params = _method_params(args)
+    roles = _roles(args)
+    if roles:
+        for name in ONLINE_METHODS:
+            params[name] = {**params.get(name, {}), "role_mapping": roles}
+    return params
+
+
 def cmd_extract(args: argparse.Namespace) -> int:
     """`streamkey extract`: offline (or simulated online) keyframes of files and folders."""
     from .batch import extract_files, find_motion_files, results_csv, results_json
@@ -61,10 +90,12 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
         methods = parse_methods(args.method, online=True)
         results = list(extract_files_online(paths, methods, _method_params(args),
-                                            args.lookahead, _progress(args.quiet)))
+                                            args.lookahead, _progress(args.quiet),
+                                            roles=_roles(args)))
     else:
         methods = parse_methods(args.method)
-        results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet)))
+        results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet),
+                                     roles=_roles(args)))
     _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
     _export(results, args)
     failed = [r for r in results if r.error]
@@ -94,7 +125,7 @@ def _dashboard(args: argparse.Namespace, source: Any, methods: list[str], to: li
     port = check_port(args.dashboard)
     log = args.log or (None if any(a.startswith("jsonl:") for a in to) else default_log())
     summary, board = asyncio.run(run_dashboard(
-        source, methods, to, _method_params(args), getattr(args, "lookahead", None),
+        source, methods, to, _online_params(args), getattr(args, "lookahead", None),
         args.listen, stream, rate=rate, port=port, log=log, loop=loop,
         idle_exit=getattr(args, "idle_exit", None)))
     print(summary.text(), file=sys.stderr)
@@ -137,15 +168,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     import json
 
     from .adapters import make_source, parse_address
-    from .amc import read_motion
     from .live import run_live
     from .methods import parse_methods
 
     methods = parse_methods(args.method, online=True)
-    skeleton_motion = read_motion(args.skeleton) if args.skeleton else None
+    skeleton_motion = _read(args.skeleton, args) if args.skeleton else None
     source: Any
     if Path(args.source).suffix.lower() in (".bvh", ".amc"):
-        source = read_motion(args.source)
+        source = _read(args.source, args)
     else:
         source = make_source(parse_address(args.source), args.listen,
                              skeleton_motion.skeleton if skeleton_motion else None,
@@ -153,7 +183,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.dashboard is not None:
         return _dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                           stream=args.stream)
-    summary = asyncio.run(run_live(source, methods, args.to or ["-"], _method_params(args),
+    summary = asyncio.run(run_live(source, methods, args.to or ["-"], _online_params(args),
                                    args.lookahead, args.listen, args.stream,
                                    rate=0.0 if args.fast else None,
                                    idle_exit=args.idle_exit))
@@ -188,11 +218,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _keyframes_of(path: str, method: str, args: argparse.Namespace) -> tuple[Any, Any]:
-    from .amc import read_motion
     from .batch import extract_motion
     from .methods import parse_methods
 
-    motion = read_motion(path)
+    motion = _read(path, args)
     names = parse_methods(method)
     return motion, extract_motion(motion, names, _method_params(args))
 
@@ -232,6 +261,12 @@ def _add_method_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--count", type=int, help="simplify, uniform, decimate: keyframe count")
     p.add_argument("--space", choices=("channels", "positions"), default="channels",
                    help="simplify: curve of channel values or of body-frame joint positions")
+
+
+def _add_roles_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--roles", metavar="FILE",
+                   help="JSON {role: joint name} for skeletons the built-in tables (CMU, "
+                        "Mixamo, Axis, Rokoko, Xsens, Unity/VMC) do not name")
 
 
 def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
@@ -278,6 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--export-reconstructed", metavar="OUT",
                    help="write the motion interpolated from the keyframes only (BVH); "
                         "pattern as for --export-bvh")
+    _add_roles_option(p)
     p.set_defaults(func=cmd_extract)
 
     p = sub.add_parser("replay", help="send a BVH/AMC file as a paced frame stream")
@@ -320,6 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--space", choices=("channels", "positions"), default="channels",
                    help=argparse.SUPPRESS)
     _add_dashboard_options(p)
+    _add_roles_option(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("eval", help="evaluation tables (thesis Table 4.1/4.2) for a folder")
@@ -346,6 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--view", choices=("front", "three-quarter", "side"),
                    default="three-quarter", help="camera, body-aligned (default: three-quarter)")
     _add_method_options(p)
+    _add_roles_option(p)
     p.set_defaults(func=cmd_sheet)
 
     p = sub.add_parser("plot", help="a clip's driving signals with keyframes marked (PNG)")
@@ -354,6 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="methods to mark, a comma list or all (default: saliency,speed)")
     p.add_argument("-o", "--output", default="plot.png", help="PNG file (default: plot.png)")
     _add_method_options(p)
+    _add_roles_option(p)
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("bench", help="benchmark speed and memory; results written to files")
