@@ -25,8 +25,16 @@ def make_source(address: Address, listen: str | None = None, skeleton: Skeleton 
         from .zmq import ZmqSource
 
         return ZmqSource(address, listen, skeleton, fps)
-    raise UsageError(f"{address}: frames can come from osc://HOST:PORT, zmq+tcp://HOST:PORT "
-                     "or zmq+ipc://PATH (or a .bvh/.amc file)")
+    if address.scheme == "-":
+        from .jsonl_source import StdinSource, read_skeleton_line
+
+        if skeleton is None:
+            import sys
+
+            skeleton, fps = read_skeleton_line(sys.stdin.buffer)
+        return StdinSource(skeleton, fps or 120.0)
+    raise UsageError(f"{address}: frames can come from osc://HOST:PORT, zmq+tcp://HOST:PORT, "
+                     "zmq+ipc://PATH, - (JSON Lines on stdin) or a .bvh/.amc file")
 
 
 def make_sink(address: Address, listen: str | None = None) -> Sink:
