@@ -333,9 +333,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="live keyframes: a source -> keyframers -> sinks")
     p.add_argument("--from", dest="source", required=True, metavar="ADDR",
-                   help="osc://HOST:PORT, zmq+tcp://HOST:PORT[?pattern=pull], or a file")
+                   help="osc://HOST:PORT, zmq+tcp://HOST:PORT[?pattern=pull], a file, - "
+                        "(JSON Lines on stdin), axis+tcp://HOST:7001 (Axis Neuron), "
+                        "vmc://127.0.0.1:39539 (VMC)")
     p.add_argument("--skeleton", help="BVH/AMC file with the stream's skeleton (else it comes "
-                   "from a /streamkey/skeleton message)")
+                   "from a /streamkey/skeleton message, the stdin skeleton line, or the "
+                   "built-in Axis / humanoid table)")
     p.add_argument("--method", default="all", help="saliency, speed, simplify, a list, or all")
     p.add_argument("--to", action="append", metavar="ADDR",
                    help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
