@@ -29,9 +29,23 @@ from streamkey.motion import Frame, Skeleton
 
 from .base import MAX_CHANNELS, Source
 
-__all__ = ["StdinSource", "read_skeleton_line", "decode_frame_line", "MAX_LINE_BYTES"]
+__all__ = ["StdinSource", "read_skeleton_line", "decode_frame_line", "MAX_LINE_BYTES",
+           "POSITIONS_ONLY"]
 
 MAX_LINE_BYTES = 1 << 20  # a skeleton header of a few hundred joints fits easily
+POSITIONS_ONLY = ("positions-only frames (joint positions, no joint rotations) cannot drive "
+                  "streamkey: every method reads the rotation channels of a skeleton (README: "
+                  "Positions-only sources); solve rotations first (IK) and send channels")
+_POSITION_KEYS = ("positions", "joints", "landmarks", "keypoints", "points")
+
+
+class PositionsOnlyError(ValueError):
+    """A frame that carries joint positions instead of rotation channels."""
+
+
+def _positions_only(obj: Any) -> bool:
+    return isinstance(obj, dict) and "channels" not in obj and any(
+        k in obj for k in _POSITION_KEYS)
 
 
 def read_skeleton_line(stream: IO[bytes], where: str = "stdin") -> tuple[Skeleton, float]:
@@ -49,6 +63,8 @@ def read_skeleton_line(stream: IO[bytes], where: str = "stdin") -> tuple[Skeleto
             break
     try:
         info = json.loads(line)
+        if _positions_only(info):
+            raise InputError(f"{where}:{number}: {POSITIONS_ONLY}")
         if not isinstance(info, dict) or info.get("type") != "skeleton":
             raise ValueError("not a skeleton line")
         fps = float(info.get("fps", 120.0))
@@ -74,6 +90,8 @@ def decode_frame_line(line: bytes, fps: float) -> Frame | dict[str, Any] | None:
         raise ValueError("expected a JSON object")
     if obj.get("type") == "skeleton":
         return obj
+    if _positions_only(obj):
+        raise PositionsOnlyError(POSITIONS_ONLY)
     seq, channels = obj.get("seq"), obj.get("channels")
     if isinstance(seq, bool) or not isinstance(seq, int):
         raise ValueError("expected an integer seq")
@@ -137,7 +155,8 @@ class StdinSource(Source):
         try:
             item = decode_frame_line(line, self.fps)
         except ValueError as exc:
-            self.stats.reject("malformed", f"stdin:{self.line}: {exc}")
+            kind = "positions_only" if isinstance(exc, PositionsOnlyError) else "malformed"
+            self.stats.reject(kind, f"stdin:{self.line}: {exc}")
             return
         if item is None or isinstance(item, dict):
             return  # blank line, or the skeleton repeated

@@ -114,3 +114,14 @@ def test_run_from_stdin_with_random_bytes_exits_cleanly(tmp_path):
     assert run.returncode == 0, err
     assert "Traceback" not in err and "frames in: 0" in err
     assert "malformed: 0" not in err
+
+
+def test_positions_only_frames_are_refused_with_a_clear_reason():
+    line = b'{"seq": 1, "joints": {"head": [0, 1.7, 0]}}\n'
+    with pytest.raises(InputError, match=r"stdin:1: positions-only frames .* rotation channels"):
+        read_skeleton_line(io.BytesIO(line))
+    motion = read_bvh(CLIP)
+    source = StdinSource(motion.skeleton, motion.fps, io.BytesIO(line * 3))
+    assert _collect(source) == []
+    assert source.stats.malformed["positions_only"] == 3
+    assert "positions-only" in source.stats.last_error
