@@ -4,6 +4,7 @@ keyframes from a renamed 07_01 (Mixamo names, Axis names, arbitrary names + mapp
 from __future__ import annotations
 
 import json
+import random
 
 import numpy as np
 import pytest
@@ -159,18 +160,17 @@ def reference():
         run_online(motion, list(ONLINE_METHODS)))
 
 
-@pytest.mark.parametrize("rig", ["mixamo", "axis", "numbered+roles"])
+@pytest.mark.parametrize("rig", ["mixamo", "axis", "mixamo+roles", "axis+roles",
+                                 "numbered+roles"])
 def test_renamed_07_01_gives_the_same_keyframes_offline_and_online(reference, rig):
     motion, offline, online = reference
-    if rig == "mixamo":
-        renamed = _renamed(motion, lambda n: "mixamorig:" + n)
-    elif rig == "axis":
-        renamed = _renamed(motion, lambda n: AXIS_RENAMES.get(n, n))
-    else:
-        names = motion.skeleton.names
-        renamed = _renamed(motion, lambda n: f"j{names.index(n):02d}")
+    names = motion.skeleton.names
+    rename = {"mixamo": lambda n: "mixamorig:" + n, "axis": lambda n: AXIS_RENAMES.get(n, n),
+              "numbered": lambda n: f"j{names.index(n):02d}"}[rig.split("+")[0]]
+    renamed = _renamed(motion, rename)
+    if rig.endswith("+roles"):  # an explicit mapping instead of the built-in tables
         original = {r: names[i] for r, i in resolve_roles(motion.skeleton).items()}
-        renamed.skeleton.roles = {r: f"j{names.index(n):02d}" for r, n in original.items()}
+        renamed.skeleton.roles = {r: rename(n) for r, n in original.items()}
     assert resolve_roles(renamed.skeleton) == resolve_roles(motion.skeleton)
     assert _frames(extract_motion(renamed, list(OFFLINE_METHODS))) == offline
     assert _frames(run_online(renamed, list(ONLINE_METHODS))) == online
@@ -218,3 +218,37 @@ def test_cli_roles_file_on_extract_run_and_sheet(tmp_path, capsys):
     assert main(["sheet", str(numbered), "--roles", str(roles), "--method", "speed",
                  "-o", str(tmp_path / "s.png")]) == 0
     assert (tmp_path / "s.png").stat().st_size > 1000
+
+
+def test_roles_reach_online_keyframers_of_a_wire_skeleton(tmp_path):
+    """`run --roles` with a skeleton from the wire: the mapping rides in the method params."""
+    from streamkey.cli import _online_params, build_parser
+    from streamkey.online import Pipeline
+    from streamkey.streaming import make_keyframers
+
+    motion = read_bvh(CLIP)
+    names = motion.skeleton.names
+    numbered = _renamed(motion, lambda n: f"j{names.index(n):02d}")
+    roles = tmp_path / "roles.json"
+    roles.write_text(json.dumps({r: f"j{i:02d}" for r, i in
+                                 resolve_roles(motion.skeleton).items()}))
+    args = build_parser().parse_args(["run", "--from", "osc://127.0.0.1:9000", "--roles",
+                                      str(roles)])
+    events = []
+    for m, params in ((motion, None), (numbered, _online_params(args))):
+        pipe = Pipeline(make_keyframers(m, list(ONLINE_METHODS), params))
+        events.append([(e.method, e.frame, e.score) for e in
+                       pipe.push_block(m.frames()) + pipe.flush() if hasattr(e, "score")])
+    assert events[0] == events[1] and len(events[0]) > 10
+
+
+def test_fuzzed_role_files_exit_2_with_one_error_line(tmp_path, capsys):
+    rng = random.Random(4)
+    samples = [b"", b"[]", b'{"pelvis": 3}', b'{"pelvis": "Nope"}', b"\xff\xfe{", b"{" * 50]
+    samples += [bytes(rng.randrange(256) for _ in range(rng.randrange(1, 60))) for _ in range(20)]
+    for i, data in enumerate(samples):
+        path = tmp_path / f"r{i}.json"
+        path.write_bytes(data)
+        assert main(["extract", str(CLIP), "--method", "speed", "--roles", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1, err
