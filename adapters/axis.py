@@ -33,7 +33,6 @@ from __future__ import annotations
 import asyncio
 import struct
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -41,6 +40,7 @@ from streamkey.errors import UsageError
 from streamkey.motion import Frame, Skeleton
 
 from .base import MAX_CHANNELS, Address, Source, SourceStats, bind_host
+from .udp_listen import listen_udp
 
 __all__ = ["AxisSource", "AxisParser", "AxisLayout", "AxisPacket", "HEADER", "TOKEN1", "TOKEN2",
            "encode_binary", "encode_text"]
@@ -208,22 +208,9 @@ class AxisSource(Source):
 
     async def start(self) -> str:
         if self.udp:
-            loop = asyncio.get_running_loop()
-            source = self
-
-            class Protocol(asyncio.DatagramProtocol):
-                def datagram_received(self, data: bytes, addr: Any) -> None:
-                    source.receive(data, end=True)
-
-            try:
-                self.transport, _ = await loop.create_datagram_endpoint(
-                    Protocol, local_addr=(self.host, self.address.port))
-            except OSError as exc:
-                from streamkey.errors import InputError
-
-                raise InputError(f"{self.address}: cannot bind UDP {self.host}:"
-                                 f"{self.address.port}: {exc.strerror}") from None
-            return f"axis+udp {self.host}:{self.address.port}"
+            self.transport, port = await listen_udp(
+                self.address, self.host, lambda data: self.receive(data, end=True))
+            return f"axis+udp {self.host}:{port}"
         self.task = asyncio.create_task(self._connect_loop())
         return f"axis+tcp client of {self.host}:{self.address.port}"
 

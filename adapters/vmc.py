@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import socket
 import warnings
 from typing import Any
 
@@ -40,27 +39,16 @@ from pythonosc.osc_bundle import OscBundle
 from pythonosc.osc_message import OscMessage
 from scipy.spatial.transform import Rotation
 
-from streamkey.errors import InputError, UsageError
+from streamkey.errors import UsageError
 from streamkey.motion import POSITION_CHANNELS, Frame, Skeleton
 
 from .base import MAX_MESSAGE_BYTES, Address, Source, bind_host
+from .udp_listen import listen_udp
 
-__all__ = ["VmcSource", "VmcDecoder", "unity_to_bvh_quat", "unity_to_bvh_position",
-           "ROOT_ADDRESS", "BONE_ADDRESS"]
+__all__ = ["VmcSource", "VmcDecoder", "ROOT_ADDRESS", "BONE_ADDRESS"]
 
 ROOT_ADDRESS = "/VMC/Ext/Root/Pos"
 BONE_ADDRESS = "/VMC/Ext/Bone/Pos"
-_MIRROR = np.array([-1.0, 1.0, 1.0])
-
-
-def unity_to_bvh_quat(q: np.ndarray) -> np.ndarray:
-    """Unity (left-handed) quaternion(s) x, y, z, w -> the same rotation in BVH axes."""
-    return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, 1.0])
-
-
-def unity_to_bvh_position(p: np.ndarray) -> np.ndarray:
-    """Unity (left-handed) position(s) -> BVH axes."""
-    return np.asarray(p, dtype=float) * _MIRROR
 
 
 class VmcDecoder:
@@ -73,9 +61,13 @@ class VmcDecoder:
         self.rotations = np.tile([0.0, 0.0, 0.0, 1.0], (skeleton.n_joints, 1))  # BVH axes
         self.hips_position = skeleton.offsets[0] / scale  # metres, BVH axes: channels 0
         self.root = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
-        order = skeleton.rotation_order or []
-        self.euler = ["".join(c[0] for c in o) for o in order]
-        self.columns = [[skeleton.channel_index(j, c) for c in o] for j, o in enumerate(order)]
+        # joints grouped by Euler sequence: one scipy call per group and frame
+        self.groups: dict[str, tuple[list[int], list[list[int | None]]]] = {}
+        for j, order in enumerate(skeleton.rotation_order or []):
+            if order:
+                joints, cols = self.groups.setdefault("".join(c[0] for c in order), ([], []))
+                joints.append(j)
+                cols.append([skeleton.channel_index(j, c) for c in order])
         self.position_columns = [skeleton.channel_index(0, c) for c in POSITION_CHANNELS]
 
     def datagram(self, data: bytes) -> np.ndarray | None:
@@ -92,14 +84,14 @@ class VmcDecoder:
             raise ValueError(f"not OSC: {exc}") from None
         pose = [m for m in messages if m.address in (ROOT_ADDRESS, BONE_ADDRESS)]
         updates = [_transform(m) for m in pose]  # validate all before applying any
-        for message, (name, position, quat) in zip(pose, updates, strict=True):
+        for message, (name, x, y, z, qx, qy, qz, qw) in zip(pose, updates, strict=True):
+            # Unity -> BVH axes: the mirror x -> -x (module docstring)
             if message.address == ROOT_ADDRESS:
-                self.root = (unity_to_bvh_position(position), unity_to_bvh_quat(quat))
-            elif name in self.joints:
-                j = self.joints[name]
-                self.rotations[j] = unity_to_bvh_quat(quat)
+                self.root = (np.array([-x, y, z]), np.array([qx, -qy, -qz, qw]))
+            elif (j := self.joints.get(name)) is not None:
+                self.rotations[j] = (qx, -qy, -qz, qw)
                 if j == 0:
-                    self.hips_position = unity_to_bvh_position(position)
+                    self.hips_position = np.array([-x, y, z])
         return self.channels() if bundled and pose else None
 
     def channels(self) -> np.ndarray:
@@ -112,13 +104,13 @@ class VmcDecoder:
         for col, value in zip(self.position_columns, hips, strict=True):
             if col is not None:
                 out[col] = value
-        rotations = Rotation.from_quat(self.rotations)
+        quats = self.rotations.copy()
+        quats[0] = world.as_quat()
         with warnings.catch_warnings():  # gimbal lock: any valid angle triple is right
             warnings.simplefilter("ignore", UserWarning)
-            for j, (seq, cols) in enumerate(zip(self.euler, self.columns, strict=True)):
-                if seq:
-                    rot = world if j == 0 else rotations[j]
-                    out[cols] = rot.as_euler(seq.upper(), degrees=True)
+            for seq, (joints, cols) in self.groups.items():
+                out[np.array(cols)] = Rotation.from_quat(quats[joints]).as_euler(
+                    seq.upper(), degrees=True)
         return out
 
 
@@ -130,16 +122,15 @@ def _flatten(bundle: OscBundle) -> list[OscMessage]:
     return out
 
 
-def _transform(message: OscMessage) -> tuple[str, np.ndarray, np.ndarray]:
+def _transform(message: OscMessage) -> tuple[Any, ...]:
     params = message.params
     if (len(params) < 8 or not isinstance(params[0], str)
-            or not all(isinstance(v, float) for v in params[1:8])):
-        raise TypeError(f"{message.address}: expected s name, f px py pz, f qx qy qz qw")
-    values = np.array(params[1:8], dtype=float)
-    if not np.all(np.isfinite(values)) or not math.isfinite(np.linalg.norm(values[3:])) or (
-            np.linalg.norm(values[3:]) < 1e-6):
-        raise TypeError(f"{message.address} {params[0]}: non-finite or zero quaternion")
-    return params[0], values[:3], values[3:]
+            or not all(isinstance(v, float) and math.isfinite(v) for v in params[1:8])):
+        raise TypeError(f"{message.address}: expected s name, f px py pz, f qx qy qz qw "
+                        "(finite)")
+    if sum(v * v for v in params[4:8]) < 1e-12:
+        raise TypeError(f"{message.address} {params[0]}: zero quaternion")
+    return tuple(params[:8])
 
 
 class VmcSource(Source):
@@ -171,20 +162,7 @@ class VmcSource(Source):
         self.transport: asyncio.DatagramTransport | None = None
 
     async def start(self) -> str:
-        loop = asyncio.get_running_loop()
-        source = self
-
-        class Protocol(asyncio.DatagramProtocol):
-            def datagram_received(self, data: bytes, addr: Any) -> None:
-                source.receive(data)
-
-        try:
-            self.transport, _ = await loop.create_datagram_endpoint(
-                Protocol, local_addr=(self.host, self.address.port), family=socket.AF_INET)
-        except OSError as exc:
-            raise InputError(f"{self.address}: cannot listen on {self.host}:"
-                             f"{self.address.port}: {exc.strerror or exc}") from None
-        port = self.transport.get_extra_info("sockname")[1]
+        self.transport, port = await listen_udp(self.address, self.host, self.receive)
         return f"vmc://{self.host}:{port}"
 
     def receive(self, data: bytes) -> None:

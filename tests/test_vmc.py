@@ -7,7 +7,7 @@ import random
 import socket
 import subprocess
 import sys
-import threading
+import time
 
 import numpy as np
 import pytest
@@ -127,11 +127,12 @@ def test_run_fed_by_vmc_equals_run_from_the_file(tmp_path, humanoid_clip):
                     "--to", f"jsonl:{live}", "--idle-exit", str(1.5 * MS))
     try:
         port = int(wait_ready(run)[-1].rsplit(":", 1)[1])
+        bundles = vmc_bundles(motion)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            for i, data in enumerate(vmc_bundles(motion)):
+            t0 = time.monotonic()
+            for i, data in enumerate(bundles):  # paced like a 120 Hz sender
+                time.sleep(max(0.0, t0 + i / motion.fps - time.monotonic()))
                 sock.sendto(data, ("127.0.0.1", port))
-                if i % 8 == 7:  # pace like a 120 Hz sender, in bursts
-                    threading.Event().wait(8 / 240)
         _, err = run.communicate(timeout=120 * MS)
     finally:
         if run.poll() is None:
