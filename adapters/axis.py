@@ -3,17 +3,19 @@
 
 Protocol, as published by Noitom:
 
-- Axis Neuron User Guide, "Settings > Broadcasting > BVH": Axis Neuron is a TCP server (default
-  port 7001) or sends UDP datagrams; each frame carries the rotations (and, with
-  "displacement", the positions) of every joint in the channel order of the Axis skeleton's
-  BVH header, optionally prefixed by a "reference" bone (6 values). Two encodings:
-  **String**: ``<avatar index> <avatar name> <value> <value> ... ||`` (ASCII, one frame per
-  message, `||` ends the frame); **Binary**: a 64-byte header, then `DataCount` float32 values.
+- Axis Neuron user manual, "BVH data broadcasting": Axis Neuron serves the frames on TCP
+  (port 7001 by default; the NeuronDataReader SDK samples connect there) or sends UDP
+  datagrams. Each frame carries the rotations (and, with "displacement", the positions) of
+  every joint in the channel order of the Axis skeleton's BVH header, optionally prefixed by a
+  "reference" bone (6 values). Two encodings: **String**:
+  ``<avatar index> <avatar name> <value> <value> ... ||`` (ASCII, one frame per message, `||`
+  ends the frame); **Binary**: a 64-byte header, then `DataCount` float32 values.
 - NeuronDataReader SDK (Noitom, "Neuron Data Reader Runtime API Documentation", b12, 2014),
   `DataType.h`, `#pragma pack(1) struct _BvhDataHeader`: `uint16 Token1 = 0xDDFF`,
   `uint32 DataVersion`, `uint16 DataCount`, `uint8 WithDisp`, `uint8 WithReference`,
   `uint32 AvatarIndex`, `char AvatarName[32]`, `uint32 FrameIndex`, `uint32 Reserved[3]`,
-  `uint16 Token2 = 0xEEFF` (64 bytes, little-endian).
+  `uint16 Token2 = 0xEEFF` (64 bytes, little-endian). "Calculation data" (`0x88FF`, port
+  7003) is not read: it is not BVH data.
 
 Values per frame for a skeleton with C channels and J joints: C (plain), C + 6 (reference
 first), 6 J (displacement: every joint `Xposition Yposition Zposition` + its rotations; only

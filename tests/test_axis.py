@@ -220,3 +220,24 @@ def test_a_garbage_server_leaves_run_clean(tmp_path):
     assert "Traceback" not in err
     summary = json.loads((tmp_path / "s.json").read_text())
     assert summary["frames_in"] >= 58 and sum(summary["source"]["malformed"].values()) >= 1
+
+
+@pytest.mark.parametrize("rig", ["axis", "humanoid"])
+def test_built_in_skeletons_drive_every_online_method(rig):
+    from streamkey.methods import ONLINE_METHODS
+    from streamkey.motion import Motion
+    from streamkey.online import Pipeline
+    from streamkey.rigs import humanoid_skeleton
+    from streamkey.roles import detect_rig
+    from streamkey.streaming import make_keyframers
+
+    skel = axis_skeleton() if rig == "axis" else humanoid_skeleton()
+    assert detect_rig(skel) == ("axis" if rig == "axis" else "unity")
+    t = np.arange(600) / 60.0
+    channels = np.zeros((600, skel.n_channels))
+    rot = skel.rotation_columns()
+    channels[:, rot] = 30 * np.sin(2 * np.pi * (0.5 + 0.01 * np.arange(len(rot))) * t[:, None])
+    motion = Motion(skel, channels, 60.0)
+    pipeline = Pipeline(make_keyframers(motion, list(ONLINE_METHODS)))
+    events = pipeline.push_block(motion.frames()) + pipeline.flush()
+    assert {e.method for e in events if hasattr(e, "score")} == set(ONLINE_METHODS)
