@@ -1,7 +1,8 @@
 """Sources and sinks: translate between the wire and `Frame` / event dicts, nothing else.
 
 `make_source` and `make_sink` turn an address (`osc://`, `zmq+tcp://`, `zmq+ipc://`,
-`ws://`, `jsonl:`, `-`) into the adapter; the transports import lazily.
+`ws://`, `jsonl:`, `-`; sources also `axis+tcp://`, `axis+udp://`, `vmc://`) into the adapter;
+the transports import lazily.
 """
 
 from __future__ import annotations
@@ -25,12 +26,31 @@ def make_source(address: Address, listen: str | None = None, skeleton: Skeleton 
         from .zmq import ZmqSource
 
         return ZmqSource(address, listen, skeleton, fps)
-    raise UsageError(f"{address}: frames can come from osc://HOST:PORT, zmq+tcp://HOST:PORT "
-                     "or zmq+ipc://PATH (or a .bvh/.amc file)")
+    if address.scheme in ("axis+tcp", "axis+udp"):
+        from .axis import AxisSource
+
+        return AxisSource(address, listen, skeleton, fps)
+    if address.scheme == "vmc":
+        from .vmc import VmcSource
+
+        return VmcSource(address, listen, skeleton, fps)
+    if address.scheme == "-":
+        from .jsonl_source import StdinSource, read_skeleton_line
+
+        if skeleton is None:
+            import sys
+
+            skeleton, fps = read_skeleton_line(sys.stdin.buffer)
+        return StdinSource(skeleton, fps or 120.0)
+    raise UsageError(f"{address}: frames can come from osc://HOST:PORT, zmq+tcp://HOST:PORT, "
+                     "zmq+ipc://PATH, - (JSON Lines on stdin), axis+tcp://HOST:PORT, "
+                     "axis+udp://HOST:PORT, vmc://HOST:PORT or a .bvh/.amc file")
 
 
 def make_sink(address: Address, listen: str | None = None) -> Sink:
     """An event sink for `address`."""
+    if address.scheme in ("axis+tcp", "axis+udp", "vmc"):
+        raise UsageError(f"{address}: {address.scheme}:// is a frame source (--from), not a sink")
     if address.scheme == "osc":
         from .osc import OscEventSink
 

@@ -29,6 +29,7 @@ MAX_CHANNELS = 1024          # more channels than any skeleton we know of (CMU: 
 MAX_MESSAGE_BYTES = 65_000   # one UDP datagram; also the ZeroMQ frame and WebSocket limit
 
 _SCHEMES = {"osc", "zmq+tcp", "zmq+ipc", "ws", "jsonl", "-"}
+_SCHEMES |= {"axis+tcp", "axis+udp", "vmc"}  # capture-system sources (issue 11)
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,8 @@ def parse_address(text: str) -> Address:
     parts = urlsplit(text)
     if parts.scheme not in _SCHEMES:
         raise UsageError(f"address {text!r}: unknown scheme {parts.scheme!r}; expected one of "
-                         "osc://HOST:PORT, zmq+tcp://HOST:PORT, ws://HOST:PORT, jsonl:PATH, -")
+                         "osc://HOST:PORT, zmq+tcp://HOST:PORT, ws://HOST:PORT, jsonl:PATH, -, "
+                         "axis+tcp://HOST:PORT, axis+udp://HOST:PORT, vmc://HOST:PORT")
     options = {k: v[-1] for k, v in parse_qs(parts.query).items()}
     if parts.scheme == "zmq+ipc":
         return Address("zmq+ipc", path=parts.netloc + parts.path, options=options)

@@ -131,10 +131,13 @@ class FileResult:
 
 def extract_files(paths: list[Path], methods: list[str],
                   params: dict[str, dict[str, Any]] | None = None,
-                  progress: Callable[[int, int, Path], None] | None = None) -> Iterator[FileResult]:
-    """Extract keyframes from every file; a bad file yields its error and the rest go on."""
+                  progress: Callable[[int, int, Path], None] | None = None,
+                  roles: dict[str, str] | None = None) -> Iterator[FileResult]:
+    """Extract keyframes from every file; a bad file yields its error and the rest go on.
+    `roles` is a role mapping for skeletons the built-in tables do not name."""
     def work(path: Path) -> FileResult:
         motion = load_motion(path)
+        motion.skeleton.roles = roles or motion.skeleton.roles
         return FileResult(path, motion, extract_motion(motion, methods, params))
 
     return per_file(paths, work, progress)

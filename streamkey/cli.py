@@ -57,6 +57,35 @@ def _write(text: str, output: str) -> None:
         sys.stdout.flush()
 
 
+def _roles(args: argparse.Namespace) -> dict[str, str] | None:
+    """`--roles FILE`: the role mapping, or None (built-in tables)."""
+    from .roles import load_role_mapping
+
+    path = getattr(args, "roles", None)
+    return load_role_mapping(path) if path else None
+
+
+def _read(path: str, args: argparse.Namespace) -> Any:
+    """A motion file, its skeleton carrying the `--roles` mapping."""
+    from .batch import load_motion
+
+    motion = load_motion(path)
+    motion.skeleton.roles = _roles(args) or motion.skeleton.roles
+    return motion
+
+
+def _online_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    """`_method_params` plus the `--roles` mapping for the online keyframers (wire skeletons)."""
+    from .methods import ONLINE_METHODS
+
+    params = _method_params(args)
+    roles = _roles(args)
+    if roles:
+        for name in ONLINE_METHODS:
+            params[name] = {**params.get(name, {}), "role_mapping": roles}
+    return params
+
+
 def cmd_extract(args: argparse.Namespace) -> int:
     """`streamkey extract`: offline (or simulated online) keyframes of files and folders."""
     from .batch import extract_files, find_motion_files, results_csv, results_json
@@ -68,10 +97,12 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
         methods = parse_methods(args.method, online=True)
         results = list(extract_files_online(paths, methods, _method_params(args),
-                                            args.lookahead, _progress(args.quiet)))
+                                            args.lookahead, _progress(args.quiet),
+                                            roles=_roles(args)))
     else:
         methods = parse_methods(args.method)
-        results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet)))
+        results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet),
+                                     roles=_roles(args)))
     _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
     _export(results, args)
     failed = [r for r in results if r.error]
@@ -101,7 +132,7 @@ def _dashboard(args: argparse.Namespace, source: Any, methods: list[str], to: li
     port = check_port(args.dashboard)
     log = args.log or (None if any(a.startswith("jsonl:") for a in to) else default_log())
     summary, board = asyncio.run(run_dashboard(
-        source, methods, to, _method_params(args), getattr(args, "lookahead", None),
+        source, methods, to, _online_params(args), getattr(args, "lookahead", None),
         args.listen, stream, rate=rate, port=port, log=log, loop=loop,
         idle_exit=getattr(args, "idle_exit", None)))
     print(summary.text(), file=sys.stderr)
@@ -163,16 +194,17 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     from .adapters import make_source, parse_address
     from .amc import bvh_equivalent, read_motion
-    from .batch import load_motion
     from .live import run_live
     from .methods import parse_methods
 
     methods = parse_methods(args.method, online=True)
     # Frames on the wire come from `replay`, which sends AMC clips as their BVH equivalent.
     skeleton_motion = bvh_equivalent(read_motion(args.skeleton)) if args.skeleton else None
+    if skeleton_motion is not None:
+        skeleton_motion.skeleton.roles = _roles(args) or skeleton_motion.skeleton.roles
     source: Any
     if Path(args.source).suffix.lower() in (".bvh", ".amc"):
-        source = load_motion(args.source)  # fully read and checked before the engine starts
+        source = _read(args.source, args)  # fully read and checked before the engine starts
         _check_keyframers(source, methods, args)
     else:
         source = make_source(parse_address(args.source), args.listen,
@@ -181,7 +213,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.dashboard is not None:
         return _dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                           stream=args.stream)
-    summary = asyncio.run(run_live(source, methods, args.to or ["-"], _method_params(args),
+    summary = asyncio.run(run_live(source, methods, args.to or ["-"], _online_params(args),
                                    args.lookahead, args.listen, args.stream,
                                    rate=0.0 if args.fast else None,
                                    idle_exit=args.idle_exit))
@@ -233,11 +265,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _keyframes_of(path: str, method: str, args: argparse.Namespace) -> tuple[Any, Any]:
-    from .batch import extract_motion, load_motion, naming
+    from .batch import extract_motion, naming
     from .methods import parse_methods
 
     names = parse_methods(method)
-    motion = load_motion(path)
+    motion = _read(path, args)
     with naming(path):
         return motion, extract_motion(motion, names, _method_params(args))
 
@@ -281,6 +313,12 @@ def _add_method_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--space", choices=("positions", "channels"), default="positions",
                    help="simplify, decimate: curve of body-frame (root-relative) joint positions "
                         "in body heights (default) or of channel values (rotations unwrapped)")
+
+
+def _add_roles_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--roles", metavar="FILE",
+                   help="JSON {role: joint name} for skeletons the built-in tables (CMU, "
+                        "Mixamo, Axis, Rokoko, Xsens, Unity/VMC) do not name")
 
 
 def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
@@ -328,6 +366,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--export-reconstructed", metavar="OUT",
                    help="write the motion interpolated from the keyframes only (BVH); "
                         "pattern as for --export-bvh")
+    _add_roles_option(p)
     p.set_defaults(func=cmd_extract)
 
     p = sub.add_parser("replay", help="send a BVH/AMC file as a paced frame stream")
@@ -347,9 +386,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="live keyframes: a source -> keyframers -> sinks")
     p.add_argument("--from", dest="source", required=True, metavar="ADDR",
-                   help="osc://HOST:PORT, zmq+tcp://HOST:PORT[?pattern=pull], or a file")
+                   help="osc://HOST:PORT, zmq+tcp://HOST:PORT[?pattern=pull], a file, - "
+                        "(JSON Lines on stdin), axis+tcp://HOST:7001 (Axis Neuron), "
+                        "vmc://127.0.0.1:39539 (VMC)")
     p.add_argument("--skeleton", help="BVH/AMC file with the stream's skeleton (else it comes "
-                   "from a /streamkey/skeleton message)")
+                   "from a /streamkey/skeleton message, the stdin skeleton line, or the "
+                   "built-in Axis / humanoid table)")
     p.add_argument("--method", default="all", help="saliency, speed, simplify, a list, or all")
     p.add_argument("--to", action="append", metavar="ADDR",
                    help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
@@ -370,6 +412,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--space", choices=("positions", "channels"), default="positions",
                    help=argparse.SUPPRESS)
     _add_dashboard_options(p)
+    _add_roles_option(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("eval", help="evaluation tables (thesis Table 4.1/4.2) for a folder")
@@ -396,6 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--view", choices=("front", "three-quarter", "side"),
                    default="three-quarter", help="camera, body-aligned (default: three-quarter)")
     _add_method_options(p)
+    _add_roles_option(p)
     p.set_defaults(func=cmd_sheet)
 
     p = sub.add_parser("plot", help="a clip's driving signals with keyframes marked (PNG)")
@@ -404,6 +448,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="methods to mark, a comma list or all (default: saliency,speed)")
     p.add_argument("-o", "--output", default="plot.png", help="PNG file (default: plot.png)")
     _add_method_options(p)
+    _add_roles_option(p)
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("bench", help="benchmark speed and memory; results written to files")

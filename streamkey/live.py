@@ -129,12 +129,16 @@ class _StdoutFrames:
         self.stats = SinkStats()
 
     def send_skeleton(self, skeleton: Any, fps: float) -> None:
-        pass
+        if self.stats.sent == 0:  # once, first: what `run --from -` reads before any frame
+            from .adapters.osc import skeleton_header
+
+            sys.stdout.write(json.dumps({"type": "skeleton", "fps": fps,
+                                         "bvh": skeleton_header(skeleton, fps)}) + "\n")
 
     def send_frame(self, frame: Frame) -> None:
-        sys.stdout.write(json.dumps({"seq": frame.seq, "time": round(frame.time, 6),
-                                     "channels": [round(v, 6) for v in frame.channels.tolist()]})
-                         + "\n")
+        # Full float precision: `replay --to - | run --from -` equals `run --from FILE`.
+        sys.stdout.write(json.dumps({"seq": frame.seq, "time": frame.time,
+                                     "channels": frame.channels.tolist()}) + "\n")
         self.stats.sent += 1
 
     def close(self) -> None:

@@ -34,6 +34,7 @@ class Skeleton:
     order in which its rotations compose (intrinsic, left to right), which is the channel
     order for BVH and the reversed dof order for AMC. `end_sites[j]` is the offset of the
     joint's end site, if it has one. `pre_rotations[j]` (3x3) is the ASF axis, or None.
+    `roles` is an optional role mapping (see `streamkey.roles`).
     """
 
     names: list[str]
@@ -43,6 +44,7 @@ class Skeleton:
     end_sites: dict[int, np.ndarray] = field(default_factory=dict)
     rotation_order: list[list[str]] | None = None
     pre_rotations: list[np.ndarray | None] | None = None
+    roles: dict[str, str] | None = None  # role -> joint name (`--roles`), else built-in tables
 
     def __post_init__(self) -> None:
         self.offsets = np.asarray(self.offsets, dtype=np.float64).reshape(-1, 3)

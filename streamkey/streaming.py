@@ -54,11 +54,13 @@ def run_online(motion: Motion, methods: list[str],
 def extract_files_online(paths: list[Path], methods: list[str],
                          params: dict[str, dict[str, Any]] | None = None,
                          lookahead: int | None = None,
-                         progress: Callable[[int, int, Path], None] | None = None
-                         ) -> Iterator[FileResult]:
-    """`run_online` over files; a bad file yields its error and the rest go on."""
+                         progress: Callable[[int, int, Path], None] | None = None,
+                         roles: dict[str, str] | None = None) -> Iterator[FileResult]:
+    """`run_online` over files; a bad file yields its error and the rest go on. `roles` is a
+    role mapping for skeletons the built-in tables do not name."""
     def work(path: Path) -> FileResult:
         motion = load_motion(path)
+        motion.skeleton.roles = roles or motion.skeleton.roles
         return FileResult(path, motion, run_online(motion, methods, params, lookahead))
 
     return per_file(paths, work, progress)

@@ -1,0 +1,38 @@
+"""One UDP listener for the datagram sources (Axis over UDP, VMC): bind, hand each datagram
+to a callback on the event loop, name the bound address for the ready line."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+from collections.abc import Callable
+from typing import Any
+
+from streamkey.errors import InputError
+
+from .base import Address
+
+__all__ = ["listen_udp"]
+
+
+async def listen_udp(address: Address, host: str, receive: Callable[[bytes], None]
+                     ) -> tuple[asyncio.DatagramTransport, int]:
+    """Bind `host:address.port` (0: any free port); returns the transport and the bound port."""
+
+    class Protocol(asyncio.DatagramProtocol):
+        def datagram_received(self, data: bytes, addr: Any) -> None:
+            receive(data)
+
+    loop = asyncio.get_running_loop()
+    try:
+        transport, _ = await loop.create_datagram_endpoint(
+            Protocol, local_addr=(host, address.port), family=socket.AF_INET)
+    except OSError as exc:
+        raise InputError(f"{address}: cannot listen on {host}:{address.port}: "
+                         f"{exc.strerror or exc}") from None
+    sock = transport.get_extra_info("socket")
+    try:  # room for a burst while the keyframers are busy (the kernel may cap it)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    except OSError:
+        pass
+    return transport, int(transport.get_extra_info("sockname")[1])

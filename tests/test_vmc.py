@@ -1,0 +1,168 @@
+"""VMC source: axis conversion, BVH clip -> VMC bundles -> channels round trip, run fed by
+VMC over UDP equals run from the file, fuzzed datagrams."""
+
+from __future__ import annotations
+
+import random
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from cmu import DATA
+from live_helpers import MS, keyframes_of, read_jsonl, streamkey, wait_ready
+from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
+from pythonosc.osc_message_builder import OscMessageBuilder
+from scipy.spatial.transform import Rotation
+
+from streamkey.adapters.base import parse_address
+from streamkey.adapters.vmc import VmcDecoder, VmcSource
+from streamkey.bvh import read_bvh, write_bvh
+from streamkey.kinematics import body_height
+from streamkey.motion import Motion
+from streamkey.rigs import humanoid_skeleton
+
+CLIP = DATA / "07_01.bvh"
+# built-in humanoid bone <- CMU joint of 07_01 (Neck1 and the hip joints have no bone)
+FROM_CMU = {"Hips": "Hips", "Spine": "LowerBack", "Chest": "Spine", "UpperChest": "Spine1",
+            "Neck": "Neck", "Head": "Head"}
+for _s, _c in (("Left", "L"), ("Right", "R")):
+    FROM_CMU |= {f"{_s}UpperLeg": f"{_s}UpLeg", f"{_s}LowerLeg": f"{_s}Leg",
+                 f"{_s}Foot": f"{_s}Foot", f"{_s}Toes": f"{_s}ToeBase",
+                 f"{_s}Shoulder": f"{_s}Shoulder", f"{_s}UpperArm": f"{_s}Arm",
+                 f"{_s}LowerArm": f"{_s}ForeArm", f"{_s}Hand": f"{_s}Hand",
+                 f"{_s}ThumbProximal": f"{_c}Thumb", f"{_s}IndexProximal": f"{_s}FingerBase",
+                 f"{_s}IndexIntermediate": f"{_s}HandIndex1"}
+
+
+@pytest.fixture(scope="module")
+def humanoid_clip(tmp_path_factory) -> tuple:
+    """07_01's motion on the built-in humanoid skeleton (metres), written and read back."""
+    cmu = read_bvh(CLIP)
+    skel = humanoid_skeleton()
+    channels = np.zeros((cmu.n_frames - cmu.first_frame, skel.n_channels))
+    for j, name in enumerate(skel.names):
+        src = cmu.skeleton.names.index(FROM_CMU[name])
+        n = len(skel.channels[j])
+        lo = cmu.skeleton.channel_start[src]
+        assert cmu.skeleton.channels[src] == skel.channels[j]
+        channels[:, skel.channel_start[j]: skel.channel_start[j] + n] = (
+            cmu.channels[cmu.first_frame:, lo: lo + n])
+    channels[:, :3] *= body_height(skel) / body_height(cmu.skeleton)
+    path = tmp_path_factory.mktemp("vmc") / "humanoid_07_01.bvh"
+    write_bvh(Motion(skel, channels, cmu.fps, 0, "humanoid_07_01"), path)
+    motion = read_bvh(path)
+    assert motion.first_frame == 0
+    return path, motion
+
+
+def _message(address: str, name: str, values, kind: str) -> bytes:  # type: ignore[no-untyped-def]
+    m = OscMessageBuilder(address)
+    m.add_arg(name, "s")
+    for v in values:
+        m.add_arg(float(v), kind)
+    return m.build()
+
+
+def vmc_bundles(motion: Motion, kind: str = "f") -> list[bytes]:
+    """What a VMC sender transmits for each frame, from the documented conversion run
+    backwards: BVH axes -> Unity axes is the same mirror (x -> -x; qx, -qy, -qz, qw)."""
+    skel = motion.skeleton
+    out = []
+    for row in motion.channels:
+        b = OscBundleBuilder(IMMEDIATELY)
+        b.add_content(_message("/VMC/Ext/Root/Pos", "root", [0, 0, 0, 0, 0, 0, 1], kind))
+        for j, name in enumerate(skel.names):
+            order = skel.rotation_order[j]
+            cols = [skel.channel_index(j, c) for c in order]
+            quat = Rotation.from_euler("".join(c[0] for c in order), row[cols],
+                                       degrees=True).as_quat() * [1, -1, -1, 1]
+            pos = skel.offsets[j] + (row[:3] if j == 0 else 0)
+            b.add_content(_message("/VMC/Ext/Bone/Pos", name, [*(pos * [-1, 1, 1]), *quat],
+                                   kind))
+        b.add_content(_message("/VMC/Ext/T", "t", [0.0], kind))
+        out.append(b.build().dgram)
+    return out
+
+
+def test_unity_axes_map_to_the_performer_frame():
+    decoder = VmcDecoder(humanoid_skeleton())
+    # Unity: +90 deg about +Y turns forward (+Z) to the performer's right (+X in Unity).
+    turn = Rotation.from_euler("y", 90, degrees=True).as_quat()
+    b = OscBundleBuilder(IMMEDIATELY)
+    b.add_content(_message("/VMC/Ext/Bone/Pos", "Hips", [1.0, 0.9, 0.0, *turn], "f"))
+    channels = decoder.datagram(b.build().dgram)
+    skel = decoder.skeleton
+    cols = [skel.channel_index(0, c) for c in skel.rotation_order[0]]
+    rot = Rotation.from_euler("ZYX", channels[cols], degrees=True)
+    # BVH axes: the performer's left is +X, so their right is -X; position x mirrors too.
+    assert np.allclose(rot.apply([0, 0, 1]), [-1, 0, 0], atol=1e-6)
+    assert np.allclose(channels[:3], [-1.0, 0.9, 0.0], atol=1e-6)
+
+
+def _unwrapped_error(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.max(np.abs((a - b + 180.0) % 360.0 - 180.0)))
+
+
+@pytest.mark.parametrize("kind, tol", [("d", 1e-6), ("f", 1e-4)], ids=["double", "float32"])
+def test_round_trip_clip_to_vmc_to_channels(humanoid_clip, kind, tol):
+    _, motion = humanoid_clip
+    decoder = VmcDecoder(motion.skeleton)
+    got = np.array([decoder.datagram(d) for d in vmc_bundles(motion, kind)])
+    rot = motion.skeleton.rotation_columns()
+    assert _unwrapped_error(got[:, rot], motion.channels[:, rot]) < tol
+    assert np.allclose(got[:, :3], motion.channels[:, :3], atol=1e-5 if kind == "f" else 1e-9)
+
+
+def test_run_fed_by_vmc_equals_run_from_the_file(tmp_path, humanoid_clip):
+    path, motion = humanoid_clip
+    direct, live = tmp_path / "direct.jsonl", tmp_path / "vmc.jsonl"
+    ref = subprocess.run([sys.executable, "-m", "streamkey", "run", "--from", str(path),
+                          "--fast", "--to", f"jsonl:{direct}"], capture_output=True, text=True,
+                         timeout=120 * MS)
+    assert ref.returncode == 0, ref.stderr
+    run = streamkey("run", "--from", "vmc://127.0.0.1:0", "--skeleton", str(path),
+                    "--to", f"jsonl:{live}", "--idle-exit", str(1.5 * MS))
+    try:
+        port = int(wait_ready(run)[-1].rsplit(":", 1)[1])
+        bundles = vmc_bundles(motion)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            t0 = time.monotonic()
+            for i, data in enumerate(bundles):  # paced like a 120 Hz sender
+                time.sleep(max(0.0, t0 + i / motion.fps - time.monotonic()))
+                sock.sendto(data, ("127.0.0.1", port))
+        _, err = run.communicate(timeout=120 * MS)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.communicate()
+    assert run.returncode == 0, err
+    assert f"frames in: {motion.n_frames}" in err and "0 queue" in err
+    got, want = keyframes_of(read_jsonl(live)), keyframes_of(read_jsonl(direct))
+    assert got == want and {m for m, _, _ in want} == {"saliency", "speed", "simplify"}
+
+
+def test_fuzzed_vmc_datagrams_are_counted_never_raised(humanoid_clip):
+    _, motion = humanoid_clip
+    source = VmcSource(parse_address("vmc://127.0.0.1:0"), skeleton=motion.skeleton, fps=120.0)
+    good = vmc_bundles(Motion(motion.skeleton, motion.channels[:40], motion.fps))
+    rng = random.Random(9)
+    bad = [_message("/VMC/Ext/Bone/Pos", "Hips", [1, 2, 3, float("nan"), 0, 0, 1], "f"),
+           OscMessageBuilder("/VMC/Ext/Bone/Pos").build().dgram, b"", b"#bundle\0" + bytes(9)]
+    for data in good:
+        mutated = bytearray(data)
+        for _ in range(rng.randrange(1, 6)):
+            mutated[rng.randrange(len(mutated))] = rng.randrange(256)
+        bad.append(bytes(mutated))
+        bad.append(data[: rng.randrange(len(data))])
+        bad.append(bytes(rng.randrange(256) for _ in range(rng.randrange(1, 300))))
+    for data in bad:
+        source.receive(data)
+    dropped = sum(source.stats.malformed.values())
+    assert dropped >= 80 and dropped + source.stats.received <= len(bad)
+    before = source.stats.received
+    for data in good:
+        source.receive(data)
+    assert source.stats.received == before + len(good)
