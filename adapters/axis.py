@@ -41,7 +41,7 @@ import numpy as np
 from streamkey.errors import UsageError
 from streamkey.motion import Frame, Skeleton
 
-from .base import MAX_CHANNELS, Address, Source, SourceStats, bind_host
+from .base import MAX_CHANNELS, Address, Source, SourceStats, bind_host, frame_numbers_problem
 from .udp_listen import listen_udp
 
 __all__ = ["AxisSource", "AxisParser", "AxisLayout", "AxisPacket", "HEADER", "TOKEN1", "TOKEN2",
@@ -213,7 +213,7 @@ class AxisSource(Source):
             self.transport, port = await listen_udp(
                 self.address, self.host, lambda data: self.receive(data, end=True))
             return f"axis+udp {self.host}:{port}"
-        self.task = asyncio.create_task(self._connect_loop())
+        self.task = self.spawn(self._connect_loop())
         return f"axis+tcp client of {self.host}:{self.address.port}"
 
     async def _connect_loop(self) -> None:
@@ -257,6 +257,10 @@ class AxisSource(Source):
             self.counter += 1
             seq = packet.frame_index if packet.frame_index is not None else self.counter
             assert self.fps is not None
+            problem = frame_numbers_problem(seq, seq / self.fps)
+            if problem is not None:
+                self.stats.reject("range", f"axis: {problem}")
+                continue
             self.stats.received += 1
             self.frames.put(Frame(seq, seq / self.fps, channels))
 

@@ -27,7 +27,7 @@ import numpy as np
 from streamkey.errors import BVHError, InputError
 from streamkey.motion import Frame, Skeleton
 
-from .base import MAX_CHANNELS, Source
+from .base import MAX_CHANNELS, Source, frame_numbers_problem
 
 __all__ = ["StdinSource", "read_skeleton_line", "decode_frame_line", "MAX_LINE_BYTES",
            "POSITIONS_ONLY"]
@@ -102,6 +102,9 @@ def decode_frame_line(line: bytes, fps: float) -> Frame | dict[str, Any] | None:
     time = obj.get("time", seq / fps)
     if isinstance(time, bool) or not isinstance(time, (int, float)):
         raise ValueError("expected a numeric time")
+    problem = frame_numbers_problem(seq, time)
+    if problem is not None:
+        raise ValueError(problem)
     return Frame(seq, float(time), np.array(channels, dtype=np.float64))
 
 

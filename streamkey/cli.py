@@ -177,9 +177,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if (args.rate or motion.fps) * args.speed < 0.1:
         raise UsageError(f"replay: {(args.rate or motion.fps) * args.speed:g} frames/s is too"
                          " slow (at least 0.1 frames/s; give --rate or --speed)")
-    if round(motion.fps) < 1:
-        raise UsageError(f"{args.file}: replay needs at least 0.5 frames/s in the file (the"
-                         f" skeleton is re-sent every round(fps) frames), got {motion.fps:g}")
     result = replay(motion, args.to, rate=args.rate, speed=args.speed, loop=args.loop,
                     start=args.start, end=args.end, listen=args.listen,
                     wait_subscribers=args.wait, count=args.frames)

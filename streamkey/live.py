@@ -108,7 +108,7 @@ def replay(motion: Motion, to: list[str], rate: float | None = None, speed: floa
     try:
         for frame, _ in paced(frames, interval):
             for s in senders:
-                if sent % round(fps) == 0 and sent:
+                if sent % max(1, round(fps)) == 0 and sent:
                     s.send_skeleton(motion.skeleton, fps)
                 s.send_frame(frame)
             sent += 1
