@@ -1,0 +1,524 @@
+"""Optimal keys (DESIGN §4.5): the keys that minimise the error of linearly interpolating the
+body between them, by dynamic programming — offline `extract` and online `Online`.
+
+Definitions this module settles:
+
+- Curve: per captured frame, the skeleton's joints (ROOT and JOINT, not End Sites) minus the
+  root joint, in world orientation — the points of the evaluation's E — divided by body
+  height and √joints (`optimal_math.body_rows`; optional per-joint weights, optional root
+  translation). |difference|² of two rows is then a mean squared joint distance in body
+  heights², the unit of the evaluation's E / h².
+- Segment cost(a, b): Σ over frames strictly inside (a, b) of the squared distance to the
+  linear interpolation between a and b, from prefix sums (`optimal_math.chunk_costs`), at
+  most `max_segment` seconds (default 2 s) between keys. The first and the last captured
+  frames are always keys.
+- Penalised form (the common core): minimise Σ cost + λ · keys. Ties go to the earliest
+  predecessor, so the result is deterministic.
+- `count=K`: exactly K keys minimising Σ cost. Exact K-key DP when frames × K × L is small
+  (≤ 4·10⁷); else a search over λ of the penalised form, and if no λ lands on K, the nearest
+  λ solution with keys removed (least cost increase) or inserted (largest cost decrease) one
+  at a time; `info["solver"]` and `info["lambda_count"]` say which. If K keys cannot cover
+  the clip with segments ≤ L, L is stretched to fit.
+- `rate=R` keys per second: the penalised form with λ from a running controller (below), the
+  same computation online and offline. `lam=λ` fixes λ (units: frames × body heights²).
+- `tolerance=T`: the fewest keys such that every stretch (a, b] between consecutive keys has a
+  mean per-frame error ≤ T (body heights², the evaluation's E / h² of the linear
+  interpolation of the curve; so the whole take's mean meets T too), ties to the least cost.
+
+Online (`Online`): frames are priced in chunks of `optimal_math.CHUNK` frames aligned at
+stream index 0 (offline does the same, so costs are bit-identical). F(b) keeps back-pointers.
+A key is final once every back-pointer chain from the frames that could still precede a
+future key (the last L frames) passes through it (Viterbi traceback convergence). When the
+oldest undecided frame is `lookahead` frames old, the chain of the newest priced frame
+decides it and everything before it; later chains are re-priced to pass through that
+decision. Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, default 120). With
+an unbounded lookahead nothing is forced and `flush()` traces back from the last frame: the
+offline result exactly.
+
+Rate controller: λ = λ₀ · exp(g · (n − R·t − 1)) after each chunk, n the keys on the best
+chain to the newest priced frame t (stream index; frame 0 is a key). At stream start λ = λ₀
+(`DEFAULT_LAMBDA`, the median λ that gives 5 % of frames on the shared clips); the first
+seconds follow λ₀ until the key count deviates from the target by a few keys.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..errors import UsageError
+from ..features import Features, compute_features
+from ..keyframes import KeyframeEvent, Keyframes
+from ..motion import Motion, Skeleton
+from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
+from . import optimal_math as om
+
+__all__ = ["extract", "curve", "Solver", "Online", "MaxGap", "max_gap", "METHOD",
+           "DEFAULT_LOOKAHEAD", "DEFAULT_MAX_SEGMENT", "DEFAULT_RATE", "DEFAULT_LAMBDA"]
+
+METHOD = "optimal"
+DEFAULT_LOOKAHEAD = 120  # frames: 1 s at 120 Hz
+DEFAULT_MAX_SEGMENT = 2.0  # seconds
+DEFAULT_RATE = 6.0  # keys per second: 5 % of frames at 120 Hz
+DEFAULT_LAMBDA = 1e-3  # frames x body heights^2
+RATE_GAIN = 0.15  # controller gain per key of count error
+_EXACT_BUDGET = 4e7  # frames x K x L below which count mode runs the exact K-key DP
+
+
+def curve(motion: Motion, features: Features | None = None, weights: np.ndarray | None = None,
+          root_translation: bool = False) -> np.ndarray:
+    """Curve rows (captured frames x D) of `motion` (module docstring)."""
+    feats = features if features is not None else compute_features(motion)
+    pos = feats.fk.positions[motion.first_frame :]
+    return om.body_rows(pos, motion.skeleton.n_joints, feats.body_height, weights,
+                        root_translation)
+
+
+def _frames(seconds: float, fps: float, name: str) -> int:
+    if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+        raise UsageError(f"{name} must be a positive number of seconds, got {seconds!r}")
+    return max(2, int(round(seconds * fps)))
+
+
+def _mode(count: int | None, rate: float | None, tolerance: float | None,
+          lam: float | None) -> dict[str, Any]:
+    given = {k: v for k, v in (("count", count), ("rate", rate), ("tolerance", tolerance),
+                               ("lam", lam)) if v is not None}
+    if len(given) > 1:
+        raise UsageError("optimal: give at most one of count, rate, tolerance, lam")
+    if not given:
+        return {"rate": DEFAULT_RATE}
+    (name, value), = given.items()
+    if name == "count":
+        if isinstance(value, bool) or int(value) != value or value < 2:
+            raise UsageError(f"count must be an integer >= 2, got {value!r}")
+        return {"count": int(value)}
+    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+        raise UsageError(f"{name} must be a positive number, got {value!r}")
+    return {name: float(value)}
+
+
+class Solver:
+    """The penalised (or tolerance) DP over a growing stream, with traceback convergence.
+
+    Plain attributes; arrays hold stream indices base .. n − 1. Offline: `add` every row,
+    then `finish`. Online: `add` per block, `converge` per chunk, `force` at deadlines.
+    """
+
+    def __init__(self, max_len: int, *, lam: float | None = None, rate: float | None = None,
+                 tolerance: float | None = None, keep_costs: bool = False) -> None:
+        self.max_len = int(max_len)
+        self.lam = float(lam if lam is not None else DEFAULT_LAMBDA)
+        self.rate = rate  # keys per frame, or None
+        self.tolerance = tolerance
+        self.keep_costs = keep_costs
+        self.reset()
+
+    def reset(self) -> None:
+        """Empty stream."""
+        self.base = 0
+        self.n = 0
+        self.done = 0  # frames with F computed
+        self.floor = 0  # last committed key (stream index)
+        self.decided = -1  # every frame <= decided is final
+        self.x = np.empty((0, 0))
+        self.f = np.empty(0)
+        self.bp = np.empty(0, dtype=np.int64)
+        self.keys = np.empty(0, dtype=np.int64)
+        self.lams = np.empty(0)
+        self.costs = np.empty((0, self.max_len))
+
+    def _grow(self, need: int, width: int) -> None:
+        """Room for `need` more rows: drop rows no longer used, then enlarge if still full."""
+        held = self.n - self.base
+        if held + need <= len(self.f):
+            return
+        if self.keep_costs:  # online: rows before the floor and the last window are unused
+            keep = max(self.base, min(self.floor, self.done - self.max_len))
+            shift = keep - self.base
+        else:
+            shift = 0
+        size = max(64, 2 * (held - shift + need))
+        old = (self.x, self.f, self.bp, self.keys, self.lams, self.costs)
+        self.x = np.empty((size, width))
+        self.f = np.full(size, np.inf)
+        self.bp = np.full(size, -1, dtype=np.int64)
+        self.keys = np.zeros(size, dtype=np.int64)
+        self.lams = np.zeros(size)
+        self.costs = np.empty((size if self.keep_costs else 0, self.max_len))
+        rows = held - shift
+        for new, prev in zip((self.x, self.f, self.bp, self.keys, self.lams, self.costs), old,
+                             strict=True):
+            if len(new):
+                new[:rows] = prev[shift:held]
+        self.bp[:rows] -= shift
+        self.base += shift
+
+    def add(self, rows: np.ndarray) -> list[int]:
+        """Append rows; price and solve every completed chunk. Returns the stream indices of
+        the chunk ends solved (the frames after which convergence may be checked)."""
+        self._grow(len(rows), rows.shape[1])
+        lo = self.n - self.base
+        self.x[lo : lo + len(rows)] = rows
+        self.n += len(rows)
+        ends = []
+        while self.n - self.done >= om.CHUNK:
+            self._solve(self.done + om.CHUNK)
+            ends.append(self.done - 1)
+        return ends
+
+    def _solve(self, end: int) -> None:
+        """Price and solve frames done .. end − 1 (one chunk, or the tail at finish)."""
+        b0, b1 = self.done - self.base, end - self.base
+        costs = om.chunk_costs(self.x, b0, b1, self.max_len)
+        if self.keep_costs:
+            self.costs[b0:b1] = costs
+        start = b0
+        if self.done == 0:
+            self.f[0], self.bp[0], self.keys[0] = 0.0, -1, 1
+            start = 1
+        self.lams[b0:b1] = self.lam
+        om.dp_rows(costs, self.f, self.bp, self.keys, start, b1, self.lam,
+                   self.floor - self.base, self.tolerance, c0=b0)
+        self.done = end
+        if self.rate is not None:
+            t = end - 1
+            excess = float(self.keys[b1 - 1]) - (1.0 + self.rate * t)
+            self.lam = DEFAULT_LAMBDA * math.exp(float(np.clip(RATE_GAIN * excess, -40, 40)))
+
+    def converge(self) -> list[int]:
+        """Keys that every chain from the last L priced frames shares, newly final."""
+        t = self.done - 1
+        lo = max(self.floor, t - self.max_len + 1) - self.base
+        cur = np.arange(lo, t - self.base + 1)
+        cur = cur[np.isfinite(self.f[cur])]
+        while len(cur) > 1:
+            low = cur[0]
+            cur = np.unique(np.where(cur > low, self.bp[cur], cur))
+        if len(cur) == 0 or cur[0] + self.base <= self.decided:
+            return []
+        conv = int(cur[0])
+        keys = [k + self.base for k in om.chain(self.bp, conv, self.decided - self.base)]
+        self.floor = self.decided = conv + self.base
+        return keys
+
+    def force(self, d: int) -> list[int]:
+        """Decide every frame <= d from the chain of the newest priced frame; re-price the
+        frames after d so every chain passes through the decision."""
+        base = self.base
+        path = om.chain(self.bp, self.done - 1 - base, self.decided - base)
+        keys = [k + base for k in path if k + base <= d]
+        if keys:
+            self.floor = keys[-1]
+        self.decided = d
+        lo, hi = self.floor - base, d - base
+        if hi > lo:
+            self.f[lo + 1 : hi + 1] = np.inf
+        dirty = np.zeros(self.done - base, dtype=bool)
+        for b in range(hi + 1, self.done - base):
+            p = int(self.bp[b])
+            if p <= hi and p != lo or p > hi and dirty[p]:
+                dirty[b] = True
+                om.dp_rows(self.costs, self.f, self.bp, self.keys, b, b + 1,
+                           float(self.lams[b]), lo, self.tolerance)
+        return keys
+
+    def finish(self) -> list[int]:
+        """End of stream: price the tail, trace back from the last frame (always a key)."""
+        if self.n == 0:
+            return []
+        if self.done < self.n:
+            self._solve(self.n)
+        path = om.chain(self.bp, self.n - 1 - self.base, self.decided - self.base)
+        return [k + self.base for k in path]
+
+
+def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> tuple[np.ndarray, Solver]:
+    solver = Solver(max_len, **mode)
+    solver.add(x)
+    return np.array(solver.finish(), dtype=np.int64), solver
+
+
+def _penalised(band: np.ndarray, lam: float) -> np.ndarray:
+    n = len(band)
+    f = np.full(n, np.inf)
+    bp = np.full(n, -1, dtype=np.int64)
+    keys = np.zeros(n, dtype=np.int64)
+    f[0], keys[0] = 0.0, 1
+    om.dp_rows(band, f, bp, keys, 1, n, lam)
+    return np.array(om.chain(bp, n - 1), dtype=np.int64)
+
+
+def _exact_count(band: np.ndarray, count: int) -> np.ndarray:
+    """The K-key optimum: G_j(b) = min_a G_{j−1}(a) + cost(a, b), j segments ending at b."""
+    n, max_len = band.shape
+    a = np.arange(n)[:, None] - max_len + np.arange(max_len)[None, :]
+    a_ok = np.maximum(a, 0)
+    g = np.full(n, np.inf)
+    g[0] = 0.0
+    back = np.empty((count - 1, n), dtype=np.int64)
+    for j in range(count - 1):
+        vals = g[a_ok] + band
+        vals[a < 0] = np.inf
+        arg = np.argmin(vals, axis=1)
+        back[j] = a_ok[np.arange(n), arg]
+        g = vals[np.arange(n), arg]
+        g[0] = np.inf
+    keys = [n - 1]
+    for j in range(count - 2, -1, -1):
+        keys.append(int(back[j, keys[-1]]))
+    return np.array(keys[::-1], dtype=np.int64)
+
+
+def _adjust(x: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
+    """Remove (least cost increase) or insert (largest decrease) keys until `count`."""
+    keys = np.asarray(keys, dtype=np.int64)
+    while len(keys) > count:
+        p, k, q = keys[:-2], keys[1:-1], keys[2:]
+        up = om.pair_costs(x, p, q) - om.pair_costs(x, p, k) - om.pair_costs(x, k, q)
+        keys = np.delete(keys, 1 + int(np.argmin(up)))
+    while len(keys) < count:
+        frames = np.arange(len(x))
+        seg = np.clip(np.searchsorted(keys, frames, side="right") - 1, 0, len(keys) - 2)
+        inner = np.flatnonzero((frames > keys[seg]) & (frames < keys[seg + 1]))
+        a, b = keys[seg[inner]], keys[seg[inner] + 1]
+        gain = om.pair_costs(x, a, b) - om.pair_costs(x, a, inner) - om.pair_costs(x, inner, b)
+        keys = np.sort(np.append(keys, inner[int(np.argmax(gain))]))
+    return keys
+
+
+def _count_keys(x: np.ndarray, count: int, max_len: int) -> tuple[np.ndarray, dict[str, Any]]:
+    n = len(x)
+    max_len = max(max_len, -(-(n - 1) // (count - 1)))  # K keys must be able to cover n
+    band = om.band_costs(x, max_len, chunk=64)
+    if n * count * max_len <= _EXACT_BUDGET:
+        return _exact_count(band, count), {"solver": "exact", "max_segment_frames": max_len}
+    band32 = band.astype(np.float32)
+    del band
+    best: dict[int, np.ndarray] = {}
+
+    def solve(lam: float) -> int:
+        keys = _penalised(band32, lam)
+        best[len(keys)] = keys
+        return len(keys)
+
+    lo = hi = math.log(DEFAULT_LAMBDA)  # log lambda: lo gives > count keys, hi <= count
+    while solve(math.exp(hi)) > count and hi < 50:
+        lo, hi = hi, hi + 2.0
+    while solve(math.exp(lo)) < count and lo > -80:
+        lo, hi = lo - 2.0, lo
+    for _ in range(30):
+        if count in best or hi - lo < 1e-6:
+            break
+        mid = 0.5 * (lo + hi)
+        if solve(math.exp(mid)) > count:
+            lo = mid
+        else:
+            hi = mid
+    near = min(best, key=lambda k: (abs(k - count), k < count))
+    keys = _adjust(x, best[near], count)
+    return keys, {"solver": "lambda" if near == count else "lambda+greedy",
+                  "lambda_count": near, "max_segment_frames": max_len}
+
+
+def extract(motion: Motion, *, count: int | None = None, rate: float | None = None,
+            tolerance: float | None = None, lam: float | None = None,
+            max_segment: float = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
+            root_translation: bool = False, features: Features | None = None) -> Keyframes:
+    """Optimal keys of `motion` (module docstring); default mode: `rate=DEFAULT_RATE`."""
+    mode = _mode(count, rate, tolerance, lam)
+    max_len = _frames(max_segment, motion.fps, "max_segment")
+    x = curve(motion, features, weights, root_translation)
+    n = len(x)
+    if n == 0:
+        raise UsageError("the motion has no captured frames")
+    params: dict[str, Any] = {**mode, "max_segment": max_segment,
+                              "root_translation": root_translation,
+                              "weights": None if weights is None else list(weights)}
+    info: dict[str, Any] = {}
+    if n == 1:
+        rows = np.zeros(1, dtype=np.int64)
+    elif "count" in mode:
+        if mode["count"] > n:
+            raise UsageError(f"count must be in [2, {n}] (captured frames), got {count}")
+        rows, info = _count_keys(x, mode["count"], max_len)
+    else:
+        kw = {"rate": mode["rate"] / motion.fps} if "rate" in mode else dict(mode)
+        rows, _ = _solve_all(x, max_len, **kw)
+    err = om.pair_costs(x, rows[:-1], rows[1:])
+    info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
+    scores = np.zeros(len(rows))
+    scores[1:] += err
+    scores[:-1] += err  # a key's score: the error of the segments it bounds
+    return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
+
+
+class Online(OnlineKeyframer):
+    """Online optimal keys: the penalised DP with traceback convergence and a lookahead
+    deadline (module docstring); rate (default), fixed λ or tolerance mode."""
+
+    method = METHOD
+
+    def __init__(self, skeleton: Skeleton, fps: float, *, rate: float | None = None,
+                 tolerance: float | None = None, lam: float | None = None,
+                 max_segment: float = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
+                 root_translation: bool = False, lookahead: int = DEFAULT_LOOKAHEAD,
+                 stream: str = "default", role_mapping: dict[str, str] | None = None,
+                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+        mode = _mode(None, rate, tolerance, lam)
+        if isinstance(lookahead, bool) or not isinstance(lookahead, int | np.integer) or (
+                lookahead < om.CHUNK):
+            raise UsageError(f"optimal online: lookahead must be an integer >= {om.CHUNK}, "
+                             f"got {lookahead!r}")
+        self.max_len = _frames(max_segment, fps, "max_segment")
+        super().__init__(skeleton, fps, lookahead=int(lookahead), stream=stream,
+                         role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
+                         params={**mode, "max_segment": max_segment,
+                                 "root_translation": root_translation,
+                                 "weights": None if weights is None else list(weights)})
+        self.mode = mode
+        self.weights = None if weights is None else np.asarray(weights, dtype=np.float64)
+        self.root_translation = root_translation
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream; keep parameters."""
+        kw = {"rate": self.mode["rate"] / self.fps} if "rate" in self.mode else dict(self.mode)
+        self.solver = Solver(self.max_len, keep_costs=True, **kw)
+        self.seq: list[int] = []
+        self.time: list[float] = []
+        self.t0 = 0  # stream index of seq[0]
+
+    def _events(self, keys: list[int], decided_at: int) -> list[KeyframeEvent]:
+        return [self.event(self.seq[k - self.t0], self.time[k - self.t0], 0.0, decided_at)
+                for k in keys]
+
+    def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
+        """Append the block's frames; decide what converged or reached its deadline."""
+        rows = om.body_rows(block.positions, self.skeleton.n_joints, self.features.body_height,
+                            self.weights, self.root_translation)
+        s = self.solver
+        events: list[KeyframeEvent] = []
+        for i in range(len(block)):
+            self.seq.append(int(block.seq[i]))
+            self.time.append(float(block.time[i]))
+            t = s.n
+            keys = []
+            if s.add(rows[i : i + 1]):
+                keys += s.converge()
+            d = t - self.lookahead
+            if d > s.decided:
+                keys += s.force(d)
+            events += self._events(keys, int(block.seq[i]))
+            drop = min(s.decided, s.base) - self.t0
+            if drop > 256:
+                del self.seq[:drop], self.time[:drop]
+                self.t0 += drop
+        return events
+
+    def finish(self) -> list[KeyframeEvent]:
+        """End of stream: the chain from the last frame decides the rest."""
+        if self.solver.n == 0:
+            return []
+        return self._events(self.solver.finish(), self.seq[-1])
+
+
+# ----------------------------------------------------------------------------- --max-gap
+
+
+def max_gap(motion: Motion, keys: Keyframes, seconds: float,
+            features: Features | None = None) -> Keyframes:
+    """`keys` with a key inserted in every stretch longer than `seconds` without one, at the
+    best frame by the optimal segment cost (`optimal_math.fill_gaps`)."""
+    gap = _frames(seconds, motion.fps, "max_gap")
+    x = curve(motion, features)
+    rows = np.asarray(keys.frames, dtype=np.int64) - motion.first_frame
+    ends = np.unique(np.concatenate([[0], rows, [len(x) - 1]]))
+    filled = om.fill_gaps(x, ends, gap)
+    added = np.setdiff1d(filled, rows)
+    frames = np.union1d(rows, added)
+    score = dict(zip(rows.tolist(), keys.scores.tolist(), strict=True))
+    scores = np.array([score.get(int(r), 0.0) for r in frames])
+    info = {**keys.info, "max_gap_added": (added + motion.first_frame).tolist()}
+    return Keyframes(keys.method, frames + motion.first_frame, scores,
+                     {**keys.params, "max_gap": seconds}, keys.n_frames, info)
+
+
+class MaxGap(OnlineKeyframer):
+    """Any online keyframer with `--max-gap`: once the inner keyframer has decided a stretch
+    longer than the gap without a key (frames older than its lookahead are final), a key is
+    inserted at the best frame by the optimal segment cost. Inserted keys have latency up to
+    inner lookahead + gap, which is this keyframer's lookahead; inner keys pass unchanged."""
+
+    method = "?"
+
+    def __init__(self, inner: OnlineKeyframer, seconds: float) -> None:
+        self.inner = inner
+        self.method = inner.method  # type: ignore[misc]
+        self.gap = _frames(seconds, inner.fps, "max_gap")
+        super().__init__(inner.skeleton, inner.fps, lookahead=inner.lookahead + self.gap,
+                         stream=inner.stream, params={**inner.params, "max_gap": seconds})
+        self.guard = inner.guard
+        self.features = inner.features
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream (the inner keyframer too)."""
+        self.inner.reset()
+        self.rows: list[np.ndarray] = []  # curve rows from the last key on
+        self.seq: list[int] = []
+        self.time: list[float] = []
+        self.t0 = 0  # stream index of rows[0]
+        self.t = -1
+        self.last = -1  # stream index of the last key
+        self.pending: list[int] = []  # seqs of inner keys not yet accounted for
+
+    def _note(self, events: list[KeyframeEvent]) -> None:
+        for e in events:
+            k = self.t0 + self.seq.index(e.frame) if e.frame in self.seq else None
+            if k is not None and k > self.last:
+                self.last = k
+
+    def _fill(self, final: int) -> list[KeyframeEvent]:
+        """Insert keys while the final part holds a stretch longer than the gap."""
+        out = []
+        while self.last >= 0 and final - self.last > self.gap:
+            a = self.last - self.t0
+            x = np.array(self.rows)
+            k = om.best_split(x, a, a + self.gap + 1, a + self.gap)
+            out.append(KeyframeEvent(self.stream, self.method, self.seq[k], self.time[k], 0.0,
+                                     self.seq[-1], self.lookahead, self.params_digest))
+            self.last = k + self.t0
+        drop = self.last - self.t0
+        if drop > 0:
+            del self.rows[:drop], self.seq[:drop], self.time[:drop]
+            self.t0 += drop
+        return out
+
+    def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
+        """The inner keyframer's events; frames kept for gap filling."""
+        rows = om.body_rows(block.positions, self.skeleton.n_joints, self.features.body_height)
+        self.rows.extend(rows)
+        self.seq.extend(int(s) for s in block.seq)
+        self.time.extend(float(t) for t in block.time)
+        self.t += len(block)
+        events = self.inner.process(block)
+        self._note(events)
+        return events
+
+    def idle(self) -> list[KeyframeEvent]:
+        """Inner deferred work, then gap filling over the part the inner one has finalised."""
+        events = self.inner.idle()
+        self._note(events)
+        return events + self._fill(self.t - self.inner.lookahead)
+
+    def finish(self) -> list[KeyframeEvent]:
+        """End of stream: the inner keyframer's rest, then the gaps up to the last frame."""
+        events = self.inner.finish()
+        self._note(events)
+        if self.last < 0:
+            return events
+        extra = self._fill(self.t)
+        return sorted(events + extra, key=lambda e: e.frame)
