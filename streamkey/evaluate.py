@@ -254,7 +254,7 @@ def f_measure(found: Sequence[int] | np.ndarray, truth: Sequence[int] | np.ndarr
 
 
 def _builtin_methods() -> dict[str, Callable[[Motion, int], Keyframes]]:
-    from .methods import baselines, simplify
+    from .methods import baselines, optimal, simplify
 
     return {
         "uniform": baselines.uniform,
@@ -262,6 +262,7 @@ def _builtin_methods() -> dict[str, Callable[[Motion, int], Keyframes]]:
         "simplification": lambda m, k: simplify.extract(m, count=k),
         "decimation_positions": lambda m, k: baselines.decimate(m, k, space="positions"),
         "simplification_positions": lambda m, k: simplify.extract(m, count=k, space="positions"),
+        "optimal": lambda m, k: optimal.extract(m, count=k),
     }
 
 

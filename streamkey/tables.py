@@ -24,7 +24,7 @@ from .methods import OFFLINE_METHODS, offline_method
 
 __all__ = ["evaluate_clip", "evaluate_files", "EQUAL_COUNT_METHODS", "NATURAL_METHODS"]
 
-EQUAL_COUNT_METHODS = ("saliency", "simplify", "decimate", "uniform")
+EQUAL_COUNT_METHODS = ("saliency", "simplify", "decimate", "uniform", "optimal")
 NATURAL_METHODS = ("saliency", "speed", "simplify", "isodata", "curvefit")
 
 
@@ -43,7 +43,7 @@ def evaluate_clip(path: Path) -> dict[str, Any]:
     equal = {"saliency": natural["saliency"]}
     for name in EQUAL_COUNT_METHODS[1:]:
         fn = offline_method(name)
-        keys = (fn(motion, count=count, features=features) if name == "simplify"
+        keys = (fn(motion, count=count, features=features) if name in ("simplify", "optimal")
                 else fn(motion, count=count))
         equal[name] = ev.score(keys)
     return {"clip": path.name, "frames": motion.n_frames - motion.first_frame,

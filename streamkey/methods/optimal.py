@@ -9,7 +9,7 @@ Definitions this module settles:
   translation). |difference|² of two rows is then a mean squared joint distance in body
   heights², the unit of the evaluation's E / h².
 - Segment cost(a, b): Σ over frames strictly inside (a, b) of the squared distance to the
-  linear interpolation between a and b, from prefix sums (`optimal_math.chunk_costs`), at
+  linear interpolation between a and b, from prefix sums (`optimal_math.Pricer`), at
   most `max_segment` seconds (default 2 s) between keys. The first and the last captured
   frames are always keys.
 - Penalised form (the common core): minimise Σ cost + λ · keys. Ties go to the earliest
@@ -35,10 +35,21 @@ decision. Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, defa
 an unbounded lookahead nothing is forced and `flush()` traces back from the last frame: the
 offline result exactly.
 
-Rate controller: λ = λ₀ · exp(g · (n − R·t − 1)) after each chunk, n the keys on the best
-chain to the newest priced frame t (stream index; frame 0 is a key). At stream start λ = λ₀
-(`DEFAULT_LAMBDA`, the median λ that gives 5 % of frames on the shared clips); the first
-seconds follow λ₀ until the key count deviates from the target by a few keys.
+Rate mode (R keys a second, s = fps / R frames a key): λ = 3.2 · exp(mean log cost(b − s, b))
+over every frame b priced so far — scale-aware: on the shared clips the λ that gives 5 % of
+frames is 3.2× the geometric mean cost of s-frame segments (within a factor of 1.5 on most
+clips), where λ itself spans three orders of magnitude. Online, whenever this estimate moves
+by more than 5 % (`RESOLVE`), every undecided frame is solved again with it; since λ still
+moves, chains that converged are not final in rate mode, and keys are decided at the
+deadline only (latency ≤ lookahead). At stream start, until s frames have arrived,
+λ = `DEFAULT_LAMBDA` (the median 5 % λ of the shared clips); the estimate is noisy over the
+first second and settles as the stream goes on. Offline, λ is the estimate over the whole
+take (one penalised pass); with an unbounded lookahead `flush()` solves everything with
+that same λ, so the two agree exactly. The key count follows the rate within the spread of
+that factor (about ±10 % on the shared clips).
+
+Deadlines are checked once a chunk, deciding every frame whose deadline falls before the
+next chunk is complete (so the effective lookahead is `lookahead` − 15 to `lookahead`).
 """
 
 from __future__ import annotations
@@ -62,8 +73,11 @@ METHOD = "optimal"
 DEFAULT_LOOKAHEAD = 120  # frames: 1 s at 120 Hz
 DEFAULT_MAX_SEGMENT = 2.0  # seconds
 DEFAULT_RATE = 6.0  # keys per second: 5 % of frames at 120 Hz
-DEFAULT_LAMBDA = 1e-3  # frames x body heights^2
-RATE_GAIN = 0.15  # controller gain per key of count error
+DEFAULT_LAMBDA = 3.5e-3  # frames x body heights^2
+PRIOR_FRAMES = 1200  # rate mode: weight of the prior lambda, in frames of evidence
+RESOLVE = 0.05  # rate mode: re-solve the undecided frames when log lambda moves this much
+RATE_FACTOR = 3.2  # lambda / geometric mean cost of key-spaced segments (shared clips, 5 %)
+_LOG_FLOOR = 1e-12  # smallest segment cost in the geometric mean
 _EXACT_BUDGET = 4e7  # frames x K x L below which count mode runs the exact K-key DP
 
 
@@ -110,8 +124,9 @@ class Solver:
     def __init__(self, max_len: int, *, lam: float | None = None, rate: float | None = None,
                  tolerance: float | None = None, keep_costs: bool = False) -> None:
         self.max_len = int(max_len)
-        self.lam = float(lam if lam is not None else DEFAULT_LAMBDA)
+        self.lam0 = float(lam if lam is not None else DEFAULT_LAMBDA)
         self.rate = rate  # keys per frame, or None
+        self.span = int(min(max_len, max(2, round(1.0 / rate)))) if rate else 0
         self.tolerance = tolerance
         self.keep_costs = keep_costs
         self.reset()
@@ -123,6 +138,10 @@ class Solver:
         self.done = 0  # frames with F computed
         self.floor = 0  # last committed key (stream index)
         self.decided = -1  # every frame <= decided is final
+        self.log_sum = 0.0  # rate controller: sum and count of log cost(b - s, b)
+        self.log_n = 0
+        self.lam = self.lam0 if self.rate is None else self.rate_estimate()
+        self.pricer = om.Pricer(self.max_len)
         self.x = np.empty((0, 0))
         self.f = np.empty(0)
         self.bp = np.empty(0, dtype=np.int64)
@@ -151,7 +170,7 @@ class Solver:
         rows = held - shift
         for new, prev in zip((self.x, self.f, self.bp, self.keys, self.lams, self.costs), old,
                              strict=True):
-            if len(new):
+            if len(new) and rows:
                 new[:rows] = prev[shift:held]
         self.bp[:rows] -= shift
         self.base += shift
@@ -172,7 +191,7 @@ class Solver:
     def _solve(self, end: int) -> None:
         """Price and solve frames done .. end − 1 (one chunk, or the tail at finish)."""
         b0, b1 = self.done - self.base, end - self.base
-        costs = om.chunk_costs(self.x, b0, b1, self.max_len)
+        costs = self.pricer.price(self.x, self.base, self.done, end)
         if self.keep_costs:
             self.costs[b0:b1] = costs
         start = b0
@@ -184,9 +203,35 @@ class Solver:
                    self.floor - self.base, self.tolerance, c0=b0)
         self.done = end
         if self.rate is not None:
-            t = end - 1
-            excess = float(self.keys[b1 - 1]) - (1.0 + self.rate * t)
-            self.lam = DEFAULT_LAMBDA * math.exp(float(np.clip(RATE_GAIN * excess, -40, 40)))
+            lam = self.rate_lambda(costs)
+            if self.keep_costs and abs(math.log(lam / self.lam)) > RESOLVE:
+                self.resolve(lam)
+
+    def rate_lambda(self, costs: np.ndarray) -> float:
+        """Rate controller (module docstring): λ from every frame priced so far."""
+        assert self.rate is not None
+        c = costs[:, self.max_len - self.span]
+        c = c[np.isfinite(c)]
+        if len(c):
+            self.log_sum += float(np.sum(np.log(c + _LOG_FLOOR)))
+            self.log_n += len(c)
+        return self.rate_estimate()
+
+    def rate_estimate(self) -> float:
+        """λ of the rate mode from the costs priced so far, shrunk towards the prior."""
+        assert self.rate is not None
+        prior = math.log(DEFAULT_LAMBDA / RATE_FACTOR * (self.span / 20.0) ** 5)
+        weight = PRIOR_FRAMES + self.log_n
+        mean = (PRIOR_FRAMES * prior + self.log_sum) / weight if weight else prior
+        return RATE_FACTOR * math.exp(mean)
+
+    def resolve(self, lam: float) -> None:
+        """Solve every undecided frame again with penalty `lam`."""
+        self.lam = lam
+        lo = self.floor - self.base
+        self.lams[lo + 1 : self.done - self.base] = lam
+        om.dp_rows(self.costs, self.f, self.bp, self.keys, lo + 1, self.done - self.base, lam,
+                   lo, self.tolerance)
 
     def converge(self) -> list[int]:
         """Keys that every chain from the last L priced frames shares, newly final."""
@@ -231,14 +276,31 @@ class Solver:
             return []
         if self.done < self.n:
             self._solve(self.n)
+        if self.rate is not None and self.keep_costs:
+            lam = self.rate_estimate()
+            if lam != self.lam:
+                self.resolve(lam)
         path = om.chain(self.bp, self.n - 1 - self.base, self.decided - self.base)
         return [k + self.base for k in path]
 
 
-def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> tuple[np.ndarray, Solver]:
+def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> np.ndarray:
+    """Offline λ / tolerance: the online solver over every row, nothing forced."""
     solver = Solver(max_len, **mode)
     solver.add(x)
-    return np.array(solver.finish(), dtype=np.int64), solver
+    return np.array(solver.finish(), dtype=np.int64)
+
+
+def _rate_keys(x: np.ndarray, max_len: int, rate: float) -> tuple[np.ndarray, float]:
+    """Offline rate: λ from every frame's cost (as the online controller ends up with), then
+    one penalised pass. Same chunks and sums as `Solver`, so bit-identical to it."""
+    solver = Solver(max_len, rate=rate)
+    band = np.empty((len(x), max_len))
+    for b0 in range(0, len(x), om.CHUNK):
+        b1 = min(len(x), b0 + om.CHUNK)
+        band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
+        lam = solver.rate_lambda(band[b0:b1])
+    return _penalised(band, lam), lam
 
 
 def _penalised(band: np.ndarray, lam: float) -> np.ndarray:
@@ -292,7 +354,7 @@ def _adjust(x: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
 def _count_keys(x: np.ndarray, count: int, max_len: int) -> tuple[np.ndarray, dict[str, Any]]:
     n = len(x)
     max_len = max(max_len, -(-(n - 1) // (count - 1)))  # K keys must be able to cover n
-    band = om.band_costs(x, max_len, chunk=64)
+    band = om.band_costs(x, max_len)
     if n * count * max_len <= _EXACT_BUDGET:
         return _exact_count(band, count), {"solver": "exact", "max_segment_frames": max_len}
     band32 = band.astype(np.float32)
@@ -345,8 +407,10 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
             raise UsageError(f"count must be in [2, {n}] (captured frames), got {count}")
         rows, info = _count_keys(x, mode["count"], max_len)
     else:
-        kw = {"rate": mode["rate"] / motion.fps} if "rate" in mode else dict(mode)
-        rows, _ = _solve_all(x, max_len, **kw)
+        if "rate" in mode:
+            rows, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps)
+        else:
+            rows = _solve_all(x, max_len, **mode)
     err = om.pair_costs(x, rows[:-1], rows[1:])
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
     scores = np.zeros(len(rows))
@@ -365,8 +429,12 @@ class Online(OnlineKeyframer):
                  tolerance: float | None = None, lam: float | None = None,
                  max_segment: float = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
                  root_translation: bool = False, lookahead: int = DEFAULT_LOOKAHEAD,
-                 stream: str = "default", role_mapping: dict[str, str] | None = None,
+                 count: int | None = None, stream: str = "default",
+                 role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+        if count is not None:
+            raise UsageError("optimal online: a key count needs the whole take; give a rate "
+                             "(keys per second) or a tolerance")
         mode = _mode(None, rate, tolerance, lam)
         if isinstance(lookahead, bool) or not isinstance(lookahead, int | np.integer) or (
                 lookahead < om.CHUNK):
@@ -404,14 +472,12 @@ class Online(OnlineKeyframer):
         for i in range(len(block)):
             self.seq.append(int(block.seq[i]))
             self.time.append(float(block.time[i]))
-            t = s.n
-            keys = []
-            if s.add(rows[i : i + 1]):
-                keys += s.converge()
-            d = t - self.lookahead
-            if d > s.decided:
-                keys += s.force(d)
-            events += self._events(keys, int(block.seq[i]))
+            for end in s.add(rows[i : i + 1]):
+                keys = [] if s.rate is not None else s.converge()
+                d = end + om.CHUNK - 1 - self.lookahead
+                if d > s.decided:
+                    keys += s.force(d)
+                events += self._events(keys, int(block.seq[i]))
             drop = min(s.decided, s.base) - self.t0
             if drop > 256:
                 del self.seq[:drop], self.time[:drop]
@@ -472,25 +538,30 @@ class MaxGap(OnlineKeyframer):
         self.time: list[float] = []
         self.t0 = 0  # stream index of rows[0]
         self.t = -1
-        self.last = -1  # stream index of the last key
-        self.pending: list[int] = []  # seqs of inner keys not yet accounted for
+        self.last = 0  # stream index of the last key (the first frame is an anchor)
 
-    def _note(self, events: list[KeyframeEvent]) -> None:
-        for e in events:
-            k = self.t0 + self.seq.index(e.frame) if e.frame in self.seq else None
-            if k is not None and k > self.last:
-                self.last = k
-
-    def _fill(self, final: int) -> list[KeyframeEvent]:
-        """Insert keys while the final part holds a stretch longer than the gap."""
+    def _fill(self, end: int) -> list[KeyframeEvent]:
+        """Keys while the stretch from the last key to `end` (a key, or a bound on the next
+        one) is longer than the gap."""
         out = []
-        while self.last >= 0 and final - self.last > self.gap:
+        while end - self.last > self.gap:
             a = self.last - self.t0
-            x = np.array(self.rows)
-            k = om.best_split(x, a, a + self.gap + 1, a + self.gap)
+            k = om.best_split(np.array(self.rows), a, a + self.gap + 1, a + self.gap)
             out.append(KeyframeEvent(self.stream, self.method, self.seq[k], self.time[k], 0.0,
                                      self.seq[-1], self.lookahead, self.params_digest))
             self.last = k + self.t0
+        return out
+
+    def _advance(self, events: list[KeyframeEvent], final: int) -> list[KeyframeEvent]:
+        """Inner events in order with the gaps before them filled, then the gaps of the
+        decided part (frames <= final carry no other key)."""
+        out: list[KeyframeEvent] = []
+        for e in events:
+            k = self.t0 + e.frame - self.seq[0]
+            out += self._fill(k)
+            out.append(e)
+            self.last = max(self.last, k)
+        out += self._fill(final)
         drop = self.last - self.t0
         if drop > 0:
             del self.rows[:drop], self.seq[:drop], self.time[:drop]
@@ -498,27 +569,21 @@ class MaxGap(OnlineKeyframer):
         return out
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
-        """The inner keyframer's events; frames kept for gap filling."""
+        """Frame by frame: the inner keyframer (and its deferred work), then gap filling
+        over the part it has finalised (older than its lookahead)."""
         rows = om.body_rows(block.positions, self.skeleton.n_joints, self.features.body_height)
-        self.rows.extend(rows)
-        self.seq.extend(int(s) for s in block.seq)
-        self.time.extend(float(t) for t in block.time)
-        self.t += len(block)
-        events = self.inner.process(block)
-        self._note(events)
-        return events
-
-    def idle(self) -> list[KeyframeEvent]:
-        """Inner deferred work, then gap filling over the part the inner one has finalised."""
-        events = self.inner.idle()
-        self._note(events)
-        return events + self._fill(self.t - self.inner.lookahead)
+        out: list[KeyframeEvent] = []
+        for i in range(len(block)):
+            self.rows.append(rows[i])
+            self.seq.append(int(block.seq[i]))
+            self.time.append(float(block.time[i]))
+            self.t += 1
+            events = self.inner.process(block.slice(i, i + 1)) + self.inner.idle()
+            out += self._advance(events, self.t - self.inner.lookahead + 1)
+        return out
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: the inner keyframer's rest, then the gaps up to the last frame."""
-        events = self.inner.finish()
-        self._note(events)
-        if self.last < 0:
-            return events
-        extra = self._fill(self.t)
-        return sorted(events + extra, key=lambda e: e.frame)
+        if self.t < 0:
+            return self.inner.finish()
+        return self._advance(self.inner.finish(), self.t)

@@ -1,21 +1,23 @@
 """Pure maths of optimal keys (DESIGN §4.5): segment costs from prefix sums and the dynamic
 programme over them. Shared by `streamkey.methods.optimal` (offline and online) and by
-`--max-gap`; its module docstring states the definitions settled here. No state, no I/O.
+`--max-gap`; its module docstring states the definitions settled here. No I/O; the one
+stateful piece (`Pricer`) holds plain arrays.
 
 The curve is x (one row per captured frame, D columns); the cost of a segment (a, b) is
 Σ_{a<f<b} |x_f − x_a − (f−a)/(b−a) (x_b − x_a)|². With prefix sums of x, f·x and |x|² over a
-window this costs O(D) per segment; `chunk_costs` prices every segment ending in a chunk of
-frames with two matrix products (never materialising a segment).
+window this costs O(D) per segment; `Pricer` prices every segment ending in a chunk of
+frames with three matrix products (never materialising a segment).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CHUNK", "body_rows", "chunk_costs", "band_costs", "pair_costs", "dp_rows",
+__all__ = ["CHUNK", "EPOCH", "Pricer", "body_rows", "band_costs", "pair_costs", "dp_rows",
            "chain", "best_split", "fill_gaps"]
 
 CHUNK = 16  # frames priced together (online: the DP runs when a chunk of frames is complete)
+EPOCH = 512  # frames between re-based prefix sums (a multiple of CHUNK)
 
 
 def body_rows(positions: np.ndarray, n_joints: int, height: float,
@@ -47,60 +49,110 @@ def _prefix(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return q0, q1, q2
 
 
-def chunk_costs(x: np.ndarray, b0: int, b1: int, max_len: int) -> np.ndarray:
-    """Costs C[i, j] of the segments (a, b), b = b0 + i < b1, a = b − max_len + j (j < max_len);
-    inf where a < 0. Reads rows max(0, b0 − max_len) .. b1 − 1 of `x` only.
+def _rowdot(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", p, q)
 
-    A pure function of those rows, so offline and online (chunks aligned to the same stream
-    indices) get bit-identical costs.
+
+class Pricer:
+    """Segment costs of a stream, chunk by chunk (plain attributes).
+
+    Prefix sums run from an origin o, re-based every `EPOCH` frames (o = chunk start − L,
+    rows re-centred on x_o: costs are shift invariant and smaller sums round less), so their
+    size stays bounded on endless streams. Every quantity of one frame alone (|x|², x·Q0,
+    x·Q1, R = Σ_{f≤a} (f − a) x_f) is kept per row; a chunk then costs three matrix products
+    over the window and O(window × chunk) elementwise work. Offline and online feed the
+    same chunks, so their costs are bit-identical.
     """
-    s = max(0, b0 - max_len)
-    w = x[s:b1]
-    w = w - w.mean(axis=0)  # costs are shift invariant; smaller sums round less
-    q0, q1, q2 = _prefix(w)
-    nb = b1 - b0
-    ub = np.arange(b0 - s, b1 - s)  # local rows of the segment ends
-    pb = w[ub]
-    ua_all = np.arange(len(w))
-    # a-only terms (local rows ua, prefixes up to ua + 1)
-    r = q1[ua_all + 1] - ua_all[:, None] * q0[ua_all + 1]
-    na = np.einsum("ij,ij->i", w, w)
-    h1 = np.einsum("ij,ij->i", w, q0[ua_all + 1])
-    h3 = np.einsum("ij,ij->i", w, q1[ua_all + 1])
-    # cross terms: x_a.x_b, x_a.Q0[b], x_a.Q1[b] and R_a.x_b (two matrix products)
-    g = w @ np.concatenate([pb, q0[ub], q1[ub]]).T
-    x1, x2, x3 = g[:, :nb], g[:, nb : 2 * nb], g[:, 2 * nb :]
-    x4 = r @ pb.T
-    # the band a = b - max_len + j
-    ua = ub[:, None] - max_len + np.arange(max_len)[None, :]
-    valid = ua >= 0
-    ua = np.where(valid, ua, 0)
-    col = np.arange(nb)[:, None]
-    m = np.maximum(ub[:, None] - ua, 1).astype(np.float64)
-    x1, x2, x3, x4 = x1[ua, col], x2[ua, col], x3[ua, col], x4[ua, col]
-    na_a, nb_b = na[ua], na[ub][:, None]
-    g0 = np.einsum("ij,ij->i", pb, q0[ub])[:, None]
-    g1 = np.einsum("ij,ij->i", pb, q1[ub])[:, None]
-    a2 = q2[ub][:, None] - q2[ua + 1]
-    s1 = (m - 1.0) / 2.0
-    s2 = (m - 1.0) * (2.0 * m - 1.0) / (6.0 * m)
-    uaf = ua.astype(np.float64)
-    dt = (g1 - uaf * g0 - x4) - (x3 - h3[ua] - uaf * x2 + uaf * h1[ua])
-    cost = (a2 + (m - 1.0) * na_a + s2 * (nb_b - 2.0 * x1 + na_a) - 2.0 * (x2 - h1[ua])
-            - 2.0 * dt / m + 2.0 * s1 * (x1 - na_a))
-    cost = np.maximum(cost, 0.0)
-    cost[m <= 1.0] = 0.0
-    cost[~valid] = np.inf
-    return cost
+
+    def __init__(self, max_len: int) -> None:
+        self.max_len = int(max_len)
+        self.o = 0  # stream index of local row 0
+        self.n = 0  # rows appended (stream index of the next one)
+        self.c = np.empty(0)  # centre row
+        self.w = np.empty((0, 0))
+
+    def _alloc(self, d: int) -> None:
+        size = EPOCH + self.max_len + CHUNK + 1
+        self.w = np.zeros((size, d))
+        self.q0 = np.zeros((size + 1, d))
+        self.q1 = np.zeros((size + 1, d))
+        self.q2 = np.zeros(size + 1)
+        self.na = np.zeros(size)
+        self.h1 = np.zeros(size)
+        self.h3 = np.zeros(size)
+        self.ux = np.zeros((size, d))  # u x per row
+        self.mr = np.zeros((size, d))  # -R per row
+
+    def _append(self, rows: np.ndarray) -> None:
+        lo = self.n - self.o
+        hi = lo + len(rows)
+        wc = rows - self.c
+        u = np.arange(lo, hi, dtype=np.float64)[:, None]
+        self.w[lo:hi] = wc
+        self.q0[lo + 1 : hi + 1] = self.q0[lo] + np.cumsum(wc, axis=0)
+        self.q1[lo + 1 : hi + 1] = self.q1[lo] + np.cumsum(u * wc, axis=0)
+        na = _rowdot(wc, wc)
+        self.q2[lo + 1 : hi + 1] = self.q2[lo] + np.cumsum(na)
+        q0, q1 = self.q0[lo + 1 : hi + 1], self.q1[lo + 1 : hi + 1]
+        self.na[lo:hi] = na
+        self.h1[lo:hi] = _rowdot(wc, q0)
+        self.h3[lo:hi] = _rowdot(wc, q1)
+        self.ux[lo:hi] = u * wc
+        self.mr[lo:hi] = u * q0 - q1
+        self.n += len(rows)
+
+    def price(self, x: np.ndarray, xbase: int, b0: int, b1: int) -> np.ndarray:
+        """Costs C[i, j] of the segments (a, b), b = b0 + i < b1, a = b − L + j; inf where
+        a < 0. `x` holds the stream's rows from stream index `xbase` (at least from b0 − L).
+        Chunks must come in order, b0 = the previous b1."""
+        L = self.max_len
+        if len(self.w) == 0:
+            self._alloc(x.shape[1])
+            self.c = x[0 - xbase].copy()
+        if b0 > 0 and b0 % EPOCH == 0:  # re-base: origin b0 - L, rows re-centred
+            self.o = self.n = max(0, b0 - L)
+            self.c = x[self.o - xbase].copy()
+            self._append(x[self.o - xbase : b0 - xbase])
+        self._append(x[b0 - xbase : b1 - xbase])
+        o = self.o
+        ls, lb0, lb1 = max(o, b0 - L) - o, b0 - o, b1 - o
+        nb = lb1 - lb0
+        win = self.w[ls:lb1]
+        pb, q0b, q1b = self.w[lb0:lb1], self.q0[lb0:lb1], self.q1[lb0:lb1]
+        u = np.arange(ls, lb1, dtype=np.float64)[:, None]
+        ub = np.arange(lb0, lb1, dtype=np.float64)[None, :]
+        na, h1, h3 = (a[ls:lb1, None] for a in (self.na, self.h1, self.h3))
+        x1, x2 = win @ pb.T, win @ q0b.T
+        # one product per right-hand side: a concatenated one runs many times slower in
+        # multi-threaded BLAS on a busy machine
+        y = self.ux[ls:lb1] @ q0b.T - win @ q1b.T + self.mr[ls:lb1] @ pb.T
+        g0, g1 = _rowdot(pb, q0b)[None, :], _rowdot(pb, q1b)[None, :]
+        m = np.maximum(ub - u, 1.0)
+        s1 = (m - 1.0) / 2.0
+        s2 = (m - 1.0) * (2.0 * m - 1.0) / (6.0 * m)
+        dt = (g1 + h3) - u * (g0 + h1) + y
+        cost = (self.q2[lb0:lb1][None, :] - self.q2[ls + 1 : lb1 + 1, None]
+                - 2.0 * (x2 - h1) + (m - 1.0) * na + s2 * (self.na[lb0:lb1][None, :]
+                                                          - 2.0 * x1 + na)
+                - 2.0 * dt / m + 2.0 * s1 * (x1 - na))
+        cost = np.maximum(cost, 0.0)
+        cost[m <= 1.0] = 0.0
+        ua = np.arange(lb0 - ls, lb1 - ls)[:, None] - L + np.arange(L)[None, :]
+        valid = ua >= 0
+        band = cost[np.where(valid, ua, 0), np.arange(nb)[:, None]]
+        band[~valid] = np.inf
+        return band
 
 
-def band_costs(x: np.ndarray, max_len: int, chunk: int = CHUNK) -> np.ndarray:
-    """`chunk_costs` of every frame (n, max_len), chunks aligned at multiples of `chunk`."""
+def band_costs(x: np.ndarray, max_len: int) -> np.ndarray:
+    """Costs of every segment of at most `max_len` frames ending at each frame (n, max_len),
+    priced chunk by chunk as a stream would be."""
     n = len(x)
     out = np.empty((n, max_len))
-    for b0 in range(0, n, chunk):
-        b1 = min(n, b0 + chunk)
-        out[b0:b1] = chunk_costs(x, b0, b1, max_len)
+    pricer = Pricer(max_len)
+    for b0 in range(0, n, CHUNK):
+        b1 = min(n, b0 + CHUNK)
+        out[b0:b1] = pricer.price(x, 0, b0, b1)
     return out
 
 
