@@ -154,7 +154,8 @@ def online_keys(name: str, lookahead: int | None = None, **mode) -> tuple[np.nda
     events = run(kf, m.frames())
     frames = np.array([e.frame for e in events])
     assert np.all(np.diff(frames) > 0)
-    return frames, max(e.latency_frames for e in events if e.decided_at < m.n_frames - 1)
+    return frames, max((e.latency_frames for e in events if e.decided_at < m.n_frames - 1),
+                       default=0)
 
 
 @pytest.mark.parametrize("name", FAST)

@@ -78,6 +78,7 @@ PRIOR_FRAMES = 1200  # rate mode: weight of the prior lambda, in frames of evide
 RESOLVE = 0.05  # rate mode: re-solve the undecided frames when log lambda moves this much
 RATE_FACTOR = 3.2  # lambda / geometric mean cost of key-spaced segments (shared clips, 5 %)
 _LOG_FLOOR = 1e-12  # smallest segment cost in the geometric mean
+_GRID = 16  # lambdas per pass of the count search
 _EXACT_BUDGET = 4e7  # frames x K x L below which count mode runs the exact K-key DP
 
 
@@ -359,30 +360,40 @@ def _count_keys(x: np.ndarray, count: int, max_len: int) -> tuple[np.ndarray, di
         return _exact_count(band, count), {"solver": "exact", "max_segment_frames": max_len}
     band32 = band.astype(np.float32)
     del band
-    best: dict[int, np.ndarray] = {}
-
-    def solve(lam: float) -> int:
-        keys = _penalised(band32, lam)
-        best[len(keys)] = keys
-        return len(keys)
-
-    lo = hi = math.log(DEFAULT_LAMBDA)  # log lambda: lo gives > count keys, hi <= count
-    while solve(math.exp(hi)) > count and hi < 50:
-        lo, hi = hi, hi + 2.0
-    while solve(math.exp(lo)) < count and lo > -80:
-        lo, hi = lo - 2.0, lo
-    for _ in range(30):
-        if count in best or hi - lo < 1e-6:
+    lo, hi = math.log(1e-9), math.log(1e3)  # log lambda bracket: lo gives >= count keys
+    best: dict[int, float] = {}
+    for _ in range(4):
+        grid = np.linspace(lo, hi, _GRID)
+        counts = _penalised_counts(band32, np.exp(grid))
+        for g, c in zip(grid, counts, strict=True):
+            best.setdefault(int(c), float(g))
+        if count in best:
             break
-        mid = 0.5 * (lo + hi)
-        if solve(math.exp(mid)) > count:
-            lo = mid
-        else:
-            hi = mid
+        above = np.flatnonzero(counts > count)
+        below = np.flatnonzero(counts < count)
+        lo = grid[above[-1]] if len(above) else lo - 4.0
+        hi = grid[below[0]] if len(below) else hi + 4.0
     near = min(best, key=lambda k: (abs(k - count), k < count))
-    keys = _adjust(x, best[near], count)
+    keys = _adjust(x, _penalised(band32, math.exp(best[near])), count)
     return keys, {"solver": "lambda" if near == count else "lambda+greedy",
                   "lambda_count": near, "max_segment_frames": max_len}
+
+
+def _penalised_counts(band: np.ndarray, lams: np.ndarray) -> np.ndarray:
+    """Key counts of the penalised optimum for several λ at once (one pass over the band)."""
+    n, max_len = band.shape
+    width = len(lams)
+    f = np.full((n, width), np.inf)
+    keys = np.zeros((n, width), dtype=np.int64)
+    f[0], keys[0] = 0.0, 1
+    cols = np.arange(width)
+    for b in range(1, n):
+        lo = max(0, b - max_len)
+        vals = f[lo:b] + band[b, max_len - (b - lo):, None]
+        i = np.argmin(vals, axis=0)
+        f[b] = vals[i, cols] + lams
+        keys[b] = keys[lo + i, cols] + 1
+    return keys[n - 1]
 
 
 def extract(motion: Motion, *, count: int | None = None, rate: float | None = None,

@@ -116,32 +116,44 @@ class Pricer:
         self._append(x[b0 - xbase : b1 - xbase])
         o = self.o
         ls, lb0, lb1 = max(o, b0 - L) - o, b0 - o, b1 - o
-        nb = lb1 - lb0
         win = self.w[ls:lb1]
         pb, q0b, q1b = self.w[lb0:lb1], self.q0[lb0:lb1], self.q1[lb0:lb1]
-        u = np.arange(ls, lb1, dtype=np.float64)[:, None]
-        ub = np.arange(lb0, lb1, dtype=np.float64)[None, :]
-        na, h1, h3 = (a[ls:lb1, None] for a in (self.na, self.h1, self.h3))
-        x1, x2 = win @ pb.T, win @ q0b.T
-        # one product per right-hand side: a concatenated one runs many times slower in
-        # multi-threaded BLAS on a busy machine
-        y = self.ux[ls:lb1] @ q0b.T - win @ q1b.T + self.mr[ls:lb1] @ pb.T
-        g0, g1 = _rowdot(pb, q0b)[None, :], _rowdot(pb, q1b)[None, :]
-        m = np.maximum(ub - u, 1.0)
-        s1 = (m - 1.0) / 2.0
-        s2 = (m - 1.0) * (2.0 * m - 1.0) / (6.0 * m)
-        dt = (g1 + h3) - u * (g0 + h1) + y
-        cost = (self.q2[lb0:lb1][None, :] - self.q2[ls + 1 : lb1 + 1, None]
-                - 2.0 * (x2 - h1) + (m - 1.0) * na + s2 * (self.na[lb0:lb1][None, :]
-                                                          - 2.0 * x1 + na)
-                - 2.0 * dt / m + 2.0 * s1 * (x1 - na))
-        cost = np.maximum(cost, 0.0)
-        cost[m <= 1.0] = 0.0
+        ub = np.arange(lb0, lb1, dtype=np.float64)
+        # window space (row: a, column: b). One product per right-hand side: a concatenated
+        # one runs many times slower in multi-threaded BLAS on a busy machine.
+        x1 = win @ pb.T
+        z1 = -2.0 * (win @ q0b.T) - self.q2[ls + 1 : lb1 + 1, None]
+        z2 = (ub[None, :] * self.h1[ls:lb1, None] - self.h3[ls:lb1, None]
+              - self.ux[ls:lb1] @ q0b.T + win @ q1b.T - self.mr[ls:lb1] @ pb.T)
+        # band space (row: b, column j: a = b - L + j, m = b - a = L - j)
         ua = np.arange(lb0 - ls, lb1 - ls)[:, None] - L + np.arange(L)[None, :]
         valid = ua >= 0
-        band = cost[np.where(valid, ua, 0), np.arange(nb)[:, None]]
+        if not valid.all():
+            ua = np.where(valid, ua, 0)
+        col = np.arange(lb1 - lb0)[:, None]
+        g0, g1 = _rowdot(pb, q0b), _rowdot(pb, q1b)
+        na = self.na[ls:lb1]
+        s2, cx1, two_m = _coefficients(L)
+        band = z1[ua, col] + cx1 * x1[ua, col] + s2 * (na[ua] + self.na[lb0:lb1, None])
+        band += two_m * (z2[ua, col] + (ub * g0 - g1)[:, None])
+        band += (self.q2[lb0:lb1] - 2.0 * g0)[:, None]
+        np.maximum(band, 0.0, out=band)
+        band[:, -1] = 0.0  # m = 1: no frame inside
         band[~valid] = np.inf
         return band
+
+
+_COEFFICIENTS: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _coefficients(max_len: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-column factors of the band (m = L − j): Σt² = (m−1)(2m−1)/6m, 2Σt − 2Σt², 2/m."""
+    if max_len not in _COEFFICIENTS:
+        m = np.arange(max_len, 0, -1, dtype=np.float64)
+        s1 = (m - 1.0) / 2.0
+        s2 = (m - 1.0) * (2.0 * m - 1.0) / (6.0 * m)
+        _COEFFICIENTS[max_len] = (s2, 2.0 * s1 - 2.0 * s2, 2.0 / m)
+    return _COEFFICIENTS[max_len]
 
 
 def band_costs(x: np.ndarray, max_len: int) -> np.ndarray:
