@@ -9,8 +9,6 @@ from functools import cache
 import numpy as np
 import pytest
 from cmu import DATA, clips
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from streamkey.amc import read_motion
 from streamkey.cli import main
@@ -206,20 +204,6 @@ def test_online_latency_and_fixed_lambda_quality_on_every_clip():
                    "motion changes in character")
 def test_online_rate_is_within_5_percent_of_offline_on_every_clip():
     assert max(online_default(name)[2] for name in CLIPS) <= 1.05
-
-
-@settings(max_examples=6, deadline=None)
-@given(cuts=st.lists(st.integers(1, 315), max_size=6, unique=True))
-def test_push_block_gives_the_same_events_as_pushing_frame_by_frame(cuts):
-    m = load("07_01.bvh")
-    frames = m.frames()
-    one = optimal.Online(m.skeleton, m.fps, lookahead=40)
-    by_frame = [e for f in frames for e in one.push(f)] + one.flush()
-    blocks = optimal.Online(m.skeleton, m.fps, lookahead=40)
-    edges = [0, *sorted(cuts), len(frames)]
-    by_block = [e for lo, hi in zip(edges[:-1], edges[1:], strict=True)
-                for e in blocks.push_block(frames[lo:hi])] + blocks.flush()
-    assert by_block == by_frame
 
 
 def test_online_memory_stays_bounded_on_a_long_stream():
