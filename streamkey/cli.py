@@ -328,7 +328,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="osc://HOST:PORT, zmq+tcp://HOST:PORT[?pattern=pull], or a file")
     p.add_argument("--skeleton", help="BVH/AMC file with the stream's skeleton (else it comes "
                    "from a /streamkey/skeleton message)")
-    p.add_argument("--method", default="all", help="saliency, speed, simplify, a list, or all")
+    p.add_argument("--method", default="all",
+                   help="saliency, speed, simplify, optimal, a list, or all")
     p.add_argument("--to", action="append", metavar="ADDR",
                    help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
     p.add_argument("--listen", help="let listeners bind to this host instead of 127.0.0.1")

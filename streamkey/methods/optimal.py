@@ -35,18 +35,19 @@ decision. Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, defa
 an unbounded lookahead nothing is forced and `flush()` traces back from the last frame: the
 offline result exactly.
 
-Rate mode (R keys a second, s = fps / R frames a key): λ = 3.2 · exp(mean log cost(b − s, b))
-over every frame b priced so far — scale-aware: on the shared clips the λ that gives 5 % of
-frames is 3.2× the geometric mean cost of s-frame segments (within a factor of 1.5 on most
-clips), where λ itself spans three orders of magnitude. Online, whenever this estimate moves
-by more than 5 % (`RESOLVE`), every undecided frame is solved again with it; since λ still
-moves, chains that converged are not final in rate mode, and keys are decided at the
-deadline only (latency ≤ lookahead). At stream start, until s frames have arrived,
-λ = `DEFAULT_LAMBDA` (the median 5 % λ of the shared clips); the estimate is noisy over the
-first second and settles as the stream goes on. Offline, λ is the estimate over the whole
-take (one penalised pass); with an unbounded lookahead `flush()` solves everything with
-that same λ, so the two agree exactly. The key count follows the rate within the spread of
-that factor (about ±10 % on the shared clips).
+Rate mode (R keys a second, s = fps / R frames a key): on the shared clips the λ that gives
+5 % of frames is 3.2× the geometric mean cost of s-frame segments (within a factor of 1.5 on
+most clips), where λ itself spans three orders of magnitude. So λ = 3.2 · exp(mean log
+cost(b − s, b)), the mean over every frame b priced so far plus `PRIOR_FRAMES` (1200, 10 s)
+pseudo-frames at the prior (`DEFAULT_LAMBDA` = 3.5·10⁻³ at 5 %, the shared clips' median,
+scaled as s⁵ for other rates). At stream start λ is the prior; the data takes over as the
+stream goes on, which keeps λ steady on short takes (a moving λ spends keys unevenly).
+Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
+solved again with it; since λ still moves, converged chains are not final in rate mode and
+keys are decided at the deadline. Offline, λ is the estimate after the whole take (one
+penalised pass); with an unbounded lookahead `flush()` solves everything with that same λ,
+so the two agree exactly. The key count follows the rate only as far as the estimate is
+right (0.3–1.7 × on the shared clips, most within ±15 %).
 
 Deadlines are checked once a chunk, deciding every frame whose deadline falls before the
 next chunk is complete (so the effective lookahead is `lookahead` − 15 to `lookahead`).
