@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import itertools
+import pickle
 from functools import cache
 
 import numpy as np
@@ -108,6 +109,13 @@ def test_modes_are_checked():
                 {"count": 5, "rate": 2.0}, {"max_segment": 0.0}):
         with pytest.raises(UsageError):
             optimal.extract(m, **bad)
+    base = optimal.extract(m, count=16).frames
+    same = optimal.extract(m, count=16, weights=np.full(m.skeleton.n_joints, 4.0)).frames
+    assert np.array_equal(base, same)  # a common factor changes nothing
+    hands = np.zeros(m.skeleton.n_joints)
+    hands[[m.skeleton.index("LeftHand"), m.skeleton.index("RightHand")]] = 1.0
+    assert not np.array_equal(base, optimal.extract(m, count=16, weights=hands).frames)
+    assert len(optimal.extract(m, count=16, root_translation=True)) == 16
     with pytest.raises(UsageError):
         optimal.Online(m.skeleton, m.fps, lookahead=om.CHUNK - 1)
     with pytest.raises(UsageError):
@@ -247,6 +255,11 @@ def test_max_gap_online_wraps_any_keyframer():
     assert np.diff(rows).max() <= 120
     assert all(0 <= e.latency_frames <= kf.lookahead for e in events)
     assert kf.lookahead == saliency.Online(m.skeleton, m.fps).lookahead + 120
+    again = optimal.MaxGap(saliency.Online(m.skeleton, m.fps), 1.0)
+    frames_in = m.frames()
+    head = [e for f in frames_in[:500] for e in again.push(f)]
+    clone = pickle.loads(pickle.dumps(again))
+    assert head + run(clone, frames_in[500:]) == events  # pickled mid-stream, resumed
 
 
 def test_cli_optimal_and_max_gap(tmp_path, capsys):
