@@ -6,7 +6,7 @@ stateful piece (`Pricer`) holds plain arrays.
 The curve is x (one row per captured frame, D columns); the cost of a segment (a, b) is
 Σ_{a<f<b} |x_f − x_a − (f−a)/(b−a) (x_b − x_a)|². With prefix sums of x, f·x and |x|² over a
 window this costs O(D) per segment; `Pricer` prices every segment ending in a chunk of
-frames with three matrix products (never materialising a segment).
+frames with four matrix products (never materialising a segment).
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ class Pricer:
     Prefix sums run from an origin o, re-based every `EPOCH` frames (o = chunk start − L,
     rows re-centred on x_o: costs are shift invariant and smaller sums round less), so their
     size stays bounded on endless streams. Every quantity of one frame alone (|x|², x·Q0,
-    x·Q1, R = Σ_{f≤a} (f − a) x_f) is kept per row; a chunk then costs three matrix products
+    x·Q1, R = Σ_{f≤a} (f − a) x_f) is kept per row; a chunk then costs four matrix products
     over the window and O(window × chunk) elementwise work. Offline and online feed the
     same chunks, so their costs are bit-identical.
     """
@@ -80,7 +80,6 @@ class Pricer:
         self.na = np.zeros(size)
         self.h1 = np.zeros(size)
         self.h3 = np.zeros(size)
-        self.ux = np.zeros((size, d))  # u x per row
         self.mr = np.zeros((size, d))  # -R per row
 
     def _append(self, rows: np.ndarray) -> None:
@@ -97,7 +96,6 @@ class Pricer:
         self.na[lo:hi] = na
         self.h1[lo:hi] = _rowdot(wc, q0)
         self.h3[lo:hi] = _rowdot(wc, q1)
-        self.ux[lo:hi] = u * wc
         self.mr[lo:hi] = u * q0 - q1
         self.n += len(rows)
 
@@ -116,44 +114,49 @@ class Pricer:
         self._append(x[b0 - xbase : b1 - xbase])
         o = self.o
         ls, lb0, lb1 = max(o, b0 - L) - o, b0 - o, b1 - o
+        nb = lb1 - lb0
         win = self.w[ls:lb1]
         pb, q0b, q1b = self.w[lb0:lb1], self.q0[lb0:lb1], self.q1[lb0:lb1]
+        u = np.arange(ls, lb1, dtype=np.float64)[:, None]
         ub = np.arange(lb0, lb1, dtype=np.float64)
-        # window space (row: a, column: b). One product per right-hand side: a concatenated
-        # one runs many times slower in multi-threaded BLAS on a busy machine.
-        x1 = win @ pb.T
-        z1 = -2.0 * (win @ q0b.T) - self.q2[ls + 1 : lb1 + 1, None]
-        z2 = (ub[None, :] * self.h1[ls:lb1, None] - self.h3[ls:lb1, None]
-              - self.ux[ls:lb1] @ q0b.T + win @ q1b.T - self.mr[ls:lb1] @ pb.T)
-        # band space (row: b, column j: a = b - L + j, m = b - a = L - j)
-        ua = np.arange(lb0 - ls, lb1 - ls)[:, None] - L + np.arange(L)[None, :]
-        valid = ua >= 0
-        if not valid.all():
-            ua = np.where(valid, ua, 0)
-        col = np.arange(lb1 - lb0)[:, None]
+        # Window space (row: a, column: b), four products (one per right-hand side: a
+        # concatenated one crosses BLAS's threading threshold and runs far slower on a busy
+        # machine).
+        x1, x2, x3 = win @ pb.T, win @ q0b.T, win @ q1b.T
+        x4 = self.mr[ls:lb1] @ pb.T
         g0, g1 = _rowdot(pb, q0b), _rowdot(pb, q1b)
-        na = self.na[ls:lb1]
-        s2, cx1, two_m = _coefficients(L)
-        band = z1[ua, col] + cx1 * x1[ua, col] + s2 * (na[ua] + self.na[lb0:lb1, None])
-        band += two_m * (z2[ua, col] + (ub * g0 - g1)[:, None])
-        band += (self.q2[lb0:lb1] - 2.0 * g0)[:, None]
-        np.maximum(band, 0.0, out=band)
+        s2, cx1, two_m = (t[L + nb - len(win) :] for t in _tables(L, nb))
+        na = self.na[ls:lb1, None]
+        cost = (cx1 * x1 - 2.0 * x2 - self.q2[ls + 1 : lb1 + 1, None]
+                + s2 * (na + self.na[lb0:lb1]) + (self.q2[lb0:lb1] - 2.0 * g0)
+                + two_m * ((ub * g0 - g1) + ub * self.h1[ls:lb1, None] - self.h3[ls:lb1, None]
+                           - u * x2 + x3 - x4))
+        np.maximum(cost, 0.0, out=cost)
+        if len(win) < L + nb:  # stream start: segments from before frame 0 do not exist
+            cost = np.concatenate([np.full((L + nb - len(win), nb), np.inf), cost])
+        # band[i, j] = cost[i + j, i]: a = b - L + j (a strided view, no gather)
+        step, col = cost.strides
+        band = np.lib.stride_tricks.as_strided(cost, (nb, L), (step + col, step)).copy()
         band[:, -1] = 0.0  # m = 1: no frame inside
-        band[~valid] = np.inf
         return band
 
 
-_COEFFICIENTS: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+_TABLES: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
 
-def _coefficients(max_len: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-column factors of the band (m = L − j): Σt² = (m−1)(2m−1)/6m, 2Σt − 2Σt², 2/m."""
-    if max_len not in _COEFFICIENTS:
-        m = np.arange(max_len, 0, -1, dtype=np.float64)
-        s1 = (m - 1.0) / 2.0
-        s2 = (m - 1.0) * (2.0 * m - 1.0) / (6.0 * m)
-        _COEFFICIENTS[max_len] = (s2, 2.0 * s1 - 2.0 * s2, 2.0 / m)
-    return _COEFFICIENTS[max_len]
+def _tables(max_len: int, nb: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Window-space factors of a full chunk window (rows a = 0 .. L + nb − 1, column i the
+    end L + i, m = L + i − a): Σt² = (m−1)(2m−1)/6m, 2Σt − 2Σt², 2/m (0 where m ≤ 0)."""
+    key = (max_len, nb)
+    if key not in _TABLES:
+        m = (max_len + np.arange(nb))[None, :] - np.arange(max_len + nb)[:, None]
+        m = m.astype(np.float64)
+        ok = m >= 1.0
+        mm = np.where(ok, m, 1.0)
+        s2 = np.where(ok, (mm - 1.0) * (2.0 * mm - 1.0) / (6.0 * mm), 0.0)
+        _TABLES[key] = (s2, np.where(ok, (mm - 1.0) - 2.0 * s2, 0.0),
+                        np.where(ok, 2.0 / mm, 0.0))
+    return _TABLES[key]
 
 
 def band_costs(x: np.ndarray, max_len: int) -> np.ndarray:
@@ -206,7 +209,13 @@ def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, 
     (b − a), fewest keys, then least F (summed cost). `keys[b]` counts the chain's keys.
     """
     max_len = costs.shape[1]
-    for b in range(b0, b1):
+    b = b0
+    while b < b1:
+        if tolerance is None and b >= max_len:
+            e = min(b1, b + CHUNK)
+            _dp_block(costs[b - c0 : e - c0], f, bp, keys, b, lam, floor)
+            b = e
+            continue
         lo = max(b - max_len, floor)
         c = costs[b - c0, max_len - (b - lo):]
         vals = f[lo:b] + c
@@ -218,6 +227,7 @@ def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, 
             ok &= np.isfinite(vals)
             if not ok.any():
                 f[b], bp[b], keys[b] = np.inf, -1, 0
+                b += 1
                 continue
             k = np.where(ok, keys[lo:b], np.iinfo(np.int64).max)
             best = np.flatnonzero(k == k.min())
@@ -225,6 +235,47 @@ def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, 
             f[b] = vals[i]
         bp[b] = lo + i
         keys[b] = keys[lo + i] + 1
+        b += 1
+
+
+def _dp_block(band: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, b: int,
+              lam: float, floor: int) -> None:
+    """Penalised DP rows b .. b + len(band) − 1 (b >= L): the candidates before the block in
+    one vectorised pass, the ones inside it in plain Python floats. Same sums, same earliest
+    tie as the row-by-row loop, so the same bits."""
+    nb, max_len = band.shape
+    fw = f[b - max_len : b + nb]
+    vals = np.lib.stride_tricks.as_strided(fw, (nb, max_len), (fw.strides[0],) * 2) + band
+    vals[_inside(nb, max_len)] = np.inf  # a >= b: decided below, in order
+    if floor > b - max_len:
+        vals[np.arange(max_len)[None, :] < floor - b + max_len - np.arange(nb)[:, None]] = \
+            np.inf
+    arg = np.argmin(vals, axis=1)
+    pre = vals[np.arange(nb), arg].tolist()
+    rows = band[:, max_len - nb :].tolist()  # costs of the in-block candidates
+    done: list[float] = []
+    for i in range(nb):
+        best, a = pre[i], b - max_len + i + int(arg[i])
+        row = rows[i]
+        for k in range(max(0, floor - b), i):  # candidate a = b + k
+            v = done[k] + row[nb - i + k]
+            if v < best:
+                best, a = v, b + k
+        done.append(best + lam)
+        f[b + i] = done[i]
+        bp[b + i] = a
+        keys[b + i] = keys[a] + 1
+
+
+_INSIDE: dict[tuple[int, int], np.ndarray] = {}
+
+
+def _inside(nb: int, max_len: int) -> np.ndarray:
+    """Mask of band entries whose segment starts inside the block (a >= b of row 0)."""
+    key = (nb, max_len)
+    if key not in _INSIDE:
+        _INSIDE[key] = np.arange(max_len)[None, :] >= max_len - np.arange(nb)[:, None]
+    return _INSIDE[key]
 
 
 def chain(bp: np.ndarray, end: int, stop: int = -1) -> list[int]:
