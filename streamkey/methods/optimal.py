@@ -337,20 +337,39 @@ def _exact_count(band: np.ndarray, count: int) -> np.ndarray:
 
 
 def _adjust(x: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
-    """Remove (least cost increase) or insert (largest decrease) keys until `count`."""
-    keys = np.asarray(keys, dtype=np.int64)
-    while len(keys) > count:
-        p, k, q = keys[:-2], keys[1:-1], keys[2:]
-        up = om.pair_costs(x, p, q) - om.pair_costs(x, p, k) - om.pair_costs(x, k, q)
-        keys = np.delete(keys, 1 + int(np.argmin(up)))
-    while len(keys) < count:
-        frames = np.arange(len(x))
-        seg = np.clip(np.searchsorted(keys, frames, side="right") - 1, 0, len(keys) - 2)
-        inner = np.flatnonzero((frames > keys[seg]) & (frames < keys[seg + 1]))
-        a, b = keys[seg[inner]], keys[seg[inner] + 1]
-        gain = om.pair_costs(x, a, b) - om.pair_costs(x, a, inner) - om.pair_costs(x, inner, b)
-        keys = np.sort(np.append(keys, inner[int(np.argmax(gain))]))
-    return keys
+    """Remove (least cost increase) or insert (largest decrease) keys until `count`; only
+    the segments next to each change are priced again."""
+    keys = [int(k) for k in keys]
+
+    def removal(i: int) -> float:  # cost increase of removing keys[i]
+        p, k, q = keys[i - 1], keys[i], keys[i + 1]
+        return float(om.pair_costs(x, [p, p, k], [q, k, q]) @ [1.0, -1.0, -1.0])
+
+    def split(a: int, b: int) -> tuple[float, int]:  # best inserted key in (a, b), its gain
+        if b - a < 2:
+            return -np.inf, a
+        ks = np.arange(a + 1, b)
+        gain = (om.pair_costs(x, [a], [b])[0] - om.pair_costs(x, np.full(len(ks), a), ks)
+                - om.pair_costs(x, ks, np.full(len(ks), b)))
+        i = int(np.argmax(gain))
+        return float(gain[i]), int(ks[i])
+
+    if len(keys) > count:
+        up = [np.inf] + [removal(i) for i in range(1, len(keys) - 1)] + [np.inf]
+        while len(keys) > count:
+            i = int(np.argmin(up))
+            del keys[i], up[i]
+            for j in (i - 1, i):
+                if 0 < j < len(keys) - 1:
+                    up[j] = removal(j)
+    if len(keys) < count:
+        best = [split(a, b) for a, b in zip(keys[:-1], keys[1:], strict=True)]
+        while len(keys) < count:
+            i = int(np.argmax([g for g, _ in best]))
+            k = best[i][1]
+            keys.insert(i + 1, k)
+            best[i : i + 1] = [split(keys[i], k), split(k, keys[i + 2])]
+    return np.array(keys, dtype=np.int64)
 
 
 def _count_keys(x: np.ndarray, count: int, max_len: int) -> tuple[np.ndarray, dict[str, Any]]:
