@@ -148,7 +148,6 @@ class Solver:
         self.f = np.empty(0)
         self.bp = np.empty(0, dtype=np.int64)
         self.keys = np.empty(0, dtype=np.int64)
-        self.lams = np.empty(0)
         self.costs = np.empty((0, self.max_len))
 
     def _grow(self, need: int, width: int) -> None:
@@ -162,15 +161,14 @@ class Solver:
         else:
             shift = 0
         size = max(64, 2 * (held - shift + need))
-        old = (self.x, self.f, self.bp, self.keys, self.lams, self.costs)
+        old = (self.x, self.f, self.bp, self.keys, self.costs)
         self.x = np.empty((size, width))
         self.f = np.full(size, np.inf)
         self.bp = np.full(size, -1, dtype=np.int64)
         self.keys = np.zeros(size, dtype=np.int64)
-        self.lams = np.zeros(size)
         self.costs = np.empty((size if self.keep_costs else 0, self.max_len))
         rows = held - shift
-        for new, prev in zip((self.x, self.f, self.bp, self.keys, self.lams, self.costs), old,
+        for new, prev in zip((self.x, self.f, self.bp, self.keys, self.costs), old,
                              strict=True):
             if len(new) and rows:
                 new[:rows] = prev[shift:held]
@@ -200,7 +198,6 @@ class Solver:
         if self.done == 0:
             self.f[0], self.bp[0], self.keys[0] = 0.0, -1, 1
             start = 1
-        self.lams[b0:b1] = self.lam
         om.dp_rows(costs, self.f, self.bp, self.keys, start, b1, self.lam,
                    self.floor - self.base, self.tolerance, c0=b0)
         self.done = end
@@ -231,7 +228,6 @@ class Solver:
         """Solve every undecided frame again with penalty `lam`."""
         self.lam = lam
         lo = self.floor - self.base
-        self.lams[lo + 1 : self.done - self.base] = lam
         om.dp_rows(self.costs, self.f, self.bp, self.keys, lo + 1, self.done - self.base, lam,
                    lo, self.tolerance)
 
@@ -263,13 +259,15 @@ class Solver:
         lo, hi = self.floor - base, d - base
         if hi > lo:
             self.f[lo + 1 : hi + 1] = np.inf
-        dirty = np.zeros(self.done - base, dtype=bool)
-        for b in range(hi + 1, self.done - base):
-            p = int(self.bp[b])
-            if p <= hi and p != lo or p > hi and dirty[p]:
-                dirty[b] = True
-                om.dp_rows(self.costs, self.f, self.bp, self.keys, b, b + 1,
-                           float(self.lams[b]), lo, self.tolerance)
+        # Frames after d whose best chain skips the decision are solved again, from the first
+        # (a frame whose chain passes through it keeps its value: it only lost options).
+        end = self.done - base
+        p = self.bp[hi + 1 : end]
+        stale = np.flatnonzero((p <= hi) & (p != lo))
+        if len(stale):
+            first = hi + 1 + int(stale[0])
+            om.dp_rows(self.costs, self.f, self.bp, self.keys, first, end, self.lam, lo,
+                       self.tolerance)
         return keys
 
     def finish(self) -> list[int]:

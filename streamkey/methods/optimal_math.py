@@ -244,8 +244,8 @@ def _dp_block(band: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray,
     one vectorised pass, the ones inside it in plain Python floats. Same sums, same earliest
     tie as the row-by-row loop, so the same bits."""
     nb, max_len = band.shape
-    fw = f[b - max_len : b + nb]
-    vals = np.lib.stride_tricks.as_strided(fw, (nb, max_len), (fw.strides[0],) * 2) + band
+    step = f.strides[0]  # F(a) for a = b - L + i + j: a sliding view, no copy
+    vals = np.ndarray((nb, max_len), f.dtype, f, (b - max_len) * step, (step, step)) + band
     vals[_inside(nb, max_len)] = np.inf  # a >= b: decided below, in order
     if floor > b - max_len:
         vals[np.arange(max_len)[None, :] < floor - b + max_len - np.arange(nb)[:, None]] = \
