@@ -87,9 +87,9 @@ def curve(motion: Motion, features: Features | None = None, weights: np.ndarray 
           root_translation: bool = False) -> np.ndarray:
     """Curve rows (captured frames x D) of `motion` (module docstring)."""
     feats = features if features is not None else compute_features(motion)
-    pos = feats.fk.positions[motion.first_frame :]
-    return om.body_rows(pos, motion.skeleton.n_joints, feats.body_height, weights,
-                        root_translation)
+    scale = om.point_scale(motion.skeleton.n_joints, feats.body_height, weights,
+                           root_translation)
+    return om.body_rows(feats.fk.positions[motion.first_frame :], scale, root_translation)
 
 
 def _frames(seconds: float, fps: float, name: str) -> int:
@@ -478,6 +478,8 @@ class Online(OnlineKeyframer):
         self.mode = mode
         self.weights = None if weights is None else np.asarray(weights, dtype=np.float64)
         self.root_translation = root_translation
+        self.scale = om.point_scale(skeleton.n_joints, self.features.body_height, self.weights,
+                                    root_translation)
         self.reset()
 
     def reset(self) -> None:
@@ -494,8 +496,7 @@ class Online(OnlineKeyframer):
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Append the block's frames; decide what converged or reached its deadline."""
-        rows = om.body_rows(block.positions, self.skeleton.n_joints, self.features.body_height,
-                            self.weights, self.root_translation)
+        rows = om.body_rows(block.positions, self.scale, self.root_translation)
         s = self.solver
         events: list[KeyframeEvent] = []
         for i in range(len(block)):
@@ -557,6 +558,7 @@ class MaxGap(OnlineKeyframer):
                          stream=inner.stream, params={**inner.params, "max_gap": seconds})
         self.guard = inner.guard
         self.features = inner.features
+        self.scale = om.point_scale(inner.skeleton.n_joints, inner.features.body_height)
         self.reset()
 
     def reset(self) -> None:
@@ -600,7 +602,7 @@ class MaxGap(OnlineKeyframer):
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Frame by frame: the inner keyframer (and its deferred work), then gap filling
         over the part it has finalised (older than its lookahead)."""
-        rows = om.body_rows(block.positions, self.skeleton.n_joints, self.features.body_height)
+        rows = om.body_rows(block.positions, self.scale)
         out: list[KeyframeEvent] = []
         for i in range(len(block)):
             self.rows.append(rows[i])

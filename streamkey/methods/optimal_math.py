@@ -13,29 +13,36 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CHUNK", "EPOCH", "Pricer", "body_rows", "band_costs", "pair_costs", "dp_rows",
-           "chain", "best_split", "fill_gaps"]
+__all__ = ["CHUNK", "EPOCH", "Pricer", "point_scale", "body_rows", "band_costs", "pair_costs",
+           "dp_rows", "chain", "best_split", "fill_gaps"]
 
 CHUNK = 16  # frames priced together (online: the DP runs when a chunk of frames is complete)
 EPOCH = 512  # frames between re-based prefix sums (a multiple of CHUNK)
 
 
-def body_rows(positions: np.ndarray, n_joints: int, height: float,
-              weights: np.ndarray | None = None, root_translation: bool = False) -> np.ndarray:
+def point_scale(n_joints: int, height: float, weights: np.ndarray | None = None,
+                root_translation: bool = False) -> np.ndarray:
+    """Factor of each curve point (points, 1): 1 / (body height · √joints), times √weight."""
+    scale = np.full(n_joints + int(root_translation), 1.0 / (height * np.sqrt(n_joints)))
+    if weights is not None:
+        w = np.asarray(weights, dtype=np.float64)
+        scale[: len(w)] *= np.sqrt(w)
+    return scale[:, None]
+
+
+def body_rows(positions: np.ndarray, scale: np.ndarray,
+              root_translation: bool = False) -> np.ndarray:
     """Curve rows of FK positions (n, points, 3): the skeleton's joints (ROOT and JOINT, not
-    End Sites) minus the root, world orientation — the points of the evaluation's E — divided
-    by body height and √joints, so |row difference|² is a frame's mean squared joint error in
-    body heights². Optional per-joint `weights` (n_joints,); `root_translation` adds the
-    root's own world position as one more weighted point."""
+    End Sites; `scale` has one row a joint, `point_scale`) minus the root, world
+    orientation — the points of the evaluation's E — divided by body height and √joints, so
+    |row difference|² is a frame's mean squared joint error in body heights². With
+    `root_translation` the root's own world position is one more point."""
+    n_joints = len(scale) - int(root_translation)
     pts = positions[:, :n_joints]
     rel = pts - pts[:, :1]
     if root_translation:
         rel = np.concatenate([rel, pts[:, :1]], axis=1)
-    scale = np.full(rel.shape[1], 1.0 / (height * np.sqrt(n_joints)))
-    if weights is not None:
-        w = np.asarray(weights, dtype=np.float64)
-        scale[: len(w)] *= np.sqrt(w)
-    return (rel * scale[None, :, None]).reshape(len(rel), -1)
+    return (rel * scale).reshape(len(rel), -1)
 
 
 def _prefix(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
