@@ -244,19 +244,17 @@ def _add_method_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--count", type=int, help="simplify, uniform, decimate: keyframe count")
     p.add_argument("--space", choices=("channels", "positions"), default="channels",
                    help="simplify: curve of channel values or of body-frame joint positions")
-    _add_optimal_options(p)
+    _add_optimal_options(p, gap=False)
 
 
-def _add_optimal_options(p: argparse.ArgumentParser, hidden: bool = False) -> None:
-    def h(text: str) -> str:
-        return argparse.SUPPRESS if hidden else text
-
-    p.add_argument("--rate", type=float, help=h("optimal: keys per second (default 6)"))
+def _add_optimal_options(p: argparse.ArgumentParser, gap: bool = True) -> None:
+    p.add_argument("--rate", type=float, help="optimal: keys per second (default 6)")
     p.add_argument("--max-segment", type=float, metavar="SECONDS",
-                   help=h("optimal: longest stretch between keys (default 2 s)"))
-    p.add_argument("--max-gap", type=float, metavar="SECONDS",
-                   help=h("any method: insert a key (best frame by the optimal segment cost) "
-                          "in every stretch longer than SECONDS without one"))
+                   help="optimal: longest stretch between keys (default 2 s)")
+    if gap:
+        p.add_argument("--max-gap", type=float, metavar="SECONDS",
+                       help="any method: insert a key (best frame by the optimal segment "
+                            "cost) in every stretch longer than SECONDS without one")
 
 
 def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
