@@ -207,9 +207,10 @@ def test_online_latency_and_fixed_lambda_quality_on_every_clip():
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="measured (rate controller, lookahead 120): E / E of "
-                   "the offline optimum at the same count median 1.00, above 1.05 on a few "
-                   "clips (worst 49_18 ~1.20): the stream-so-far lambda drifts on takes whose "
-                   "motion changes in character")
+                   "the offline optimum at the same count median 1.002, 33 of 35 clips within "
+                   "5 %, 49_18 1.20 and 01_06 1.07: the stream-so-far lambda drifts on takes "
+                   "whose motion changes in character (with the take's own lambda fixed, "
+                   "worst 1.044)")
 def test_online_rate_is_within_5_percent_of_offline_on_every_clip():
     assert max(online_default(name)[2] for name in CLIPS) <= 1.05
 
