@@ -90,6 +90,14 @@ def bench_offline(frames: int, data: Path | None) -> dict[str, Any]:
         if name == "saliency":
             count = len(keys)
         rows.append({"method": name, "seconds": seconds, "peak_mb": peak, "keyframes": len(keys)})
+    for label, kwargs in (("optimal --rate 6 (one lambda)", {"rate": 6.0}),
+                          ("optimal --tolerance 1e-4 (one pass)", {"tolerance": 1e-4}),
+                          ("optimal --count 5 %", {"count": frames // 20})):
+        fn = offline_method("optimal")
+        seconds, peak, keys = _measure(lambda fn=fn, kwargs=kwargs: fn(motion, features=feats,
+                                                                         **kwargs))
+        rows.append({"method": label, "seconds": seconds, "peak_mb": peak, "keyframes": len(keys),
+                     "solver": keys.info.get("solver", "")})
     # The two extra seed methods are slower by nature: timed on the first 10,000 frames.
     short = Motion(motion.skeleton, motion.channels[:10_000], motion.fps, 0, "bench-10k")
     short_feats = compute_features(short)
@@ -116,7 +124,8 @@ def _push_costs(make: Callable[[], Any], frames: list[Any]) -> dict[str, float]:
             "frames_per_s": float(1e6 / us.mean())}
 
 
-def bench_online(data: Path | None, stream_frames: int = 432_000) -> dict[str, Any]:
+def bench_online(data: Path | None, stream_frames: int = 432_000,
+                 frames_long: int = 100_000) -> dict[str, Any]:
     """Per-frame push cost of each online keyframer and memory over a long looped stream."""
     from .methods import ONLINE_METHODS, online_class
     from .online import Pipeline
@@ -138,10 +147,37 @@ def bench_online(data: Path | None, stream_frames: int = 432_000) -> dict[str, A
     def pipeline() -> Pipeline:
         return Pipeline([online_class(m)(motion.skeleton, motion.fps) for m in ONLINE_METHODS])
 
-    rows.append({"method": "all three (one pipeline)", **_push_costs(pipeline, frames)})
+    rows.append({"method": "all (one pipeline)", **_push_costs(pipeline, frames)})
+    rows.append({"method": "feature stage only (guard + FK, the shared part)",
+                 **_push_costs(lambda: _FeaturesOnly(motion.skeleton, motion.fps), frames)})
+    long, _ = long_motion(frames_long, data)
+    long_frames = long.frames()
+    for name, make in (("optimal", lambda: online_class("optimal")(long.skeleton, long.fps)),
+                       ("feature stage only", lambda: _FeaturesOnly(long.skeleton, long.fps))):
+        rows.append({"method": f"{name} ({len(long_frames):,} frames)",
+                     **_push_costs(make, long_frames)})
     memory = _stream_memory(pipeline, motion, stream_frames)
     return {"clip": source, "frames": len(frames), "rows": rows, "memory": memory,
             "engine_live": _engine_latency(motion)}
+
+
+class _FeaturesOnly:
+    """Baseline of the per-frame cost: the guard and the shared feature stage, no method."""
+
+    def __init__(self, skeleton: Any, fps: float) -> None:
+        from .online import FeatureStage, StreamGuard
+
+        self.guard = StreamGuard(skeleton.n_channels)
+        self.stage = FeatureStage(skeleton, fps)
+
+    def push(self, frame: Any) -> None:
+        clean, _, _ = self.guard.accept(frame)
+        if clean:
+            self.stage.compute(clean)
+
+    def flush(self) -> None:
+        self.guard.reset()
+        self.stage.reset()
 
 
 def _engine_latency(motion: Motion, seconds: float = 60.0) -> dict[str, Any]:
@@ -247,7 +283,7 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
         elif kind == "offline":
             result = bench_offline(frames, data_dir)
         else:
-            result = bench_online(data_dir, stream_frames)
+            result = bench_online(data_dir, stream_frames, frames)
         result["date"] = time.strftime("%Y-%m-%d %H:%M:%S")
         for suffix, text in (("json", json.dumps(result, indent=1)),
                              ("md", _markdown(kind, result))):

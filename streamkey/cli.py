@@ -39,8 +39,13 @@ def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     if getattr(args, "verbose", False):
         isodata = {"verbose": True, "log": lambda line: print(line, file=sys.stderr)}
     decimate = {**counted, "space": args.space}
+    optimal: dict[str, Any] = {}
+    for name in ("count", "rate", "tolerance", "max_segment"):
+        if getattr(args, name, None) is not None:
+            optimal[name] = getattr(args, name)
     return {"saliency": saliency, "simplify": simplify, "uniform": counted, "decimate": decimate,
-            "isodata": isodata}
+            "isodata": isodata, "optimal": optimal,
+            "*": {"max_gap": getattr(args, "max_gap", None)}}  # every online keyframer
 
 
 def _write(text: str, output: str) -> None:
@@ -103,6 +108,13 @@ def cmd_extract(args: argparse.Namespace) -> int:
         methods = parse_methods(args.method)
         results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet),
                                      roles=_roles(args)))
+        if args.max_gap is not None:
+            from .methods.optimal import max_gap
+
+            for r in results:
+                if r.motion is not None:
+                    r.results = {m: max_gap(r.motion, k, args.max_gap)
+                                 for m, k in r.results.items()}
     _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
     _export(results, args)
     failed = [r for r in results if r.error]
@@ -310,12 +322,23 @@ def _add_method_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--space", choices=("positions", "channels"), default="positions",
                    help="simplify, decimate: curve of body-frame (root-relative) joint positions "
                         "in body heights (default) or of channel values (rotations unwrapped)")
+    _add_optimal_options(p, gap=False)
 
 
 def _add_roles_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--roles", metavar="FILE",
                    help="JSON {role: joint name} for skeletons the built-in tables (CMU, "
                         "Mixamo, Axis, Rokoko, Xsens, Unity/VMC) do not name")
+
+
+def _add_optimal_options(p: argparse.ArgumentParser, gap: bool = True) -> None:
+    p.add_argument("--rate", type=float, help="optimal: keys per second (default 6)")
+    p.add_argument("--max-segment", type=float, metavar="SECONDS",
+                   help="optimal: longest stretch between keys (default 2 s)")
+    if gap:
+        p.add_argument("--max-gap", type=float, metavar="SECONDS",
+                       help="any method: insert a key (best frame by the optimal segment "
+                            "cost) in every stretch longer than SECONDS without one")
 
 
 def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
@@ -337,7 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("paths", nargs="+", metavar="FILE_OR_DIR")
     p.add_argument("--method", default="saliency",
                    help="saliency, speed, simplify, uniform, decimate, isodata, curvefit, "
-                        "a comma list, or all")
+                        "optimal, a comma list, or all")
     p.add_argument("-v", "--verbose", action="store_true",
                    help="print derived thresholds (isodata) to stderr")
     p.add_argument("--format", choices=("json", "csv"), default="json")
@@ -345,14 +368,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sigma", type=float, help="saliency: base scale in frames (default: auto)")
     p.add_argument("--k", type=int, help="saliency: number of PCA curves (default: auto)")
     p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
-    p.add_argument("--tolerance", type=float, help="simplify: absolute error tolerance")
+    p.add_argument("--tolerance", type=float,
+                   help="simplify: absolute error tolerance; optimal: largest mean per-frame "
+                        "error between keys (body heights^2)")
     p.add_argument("--ratio", type=float, help="simplify: error / chord length ratio (Önder)")
     p.add_argument("--count", type=int,
-                   help="simplify, uniform, decimate: keyframe count (uniform and decimate "
-                        "default to the saliency count)")
+                   help="simplify, uniform, decimate, optimal: keyframe count (uniform and "
+                        "decimate default to the saliency count)")
     p.add_argument("--space", choices=("positions", "channels"), default="positions",
                    help="simplify, decimate: curve of body-frame (root-relative) joint positions "
                         "in body heights (default) or of channel values (rotations unwrapped)")
+    _add_optimal_options(p)
     p.add_argument("--online", action="store_true",
                    help="run the online keyframers over each file as if streamed")
     p.add_argument("--lookahead", type=int, help="online: lookahead in frames (default: method's)")
@@ -389,7 +415,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--skeleton", help="BVH/AMC file with the stream's skeleton (else it comes "
                    "from a /streamkey/skeleton message, the stdin skeleton line, or the "
                    "built-in Axis / humanoid table)")
-    p.add_argument("--method", default="all", help="saliency, speed, simplify, a list, or all")
+    p.add_argument("--method", default="all",
+                   help="saliency, speed, simplify, optimal, a list, or all")
     p.add_argument("--to", action="append", metavar="ADDR",
                    help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
     p.add_argument("--listen", help="let listeners bind to this host instead of 127.0.0.1")
@@ -408,6 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--count", type=int, help=argparse.SUPPRESS)
     p.add_argument("--space", choices=("positions", "channels"), default="positions",
                    help=argparse.SUPPRESS)
+    _add_optimal_options(p)
     _add_dashboard_options(p)
     _add_roles_option(p)
     p.set_defaults(func=cmd_run)
@@ -426,7 +454,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", help="dashboard: bind to this host instead of 127.0.0.1 (the "
                    "page then needs the token printed in its URL)")
     p.set_defaults(func=cmd_demo, lookahead=None, sigma=None, k=None, no_contact=False,
-                   tolerance=None, ratio=None, count=None, space="positions")
+                   tolerance=None, ratio=None, count=None, space="positions", rate=None,
+                   max_segment=None, max_gap=None)
 
     p = sub.add_parser("sheet", help="contact sheet: a clip's keyposes as stick figures (PNG)")
     p.add_argument("file")

@@ -57,7 +57,7 @@ MAX_ANNOTATIONS = 1000    # annotations kept in memory (all of them are in the l
 MAX_CLIENT_MESSAGE = 4096  # bytes of one operator message
 ACTIONS = ("label", "key", "reject")
 METHOD_COLORS = {"saliency": "#d62728", "speed": "#1f77b4", "simplify": "#2ca02c",
-                 "manual": "#9467bd"}
+                 "manual": "#9467bd", "optimal": "#bcbd22"}
 _SPARE_COLORS = ("#ff7f0e", "#8c564b", "#e377c2", "#17becf")
 _STATIC = {"dashboard.js": "text/javascript", "dashboard.css": "text/css"}
 

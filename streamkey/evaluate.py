@@ -270,7 +270,7 @@ def f_measure(found: Sequence[int] | np.ndarray, truth: Sequence[int] | np.ndarr
 
 
 def _builtin_methods() -> dict[str, Callable[[Motion, int], Keyframes]]:
-    from .methods import baselines, simplify
+    from .methods import baselines, optimal, simplify
 
     return {
         "uniform": baselines.uniform,
@@ -278,6 +278,7 @@ def _builtin_methods() -> dict[str, Callable[[Motion, int], Keyframes]]:
         "simplification": lambda m, k: simplify.extract(m, count=k, space="channels"),
         "decimation_positions": lambda m, k: baselines.decimate(m, k, space="positions"),
         "simplification_positions": lambda m, k: simplify.extract(m, count=k, space="positions"),
+        "optimal": lambda m, k: optimal.extract(m, count=k),
     }
 
 

@@ -34,7 +34,7 @@ __all__ = ["contact_sheet", "plot_signals", "keypose_points", "driving_signals",
 FIGURE_COLOR = "#1f4e8c"   # every stick figure of a sheet, nothing else, has this colour
 VIEWS = {"front": 0.0, "three-quarter": 45.0, "side": 90.0}   # azimuth from the front, degrees
 METHOD_COLORS = {"saliency": "#d62728", "speed": "#1f77b4", "simplify": "#2ca02c",
-                 "uniform": "#7f7f7f", "decimate": "#ff7f0e"}
+                 "uniform": "#7f7f7f", "decimate": "#ff7f0e", "optimal": "#bcbd22"}
 
 
 @dataclass

@@ -21,14 +21,21 @@ def make_keyframers(motion: Motion, methods: list[str],
                     params: dict[str, dict[str, Any]] | None = None,
                     lookahead: int | None = None, stream: str = "default"
                     ) -> list[OnlineKeyframer]:
-    """One online keyframer per method name, with its parameters and optional lookahead."""
+    """One online keyframer per method name, with its parameters and optional lookahead;
+    `params["*"]["max_gap"]` (seconds) wraps each in `optimal.MaxGap`."""
     params = params or {}
+    max_gap = params.get("*", {}).get("max_gap")
     out = []
     for name in methods:
         kwargs = {k: v for k, v in params.get(name, {}).items() if v is not None}
         if lookahead is not None:
             kwargs["lookahead"] = lookahead
-        out.append(online_class(name)(motion.skeleton, motion.fps, stream=stream, **kwargs))
+        kf = online_class(name)(motion.skeleton, motion.fps, stream=stream, **kwargs)
+        if max_gap is not None:
+            from .methods.optimal import MaxGap
+
+            kf = MaxGap(kf, max_gap)
+        out.append(kf)
     return out
 
 

@@ -20,7 +20,7 @@ def test_extract_writes_the_documented_json_schema(tmp_path, capsys):
     assert [f["file"] for f in doc["files"]] == [str(DATA / "07_01.bvh"), str(DATA / "07_05.amc")]
     for entry in doc["files"]:
         assert set(entry["methods"]) == {"saliency", "speed", "simplify", "uniform", "decimate",
-                                         "isodata", "curvefit"}
+                                         "isodata", "curvefit", "optimal"}
         for name, result in entry["methods"].items():
             keys = result["keyframes"]
             assert keys == sorted(set(keys)) and len(keys) == len(result["scores"]) > 0, name

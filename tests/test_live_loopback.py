@@ -9,6 +9,7 @@ from live_helpers import MS, free_port, keyframes_of, read_jsonl, streamkey, wai
 
 from streamkey.bvh import read_bvh
 from streamkey.keyframes import KeyframeEvent
+from streamkey.methods import ONLINE_METHODS
 from streamkey.motion import Motion
 from streamkey.online import Pipeline
 from streamkey.streaming import make_keyframers
@@ -22,7 +23,7 @@ def direct_events(float32: bool) -> list[tuple[str, int, int]]:
     if float32:
         motion = Motion(motion.skeleton, motion.channels.astype(np.float32), motion.fps,
                         motion.first_frame)
-    pipeline = Pipeline(make_keyframers(motion, ["saliency", "speed", "simplify"]))
+    pipeline = Pipeline(make_keyframers(motion, list(ONLINE_METHODS)))
     events = pipeline.push_block(motion.frames()) + pipeline.flush()
     return sorted((e.method, e.frame, e.decided_at) for e in events
                   if isinstance(e, KeyframeEvent))
@@ -51,7 +52,7 @@ def test_replay_and_run_as_two_processes_lose_no_event(tmp_path, scheme):
     assert "frames in: 316" in err
     assert got == direct_events(float32=(scheme == "osc" or scheme == "zmq+tcp"))
     assert got == direct_events(float32=False), "float32 wire rounding changed a decision"
-    assert {m for m, _, _ in got} == {"saliency", "speed", "simplify"}
+    assert {m for m, _, _ in got} == set(ONLINE_METHODS)
 
 
 WS_CLIENT = """

@@ -92,6 +92,18 @@ def test_pushing_does_not_mutate_the_frames(method, motion):
 
 
 @pytest.mark.parametrize("method", list(ONLINE_METHODS))
+def test_push_block_gives_the_same_events_as_pushing_frame_by_frame(method):
+    m = read_motion(DATA / "07_01.bvh")
+    frames = m.frames()
+    by_frame = run(online_class(method)(m.skeleton, m.fps), frames)
+    kf = online_class(method)(m.skeleton, m.fps)
+    edges = [0, 1, 17, 18, 150, 151, 260, len(frames)]
+    by_block = [e for lo, hi in zip(edges[:-1], edges[1:], strict=True)
+                for e in kf.push_block(frames[lo:hi])] + kf.flush()
+    assert by_block == by_frame
+
+
+@pytest.mark.parametrize("method", list(ONLINE_METHODS))
 def test_every_keyframer_class_documents_itself(method):
     cls = online_class(method)
     assert cls.__doc__ and cls.method == method

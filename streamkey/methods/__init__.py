@@ -22,14 +22,16 @@ OFFLINE_METHODS: dict[str, str] = {
     "decimate": "baselines:decimate",
     "isodata": "isodata:extract",
     "curvefit": "curvefit:extract",
+    "optimal": "optimal:extract",
 }
 ONLINE_METHODS: dict[str, str] = {
     "saliency": "saliency:Online",
     "speed": "speed:Online",
     "simplify": "simplify:Online",
+    "optimal": "optimal:Online",
 }
 # Methods that take a target keyframe count (the equal-count comparison of the thesis).
-COUNTED_METHODS = ("simplify", "uniform", "decimate")
+COUNTED_METHODS = ("simplify", "uniform", "decimate", "optimal")
 
 
 def _load(spec: str) -> Any:

@@ -143,6 +143,7 @@ function showKey(k) {
   li.id = keyId(k.method, k.frame);
   li.dataset.method = k.method;
   li.dataset.frame = k.frame;
+  if (k.method === "manual") li.dataset.annotated = "key";  // the operator's own: kept
   li.style.borderTopColor = state.colors[k.method] || "#999";
   const thumb = document.createElement("canvas");
   thumb.width = 112;

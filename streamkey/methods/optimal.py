@@ -1,0 +1,620 @@
+"""Optimal keys (DESIGN §4.5): the keys that minimise the error of linearly interpolating the
+body between them, by dynamic programming — offline `extract` and online `Online`.
+
+Definitions this module settles:
+
+- Curve: per captured frame, the skeleton's joints (ROOT and JOINT, not End Sites) minus the
+  root joint, in world orientation — the points of the evaluation's E — divided by body
+  height and √joints (`optimal_math.body_rows`; optional per-joint weights, optional root
+  translation). |difference|² of two rows is then a mean squared joint distance in body
+  heights², the unit of the evaluation's E / h².
+- Segment cost(a, b): Σ over frames strictly inside (a, b) of the squared distance to the
+  linear interpolation between a and b, from prefix sums (`optimal_math.Pricer`), at
+  most `max_segment` seconds (default 2 s) between keys. The first and the last captured
+  frames are always keys.
+- Penalised form (the common core): minimise Σ cost + λ · keys. Ties go to the earliest
+  predecessor, so the result is deterministic.
+- `count=K`: exactly K keys minimising Σ cost. Exact K-key DP when frames × K × L is small
+  (≤ 4·10⁷); else a search over λ of the penalised form, and if no λ lands on K, the nearest
+  λ solution with keys removed (least cost increase) or inserted (largest cost decrease) one
+  at a time; `info["solver"]` and `info["lambda_count"]` say which. If K keys cannot cover
+  the clip with segments ≤ L, L is stretched to fit.
+- `rate=R` keys per second: the penalised form with λ from a running controller (below), the
+  same computation online and offline. `lam=λ` fixes λ (units: frames × body heights²).
+- `tolerance=T`: the fewest keys such that every stretch (a, b] between consecutive keys has a
+  mean per-frame error ≤ T (body heights², the evaluation's E / h² of the linear
+  interpolation of the curve; so the whole take's mean meets T too), ties to the least cost.
+
+Online (`Online`): frames are priced in chunks of `optimal_math.CHUNK` frames aligned at
+stream index 0 (offline does the same, so costs are bit-identical). F(b) keeps back-pointers.
+A key is final once every back-pointer chain from the frames that could still precede a
+future key (the last L frames) passes through it (Viterbi traceback convergence). When the
+oldest undecided frame is `lookahead` frames old, the chain of the newest priced frame
+decides it and everything before it; later chains are re-priced to pass through that
+decision. Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, default 120). With
+an unbounded lookahead nothing is forced and `flush()` traces back from the last frame: the
+offline result exactly.
+
+Rate mode (R keys a second, s = fps / R frames a key): on the shared clips the λ that gives
+5 % of frames is 3.2× the geometric mean cost of s-frame segments (within a factor of 1.5 on
+most clips), where λ itself spans three orders of magnitude. So λ = 3.2 · exp(mean log
+cost(b − s, b)), the mean over every frame b priced so far plus `PRIOR_FRAMES` (1200, 10 s)
+pseudo-frames at the prior (`DEFAULT_LAMBDA` = 3.5·10⁻³ at 5 %, the shared clips' median,
+scaled as s⁵ for other rates). At stream start λ is the prior; the data takes over as the
+stream goes on, which keeps λ steady on short takes (a moving λ spends keys unevenly).
+Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
+solved again with it; since λ still moves, converged chains are not final in rate mode and
+keys are decided at the deadline. Offline, λ is the estimate after the whole take (one
+penalised pass); with an unbounded lookahead `flush()` solves everything with that same λ,
+so the two agree exactly. The key count follows the rate only as far as the estimate is
+right (0.3–1.7 × on the shared clips, most within ±15 %).
+
+Deadlines are checked once a chunk, deciding every frame whose deadline falls before the
+next chunk is complete (so the effective lookahead is `lookahead` − 15 to `lookahead`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..errors import UsageError
+from ..features import Features, compute_features
+from ..keyframes import KeyframeEvent, Keyframes
+from ..motion import Motion, Skeleton
+from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
+from . import optimal_math as om
+
+__all__ = ["extract", "curve", "Solver", "Online", "MaxGap", "max_gap", "METHOD",
+           "DEFAULT_LOOKAHEAD", "DEFAULT_MAX_SEGMENT", "DEFAULT_RATE", "DEFAULT_LAMBDA"]
+
+METHOD = "optimal"
+DEFAULT_LOOKAHEAD = 120  # frames: 1 s at 120 Hz
+DEFAULT_MAX_SEGMENT = 2.0  # seconds
+DEFAULT_RATE = 6.0  # keys per second: 5 % of frames at 120 Hz
+DEFAULT_LAMBDA = 3.5e-3  # frames x body heights^2
+PRIOR_FRAMES = 1200  # rate mode: weight of the prior lambda, in frames of evidence
+RESOLVE = 0.05  # rate mode: re-solve the undecided frames when log lambda moves this much
+RATE_FACTOR = 3.2  # lambda / geometric mean cost of key-spaced segments (shared clips, 5 %)
+_LOG_FLOOR = 1e-12  # smallest segment cost in the geometric mean
+_GRID = 16  # lambdas per pass of the count search
+_EXACT_BUDGET = 4e7  # frames x K x L below which count mode runs the exact K-key DP
+
+
+def curve(motion: Motion, features: Features | None = None, weights: np.ndarray | None = None,
+          root_translation: bool = False) -> np.ndarray:
+    """Curve rows (captured frames x D) of `motion` (module docstring)."""
+    feats = features if features is not None else compute_features(motion)
+    scale = om.point_scale(motion.skeleton.n_joints, feats.body_height, weights,
+                           root_translation)
+    return om.body_rows(feats.fk.positions[motion.first_frame :], scale, root_translation)
+
+
+def _frames(seconds: float, fps: float, name: str) -> int:
+    if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+        raise UsageError(f"{name} must be a positive number of seconds, got {seconds!r}")
+    return max(2, int(round(seconds * fps)))
+
+
+def _mode(count: int | None, rate: float | None, tolerance: float | None,
+          lam: float | None) -> dict[str, Any]:
+    given = {k: v for k, v in (("count", count), ("rate", rate), ("tolerance", tolerance),
+                               ("lam", lam)) if v is not None}
+    if len(given) > 1:
+        raise UsageError("optimal: give at most one of count, rate, tolerance, lam")
+    if not given:
+        return {"rate": DEFAULT_RATE}
+    (name, value), = given.items()
+    if name == "count":
+        if isinstance(value, bool) or int(value) != value or value < 2:
+            raise UsageError(f"count must be an integer >= 2, got {value!r}")
+        return {"count": int(value)}
+    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+        raise UsageError(f"{name} must be a positive number, got {value!r}")
+    return {name: float(value)}
+
+
+class Solver:
+    """The penalised (or tolerance) DP over a growing stream, with traceback convergence.
+
+    Plain attributes; arrays hold stream indices base .. n − 1. Offline: `add` every row,
+    then `finish`. Online: `add` per block, `converge` per chunk, `force` at deadlines.
+    """
+
+    def __init__(self, max_len: int, *, lam: float | None = None, rate: float | None = None,
+                 tolerance: float | None = None, keep_costs: bool = False) -> None:
+        self.max_len = int(max_len)
+        self.lam0 = float(lam if lam is not None else DEFAULT_LAMBDA)
+        self.rate = rate  # keys per frame, or None
+        self.span = int(min(max_len, max(2, round(1.0 / rate)))) if rate else 0
+        self.tolerance = tolerance
+        self.keep_costs = keep_costs
+        self.reset()
+
+    def reset(self) -> None:
+        """Empty stream."""
+        self.base = 0
+        self.n = 0
+        self.done = 0  # frames with F computed
+        self.floor = 0  # last committed key (stream index)
+        self.decided = -1  # every frame <= decided is final
+        self.log_sum = 0.0  # rate controller: sum and count of log cost(b - s, b)
+        self.log_n = 0
+        self.lam = self.lam0 if self.rate is None else self.rate_estimate()
+        self.pricer = om.Pricer(self.max_len)
+        self.x = np.empty((0, 0))
+        self.f = np.empty(0)
+        self.bp = np.empty(0, dtype=np.int64)
+        self.keys = np.empty(0, dtype=np.int64)
+        self.costs = np.empty((0, self.max_len))
+
+    def _grow(self, need: int, width: int) -> None:
+        """Room for `need` more rows: drop rows no longer used, then enlarge if still full."""
+        held = self.n - self.base
+        if held + need <= len(self.f):
+            return
+        if self.keep_costs:  # online: rows before the floor and the last window are unused
+            keep = max(self.base, min(self.floor, self.done - self.max_len))
+            shift = keep - self.base
+        else:
+            shift = 0
+        size = max(64, 2 * (held - shift + need))
+        old = (self.x, self.f, self.bp, self.keys, self.costs)
+        self.x = np.empty((size, width))
+        self.f = np.full(size, np.inf)
+        self.bp = np.full(size, -1, dtype=np.int64)
+        self.keys = np.zeros(size, dtype=np.int64)
+        self.costs = np.empty((size if self.keep_costs else 0, self.max_len))
+        rows = held - shift
+        for new, prev in zip((self.x, self.f, self.bp, self.keys, self.costs), old,
+                             strict=True):
+            if len(new) and rows:
+                new[:rows] = prev[shift:held]
+        self.bp[:rows] -= shift
+        self.base += shift
+
+    def add(self, rows: np.ndarray) -> list[int]:
+        """Append rows; price and solve every completed chunk. Returns the stream indices of
+        the chunk ends solved (the frames after which convergence may be checked)."""
+        self._grow(len(rows), rows.shape[1])
+        lo = self.n - self.base
+        self.x[lo : lo + len(rows)] = rows
+        self.n += len(rows)
+        ends = []
+        while self.n - self.done >= om.CHUNK:
+            self._solve(self.done + om.CHUNK)
+            ends.append(self.done - 1)
+        return ends
+
+    def _solve(self, end: int) -> None:
+        """Price and solve frames done .. end − 1 (one chunk, or the tail at finish)."""
+        b0, b1 = self.done - self.base, end - self.base
+        costs = self.pricer.price(self.x, self.base, self.done, end)
+        if self.keep_costs:
+            self.costs[b0:b1] = costs
+        start = b0
+        if self.done == 0:
+            self.f[0], self.bp[0], self.keys[0] = 0.0, -1, 1
+            start = 1
+        om.dp_rows(costs, self.f, self.bp, self.keys, start, b1, self.lam,
+                   self.floor - self.base, self.tolerance, c0=b0)
+        self.done = end
+        if self.rate is not None:
+            lam = self.rate_lambda(costs)
+            if self.keep_costs and abs(math.log(lam / self.lam)) > RESOLVE:
+                self.resolve(lam)
+
+    def rate_lambda(self, costs: np.ndarray) -> float:
+        """Rate controller (module docstring): λ from every frame priced so far."""
+        assert self.rate is not None
+        c = costs[:, self.max_len - self.span]
+        c = c[np.isfinite(c)]
+        if len(c):
+            self.log_sum += float(np.sum(np.log(c + _LOG_FLOOR)))
+            self.log_n += len(c)
+        return self.rate_estimate()
+
+    def rate_estimate(self) -> float:
+        """λ of the rate mode from the costs priced so far, shrunk towards the prior."""
+        assert self.rate is not None
+        prior = math.log(DEFAULT_LAMBDA / RATE_FACTOR * (self.span / 20.0) ** 5)
+        weight = PRIOR_FRAMES + self.log_n
+        mean = (PRIOR_FRAMES * prior + self.log_sum) / weight if weight else prior
+        return RATE_FACTOR * math.exp(mean)
+
+    def resolve(self, lam: float) -> None:
+        """Solve every undecided frame again with penalty `lam`."""
+        self.lam = lam
+        lo = self.floor - self.base
+        om.dp_rows(self.costs, self.f, self.bp, self.keys, lo + 1, self.done - self.base, lam,
+                   lo, self.tolerance)
+
+    def converge(self) -> list[int]:
+        """Keys that every chain from the last L priced frames shares, newly final."""
+        t = self.done - 1
+        lo = max(self.floor, t - self.max_len + 1) - self.base
+        cur = np.arange(lo, t - self.base + 1)
+        cur = cur[np.isfinite(self.f[cur])]
+        while len(cur) > 1:
+            low = cur[0]
+            cur = np.unique(np.where(cur > low, self.bp[cur], cur))
+        if len(cur) == 0 or cur[0] + self.base <= self.decided:
+            return []
+        conv = int(cur[0])
+        keys = [k + self.base for k in om.chain(self.bp, conv, self.decided - self.base)]
+        self.floor = self.decided = conv + self.base
+        return keys
+
+    def force(self, d: int) -> list[int]:
+        """Decide every frame <= d from the chain of the newest priced frame; re-price the
+        frames after d so every chain passes through the decision."""
+        base = self.base
+        path = om.chain(self.bp, self.done - 1 - base, self.decided - base)
+        keys = [k + base for k in path if k + base <= d]
+        if keys:
+            self.floor = keys[-1]
+        self.decided = d
+        lo, hi = self.floor - base, d - base
+        if hi > lo:
+            self.f[lo + 1 : hi + 1] = np.inf
+        # Frames after d whose best chain skips the decision are solved again, from the first
+        # (a frame whose chain passes through it keeps its value: it only lost options).
+        end = self.done - base
+        p = self.bp[hi + 1 : end]
+        stale = np.flatnonzero((p <= hi) & (p != lo))
+        if len(stale):
+            first = hi + 1 + int(stale[0])
+            om.dp_rows(self.costs, self.f, self.bp, self.keys, first, end, self.lam, lo,
+                       self.tolerance)
+        return keys
+
+    def finish(self) -> list[int]:
+        """End of stream: price the tail, trace back from the last frame (always a key)."""
+        if self.n == 0:
+            return []
+        if self.done < self.n:
+            self._solve(self.n)
+        if self.rate is not None and self.keep_costs:
+            lam = self.rate_estimate()
+            if lam != self.lam:
+                self.resolve(lam)
+        path = om.chain(self.bp, self.n - 1 - self.base, self.decided - self.base)
+        return [k + self.base for k in path]
+
+
+def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> np.ndarray:
+    """Offline λ / tolerance: the online solver over every row, nothing forced."""
+    solver = Solver(max_len, **mode)
+    solver.add(x)
+    return np.array(solver.finish(), dtype=np.int64)
+
+
+def _rate_keys(x: np.ndarray, max_len: int, rate: float) -> tuple[np.ndarray, float]:
+    """Offline rate: λ from every frame's cost (as the online controller ends up with), then
+    one penalised pass. Same chunks and sums as `Solver`, so bit-identical to it."""
+    solver = Solver(max_len, rate=rate)
+    band = np.empty((len(x), max_len))
+    for b0 in range(0, len(x), om.CHUNK):
+        b1 = min(len(x), b0 + om.CHUNK)
+        band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
+        lam = solver.rate_lambda(band[b0:b1])
+    return _penalised(band, lam), lam
+
+
+def _penalised(band: np.ndarray, lam: float) -> np.ndarray:
+    n = len(band)
+    f = np.full(n, np.inf)
+    bp = np.full(n, -1, dtype=np.int64)
+    keys = np.zeros(n, dtype=np.int64)
+    f[0], keys[0] = 0.0, 1
+    om.dp_rows(band, f, bp, keys, 1, n, lam)
+    return np.array(om.chain(bp, n - 1), dtype=np.int64)
+
+
+def _exact_count(band: np.ndarray, count: int) -> np.ndarray:
+    """The K-key optimum: G_j(b) = min_a G_{j−1}(a) + cost(a, b), j segments ending at b."""
+    n, max_len = band.shape
+    a = np.arange(n)[:, None] - max_len + np.arange(max_len)[None, :]
+    a_ok = np.maximum(a, 0)
+    g = np.full(n, np.inf)
+    g[0] = 0.0
+    back = np.empty((count - 1, n), dtype=np.int64)
+    for j in range(count - 1):
+        vals = g[a_ok] + band
+        vals[a < 0] = np.inf
+        arg = np.argmin(vals, axis=1)
+        back[j] = a_ok[np.arange(n), arg]
+        g = vals[np.arange(n), arg]
+        g[0] = np.inf
+    keys = [n - 1]
+    for j in range(count - 2, -1, -1):
+        keys.append(int(back[j, keys[-1]]))
+    return np.array(keys[::-1], dtype=np.int64)
+
+
+def _adjust(x: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
+    """Remove (least cost increase) or insert (largest decrease) keys until `count`; only
+    the segments next to each change are priced again."""
+    keys = [int(k) for k in keys]
+
+    def removal(i: int) -> float:  # cost increase of removing keys[i]
+        p, k, q = keys[i - 1], keys[i], keys[i + 1]
+        return float(om.pair_costs(x, [p, p, k], [q, k, q]) @ [1.0, -1.0, -1.0])
+
+    def split(a: int, b: int) -> tuple[float, int]:  # best inserted key in (a, b), its gain
+        if b - a < 2:
+            return -np.inf, a
+        ks = np.arange(a + 1, b)
+        gain = (om.pair_costs(x, [a], [b])[0] - om.pair_costs(x, np.full(len(ks), a), ks)
+                - om.pair_costs(x, ks, np.full(len(ks), b)))
+        i = int(np.argmax(gain))
+        return float(gain[i]), int(ks[i])
+
+    if len(keys) > count:
+        up = [np.inf] + [removal(i) for i in range(1, len(keys) - 1)] + [np.inf]
+        while len(keys) > count:
+            i = int(np.argmin(up))
+            del keys[i], up[i]
+            for j in (i - 1, i):
+                if 0 < j < len(keys) - 1:
+                    up[j] = removal(j)
+    if len(keys) < count:
+        best = [split(a, b) for a, b in zip(keys[:-1], keys[1:], strict=True)]
+        while len(keys) < count:
+            i = int(np.argmax([g for g, _ in best]))
+            k = best[i][1]
+            keys.insert(i + 1, k)
+            best[i : i + 1] = [split(keys[i], k), split(k, keys[i + 2])]
+    return np.array(keys, dtype=np.int64)
+
+
+def _count_keys(x: np.ndarray, count: int, max_len: int) -> tuple[np.ndarray, dict[str, Any]]:
+    n = len(x)
+    max_len = max(max_len, -(-(n - 1) // (count - 1)))  # K keys must be able to cover n
+    band = om.band_costs(x, max_len)
+    if n * count * max_len <= _EXACT_BUDGET:
+        return _exact_count(band, count), {"solver": "exact", "max_segment_frames": max_len}
+    band32 = band.astype(np.float32)
+    del band
+    lo, hi = math.log(1e-9), math.log(1e3)  # log lambda bracket: lo gives >= count keys
+    best: dict[int, float] = {}
+    for _ in range(4):
+        grid = np.linspace(lo, hi, _GRID)
+        counts = _penalised_counts(band32, np.exp(grid))
+        for g, c in zip(grid, counts, strict=True):
+            best.setdefault(int(c), float(g))
+        if count in best:
+            break
+        above = np.flatnonzero(counts > count)
+        below = np.flatnonzero(counts < count)
+        lo = grid[above[-1]] if len(above) else lo - 4.0
+        hi = grid[below[0]] if len(below) else hi + 4.0
+    near = min(best, key=lambda k: (abs(k - count), k < count))
+    keys = _adjust(x, _penalised(band32, math.exp(best[near])), count)
+    return keys, {"solver": "lambda" if near == count else "lambda+greedy",
+                  "lambda_count": near, "max_segment_frames": max_len}
+
+
+def _penalised_counts(band: np.ndarray, lams: np.ndarray) -> np.ndarray:
+    """Key counts of the penalised optimum for several λ at once (one pass over the band)."""
+    n, max_len = band.shape
+    width = len(lams)
+    f = np.full((n, width), np.inf)
+    keys = np.zeros((n, width), dtype=np.int64)
+    f[0], keys[0] = 0.0, 1
+    cols = np.arange(width)
+    for b in range(1, n):
+        lo = max(0, b - max_len)
+        vals = f[lo:b] + band[b, max_len - (b - lo):, None]
+        i = np.argmin(vals, axis=0)
+        f[b] = vals[i, cols] + lams
+        keys[b] = keys[lo + i, cols] + 1
+    return keys[n - 1]
+
+
+def extract(motion: Motion, *, count: int | None = None, rate: float | None = None,
+            tolerance: float | None = None, lam: float | None = None,
+            max_segment: float = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
+            root_translation: bool = False, features: Features | None = None) -> Keyframes:
+    """Optimal keys of `motion` (module docstring); default mode: `rate=DEFAULT_RATE`."""
+    mode = _mode(count, rate, tolerance, lam)
+    max_len = _frames(max_segment, motion.fps, "max_segment")
+    x = curve(motion, features, weights, root_translation)
+    n = len(x)
+    if n == 0:
+        raise UsageError("the motion has no captured frames")
+    params: dict[str, Any] = {**mode, "max_segment": max_segment,
+                              "root_translation": root_translation,
+                              "weights": None if weights is None else list(weights)}
+    info: dict[str, Any] = {}
+    if n == 1:
+        rows = np.zeros(1, dtype=np.int64)
+    elif "count" in mode:
+        if mode["count"] > n:
+            raise UsageError(f"count must be in [2, {n}] (captured frames), got {count}")
+        rows, info = _count_keys(x, mode["count"], max_len)
+    else:
+        if "rate" in mode:
+            rows, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps)
+        else:
+            rows = _solve_all(x, max_len, **mode)
+    err = om.pair_costs(x, rows[:-1], rows[1:])
+    info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
+    scores = np.zeros(len(rows))
+    scores[1:] += err
+    scores[:-1] += err  # a key's score: the error of the segments it bounds
+    return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
+
+
+class Online(OnlineKeyframer):
+    """Online optimal keys: the penalised DP with traceback convergence and a lookahead
+    deadline (module docstring); rate (default), fixed λ or tolerance mode."""
+
+    method = METHOD
+
+    def __init__(self, skeleton: Skeleton, fps: float, *, rate: float | None = None,
+                 tolerance: float | None = None, lam: float | None = None,
+                 max_segment: float = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
+                 root_translation: bool = False, lookahead: int = DEFAULT_LOOKAHEAD,
+                 count: int | None = None, stream: str = "default",
+                 role_mapping: dict[str, str] | None = None,
+                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+        if count is not None:
+            raise UsageError("optimal online: a key count needs the whole take; give a rate "
+                             "(keys per second) or a tolerance")
+        mode = _mode(None, rate, tolerance, lam)
+        if isinstance(lookahead, bool) or not isinstance(lookahead, int | np.integer) or (
+                lookahead < om.CHUNK):
+            raise UsageError(f"optimal online: lookahead must be an integer >= {om.CHUNK}, "
+                             f"got {lookahead!r}")
+        self.max_len = _frames(max_segment, fps, "max_segment")
+        super().__init__(skeleton, fps, lookahead=int(lookahead), stream=stream,
+                         role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
+                         params={**mode, "max_segment": max_segment,
+                                 "root_translation": root_translation,
+                                 "weights": None if weights is None else list(weights)})
+        self.mode = mode
+        self.weights = None if weights is None else np.asarray(weights, dtype=np.float64)
+        self.root_translation = root_translation
+        self.scale = om.point_scale(skeleton.n_joints, self.features.body_height, self.weights,
+                                    root_translation)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream; keep parameters."""
+        kw = {"rate": self.mode["rate"] / self.fps} if "rate" in self.mode else dict(self.mode)
+        self.solver = Solver(self.max_len, keep_costs=True, **kw)
+        self.seq: list[int] = []
+        self.time: list[float] = []
+        self.t0 = 0  # stream index of seq[0]
+
+    def _events(self, keys: list[int], decided_at: int) -> list[KeyframeEvent]:
+        return [self.event(self.seq[k - self.t0], self.time[k - self.t0], 0.0, decided_at)
+                for k in keys]
+
+    def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
+        """Append the block's frames; decide what converged or reached its deadline."""
+        rows = om.body_rows(block.positions, self.scale, self.root_translation)
+        s = self.solver
+        events: list[KeyframeEvent] = []
+        for i in range(len(block)):
+            self.seq.append(int(block.seq[i]))
+            self.time.append(float(block.time[i]))
+            for end in s.add(rows[i : i + 1]):
+                keys = [] if s.rate is not None else s.converge()
+                d = end + om.CHUNK - 1 - self.lookahead
+                if d > s.decided:
+                    keys += s.force(d)
+                events += self._events(keys, int(block.seq[i]))
+            drop = min(s.decided, s.base) - self.t0
+            if drop > 256:
+                del self.seq[:drop], self.time[:drop]
+                self.t0 += drop
+        return events
+
+    def finish(self) -> list[KeyframeEvent]:
+        """End of stream: the chain from the last frame decides the rest."""
+        if self.solver.n == 0:
+            return []
+        return self._events(self.solver.finish(), self.seq[-1])
+
+
+# ----------------------------------------------------------------------------- --max-gap
+
+
+def max_gap(motion: Motion, keys: Keyframes, seconds: float,
+            features: Features | None = None) -> Keyframes:
+    """`keys` with a key inserted in every stretch longer than `seconds` without one, at the
+    best frame by the optimal segment cost (`optimal_math.fill_gaps`)."""
+    gap = _frames(seconds, motion.fps, "max_gap")
+    x = curve(motion, features)
+    rows = np.asarray(keys.frames, dtype=np.int64) - motion.first_frame
+    ends = np.unique(np.concatenate([[0], rows, [len(x) - 1]]))
+    filled = om.fill_gaps(x, ends, gap)
+    added = np.setdiff1d(filled, rows)
+    frames = np.union1d(rows, added)
+    score = dict(zip(rows.tolist(), keys.scores.tolist(), strict=True))
+    scores = np.array([score.get(int(r), 0.0) for r in frames])
+    info = {**keys.info, "max_gap_added": (added + motion.first_frame).tolist()}
+    return Keyframes(keys.method, frames + motion.first_frame, scores,
+                     {**keys.params, "max_gap": seconds}, keys.n_frames, info)
+
+
+class MaxGap(OnlineKeyframer):
+    """Any online keyframer with `--max-gap`: once the inner keyframer has decided a stretch
+    longer than the gap without a key (frames older than its lookahead are final), a key is
+    inserted at the best frame by the optimal segment cost. Inserted keys have latency up to
+    inner lookahead + gap, which is this keyframer's lookahead; inner keys pass unchanged."""
+
+    method = "?"
+
+    def __init__(self, inner: OnlineKeyframer, seconds: float) -> None:
+        self.inner = inner
+        self.method = inner.method  # type: ignore[misc]
+        self.gap = _frames(seconds, inner.fps, "max_gap")
+        super().__init__(inner.skeleton, inner.fps, lookahead=inner.lookahead + self.gap,
+                         stream=inner.stream, params={**inner.params, "max_gap": seconds})
+        self.guard = inner.guard
+        self.features = inner.features
+        self.scale = om.point_scale(inner.skeleton.n_joints, inner.features.body_height)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream (the inner keyframer too)."""
+        self.inner.reset()
+        self.rows: list[np.ndarray] = []  # curve rows from the last key on
+        self.seq: list[int] = []
+        self.time: list[float] = []
+        self.t0 = 0  # stream index of rows[0]
+        self.t = -1
+        self.last = 0  # stream index of the last key (the first frame is an anchor)
+
+    def _fill(self, end: int) -> list[KeyframeEvent]:
+        """Keys while the stretch from the last key to `end` (a key, or a bound on the next
+        one) is longer than the gap."""
+        out = []
+        while end - self.last > self.gap:
+            a = self.last - self.t0
+            k = om.best_split(np.array(self.rows), a, a + self.gap + 1, a + self.gap)
+            out.append(KeyframeEvent(self.stream, self.method, self.seq[k], self.time[k], 0.0,
+                                     self.seq[-1], self.lookahead, self.params_digest))
+            self.last = k + self.t0
+        return out
+
+    def _advance(self, events: list[KeyframeEvent], final: int) -> list[KeyframeEvent]:
+        """Inner events in order with the gaps before them filled, then the gaps of the
+        decided part (frames <= final carry no other key)."""
+        out: list[KeyframeEvent] = []
+        for e in events:
+            k = self.t0 + e.frame - self.seq[0]
+            out += self._fill(k)
+            out.append(e)
+            self.last = max(self.last, k)
+        out += self._fill(final)
+        drop = self.last - self.t0
+        if drop > 0:
+            del self.rows[:drop], self.seq[:drop], self.time[:drop]
+            self.t0 += drop
+        return out
+
+    def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
+        """Frame by frame: the inner keyframer (and its deferred work), then gap filling
+        over the part it has finalised (older than its lookahead)."""
+        rows = om.body_rows(block.positions, self.scale)
+        out: list[KeyframeEvent] = []
+        for i in range(len(block)):
+            self.rows.append(rows[i])
+            self.seq.append(int(block.seq[i]))
+            self.time.append(float(block.time[i]))
+            self.t += 1
+            events = self.inner.process(block.slice(i, i + 1)) + self.inner.idle()
+            out += self._advance(events, self.t - self.inner.lookahead + 1)
+        return out
+
+    def finish(self) -> list[KeyframeEvent]:
+        """End of stream: the inner keyframer's rest, then the gaps up to the last frame."""
+        if self.t < 0:
+            return self.inner.finish()
+        return self._advance(self.inner.finish(), self.t)
