@@ -180,7 +180,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """`streamkey bench`: time and memory of the offline and/or online methods, to files."""
     from .bench import run_bench
 
-    kinds = [k for k in ("offline", "online", "agreement") if getattr(args, k)] or [
+    kinds = [k for k in ("offline", "online", "agreement", "perf") if getattr(args, k)] or [
         "offline", "online"]
     for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data):
         print(f"wrote {path}")
@@ -361,6 +361,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--online", action="store_true")
     p.add_argument("--agreement", action="store_true",
                    help="online vs offline F1 against lookahead on every shared clip (slow)")
+    p.add_argument("--perf", action="store_true",
+                   help="per-frame CPU time on a long stream and offline growth exponents")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")
     p.add_argument("--data", help="folder of CMU clips (default: ../shared/data/cmu if present)")
     p.add_argument("-o", "--output", default="results", help="output folder")

@@ -62,7 +62,11 @@ def unwrap_step(raw: np.ndarray, prev_raw: np.ndarray | None,
         return raw.copy(), prev_raw, offset  # type: ignore[return-value]
     if prev_raw is None or offset is None:
         prev_raw, offset = raw[0], np.zeros(raw.shape[1:])
-    dd = np.diff(np.concatenate([prev_raw[None], raw]), axis=0)
+    dd = np.empty_like(raw)
+    np.subtract(raw[:1], prev_raw, out=dd[:1])
+    np.subtract(raw[1:], raw[:-1], out=dd[1:])
+    if not (np.abs(dd) >= 180.0).any():  # no jump: every correction is zero
+        return raw + offset, raw[-1].copy(), offset
     ddmod = np.mod(dd + 180.0, 360.0) - 180.0
     np.copyto(ddmod, 180.0, where=(ddmod == -180.0) & (dd > 0))
     correction = ddmod - dd
