@@ -7,7 +7,7 @@ import numpy as np
 from .motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 
 __all__ = ["euler_matrices", "local_rotations", "forward_kinematics", "FKResult", "body_height",
-           "pelvis_frame", "point_names", "to_pelvis"]
+           "pelvis_frame", "point_names", "to_pelvis", "joint_heights"]
 
 _AXIS = {"Xrotation": 0, "Yrotation": 1, "Zrotation": 2}
 
@@ -46,47 +46,58 @@ def _depth_levels(parents: list[int]) -> list[np.ndarray]:
 class _RotationPlan:
     """Index patterns that turn a skeleton's Euler channels into matrices with few numpy ops."""
 
-    def __init__(self, skeleton: Skeleton) -> None:
+    def __init__(self, skeleton: Skeleton, joints: tuple[int, ...] | None = None) -> None:
         assert skeleton.rotation_order is not None and skeleton.pre_rotations is not None
         j = skeleton.n_joints
-        self.columns = np.zeros((j, 3), dtype=np.int64)
-        # Each elementary axis matrix entry is 0, 1, cos, sin or -sin of one angle: one gather
-        # from [0, 1, cos..., sin..., -sin...] builds all of them (an unused slot: identity).
-        gather = np.zeros((j, 3, 3, 3), dtype=np.int64)
-        for joint in range(j):
-            for k in range(3):
-                gather[joint, k] = np.eye(3, dtype=np.int64)
-        for joint, order in enumerate(skeleton.rotation_order):
-            for k, name in enumerate(order):
-                self.columns[joint, k] = skeleton.channel_start[joint] + skeleton.channels[
-                    joint].index(name)
-                a = _AXIS[name]
-                i, m = [(1, 2), (2, 0), (0, 1)][a]
-                slot = joint * 3 + k
-                g = np.zeros((3, 3), dtype=np.int64)
-                g[a, a] = 1
-                g[i, i] = g[m, m] = 2 + slot
-                g[m, i] = 2 + 3 * j + slot
-                g[i, m] = 2 + 6 * j + slot
-                gather[joint, k] = g
-        self.gather = gather
-        self.columns_flat = self.columns.reshape(-1)
-        pre = [p if p is not None else np.eye(3) for p in skeleton.pre_rotations]
-        self.pre = np.array(pre) if any(p is not None for p in skeleton.pre_rotations) else None
-        self.parents = list(skeleton.parents)
+        parents = np.array(skeleton.parents)
+        keep = np.ones(j, dtype=bool)
+        if joints is not None:  # a sub-plan: those joints and their ancestors only
+            keep[:] = False
+            for q in joints:
+                while q >= 0 and not keep[q]:
+                    keep[q] = True
+                    q = int(parents[q])
         # World transforms are held in tree-level order (each level one contiguous slice, its
         # joints sorted by parent), so a level is one gather of parents and one matmul in place.
-        levels = _depth_levels(self.parents)
-        order = np.concatenate([lv[np.argsort(np.array(self.parents)[lv], kind="stable")]
-                                for lv in levels])
+        levels = [lv[keep[lv]] for lv in _depth_levels(skeleton.parents)]
+        levels = [lv[np.argsort(parents[lv], kind="stable")] for lv in levels if len(lv)]
+        order = np.concatenate(levels)
         self.order = order
-        self.where = np.argsort(order)  # joint -> row in level order
+        self.where = np.full(j, -1, dtype=np.int64)  # joint -> row in level order
+        self.where[order] = np.arange(len(order))
         self.levels = []
         lo = self.n_roots = len(levels[0])
         for lv in levels[1:]:
-            par = self.where[np.array(self.parents)[order[lo : lo + len(lv)]]]
-            self.levels.append((lo, lo + len(lv), par))
+            self.levels.append((lo, lo + len(lv), self.where[parents[lv]]))
             lo += len(lv)
+        k = len(order)
+        columns = np.zeros((k, 3), dtype=np.int64)
+        # Each elementary axis matrix entry is 0, 1, cos, sin or -sin of one angle: one gather
+        # from [0, 1, cos..., sin..., -sin...] builds all of them (an unused slot: identity).
+        gather = np.zeros((k, 3, 3, 3), dtype=np.int64)
+        gather[:] = np.eye(3, dtype=np.int64)
+        for row, joint in enumerate(order):
+            for slot_k, name in enumerate(skeleton.rotation_order[joint]):
+                columns[row, slot_k] = skeleton.channel_start[joint] + skeleton.channels[
+                    joint].index(name)
+                a = _AXIS[name]
+                i, m = [(1, 2), (2, 0), (0, 1)][a]
+                slot = row * 3 + slot_k
+                g = np.zeros((3, 3), dtype=np.int64)
+                g[a, a] = 1
+                g[i, i] = g[m, m] = 2 + slot
+                g[m, i] = 2 + 3 * k + slot
+                g[i, m] = 2 + 6 * k + slot
+                gather[row, slot_k] = g
+        self.columns_flat = columns.reshape(-1)
+        self.gather_levels = gather.reshape(-1)
+        pre = [p if p is not None else np.eye(3) for p in skeleton.pre_rotations]
+        self.pre = np.array(pre) if any(p is not None for p in skeleton.pre_rotations) else None
+        self.pre_levels = None if self.pre is None else self.pre[order]
+        if joints is None:  # natural joint order, for `local_rotations`
+            self.gather = gather.reshape(k, -1)[self.where].reshape(-1)
+        self.skeleton = skeleton
+        self.parents = list(skeleton.parents)
         self.offsets = skeleton.offsets.copy()
         ends = sorted(skeleton.end_sites)
         self.n_points = j + len(ends)
@@ -102,16 +113,21 @@ class _RotationPlan:
         c0 = int(self.root_columns[0]) if len(self.root_columns) else 0
         if list(self.root_axes) == [0, 1, 2] and list(self.root_columns) == [c0, c0 + 1, c0 + 2]:
             self.root_axes, self.root_columns = slice(0, 3), slice(c0, c0 + 3)  # type: ignore
-        self.gather_levels = self.gather[order].reshape(-1)
-        self.gather = self.gather.reshape(-1)
-        self.pre_levels = None if self.pre is None else self.pre[order]
-        self.template = np.zeros((j, 4, 4))
+        self.template = np.zeros((k, 4, 4))
         self.template[:, :3, 3] = self.offsets[order]
         self.template[:, 3, 3] = 1.0
+        self._subplans: dict[tuple[int, ...], _RotationPlan] = {}
+
+    def subplan(self, joints: tuple[int, ...]) -> _RotationPlan:
+        """The plan for some joints and their ancestors (cached)."""
+        got = self._subplans.get(joints)
+        if got is None:
+            got = self._subplans[joints] = _RotationPlan(self.skeleton, joints)
+        return got
 
     def matrices(self, channels: np.ndarray, level_order: bool = False) -> np.ndarray:
         """Local rotation matrices (n, J, 3, 3) of channel rows (n, C)."""
-        n, j = channels.shape[0], len(self.parents)
+        n, j = channels.shape[0], len(self.order)
         rad = np.deg2rad(channels[:, self.columns_flat])
         s = np.sin(rad)
         vals = np.concatenate([np.zeros((n, 1)), np.ones((n, 1)), np.cos(rad), s, -s], axis=1)
@@ -154,7 +170,12 @@ def _plan(skeleton: Skeleton) -> _RotationPlan:
 
 def local_rotations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
     """Local rotation matrices (n_frames, n_joints, 3, 3) from channel values."""
-    return _plan(skeleton).matrices(np.atleast_2d(np.asarray(channels, dtype=np.float64)))
+    channels = np.atleast_2d(np.asarray(channels, dtype=np.float64))
+    plan = _plan(skeleton)
+    out = np.empty((len(channels), skeleton.n_joints, 3, 3))
+    for lo in range(0, len(channels), 4096):  # bounded temporaries: linear in frames
+        out[lo : lo + 4096] = plan.matrices(channels[lo : lo + 4096])
+    return out
 
 
 def point_names(skeleton: Skeleton) -> list[str]:
@@ -191,6 +212,14 @@ def forward_kinematics(skeleton: Skeleton, channels: np.ndarray, chunk: int = 40
                                               @ plan.end_offsets)[..., :3, 0]
         root_rotation[lo : lo + chunk] = world[:, 0, :3, :3]
     return FKResult(positions, root_rotation, plan.names)
+
+
+def joint_heights(skeleton: Skeleton, channels: np.ndarray, joints: tuple[int, ...]) -> np.ndarray:
+    """World Y (n, len(joints)) of some joints, composing only their ancestors: the same bits
+    as `forward_kinematics` (the same product per joint), for less work."""
+    sub = _plan(skeleton).subplan(joints)
+    world = sub.world(np.atleast_2d(np.asarray(channels, dtype=np.float64)))
+    return world[:, sub.where[list(joints)], 1, 3]
 
 
 def pelvis_frame(fk: FKResult, pelvis: int = 0) -> np.ndarray:

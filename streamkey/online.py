@@ -30,7 +30,7 @@ import numpy as np
 
 from .errors import UsageError
 from .keyframes import Event, GapEvent, KeyframeEvent, StatusEvent, params_digest
-from .kinematics import FKResult, body_height, forward_kinematics, pelvis_frame
+from .kinematics import FKResult, body_height, forward_kinematics, joint_heights, pelvis_frame
 from .motion import Frame, Skeleton
 from .roles import resolve_roles
 from .signal import unwrap_step
@@ -135,6 +135,7 @@ class FeatureBlock:
         self.skeleton, self.roles = skeleton, roles
         self._fk: FKResult | None = None
         self._pelvis: np.ndarray | None = None
+        self._feet: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(len(self.seq))
@@ -159,7 +160,12 @@ class FeatureBlock:
     @property
     def foot_heights(self) -> np.ndarray:
         """World Y of the left and right ankle (n, 2)."""
-        return self.positions[:, [self.roles["left_ankle"], self.roles["right_ankle"]], 1]
+        feet = (self.roles["left_ankle"], self.roles["right_ankle"])
+        if self._fk is not None:
+            return self._fk.positions[:, list(feet), 1]
+        if self._feet is None:  # the two leg chains only: the same bits as full FK
+            self._feet = joint_heights(self.skeleton, self.channels, feet)
+        return self._feet
 
     def materialise(self) -> FeatureBlock:
         """Compute every lazy feature now (benchmarks)."""

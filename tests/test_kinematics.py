@@ -86,3 +86,16 @@ def test_features_give_foot_heights_near_the_floor_during_a_walk():
     # Each ankle touches its lowest level for part of the walk and lifts during swing.
     for side in range(2):
         assert np.ptp(feet[:, side]) > 0.03 * height
+
+
+def test_joint_heights_of_a_few_joints_equal_full_fk_bit_for_bit():
+    from streamkey.kinematics import joint_heights
+
+    for name in ("05_06.bvh", "16_11.bvh"):
+        motion = read_bvh(DATA / name)
+        full = forward_kinematics(motion.skeleton, motion.channels).positions
+        for joints in ((4, 9), (0,), (len(motion.skeleton.names) - 1, 2)):
+            got = joint_heights(motion.skeleton, motion.channels, joints)
+            np.testing.assert_array_equal(got, full[:, list(joints), 1])
+            one = joint_heights(motion.skeleton, motion.channels[7:8], joints)
+            np.testing.assert_array_equal(one, full[7:8, list(joints), 1])

@@ -91,9 +91,12 @@ def joint_weights(skeleton: Skeleton) -> np.ndarray:
 
 def pose_vectors(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
     """Per-joint sign-continuous quaternions x 360/pi, (n, joints, 4) (module docstring)."""
-    rot = local_rotations(skeleton, channels)
-    n, joints = rot.shape[:2]
-    q = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat().reshape(n, joints, 4)
+    n, joints = len(channels), skeleton.n_joints
+    q = np.empty((n, joints, 4))
+    for lo in range(0, n, 4096):  # bounded temporaries keep this linear in frames
+        rot = local_rotations(skeleton, channels[lo : lo + 4096])
+        q[lo : lo + 4096] = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat().reshape(
+            len(rot), joints, 4)
     q[0] *= np.where(q[0, :, 3:] < 0, -1.0, 1.0)
     flip = np.where(np.einsum("fjk,fjk->fj", q[1:], q[:-1]) < 0, -1.0, 1.0)
     q[1:] *= np.cumprod(flip, axis=0)[..., None]
