@@ -349,7 +349,36 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
 def bench_perf(frames: int, data: Path | None) -> dict[str, Any]:
     """The issue-13 targets: online per-frame CPU time, offline growth from frames/10."""
     online = bench_perf_online(frames, data)
+    memory = bench_perf_memory(data)
     sizes = [frames // 10, frames // 10 * 3, frames]
     offline = bench_perf_offline(sizes, data)
-    return {"rows": online["rows"] + offline["rows"], "source": online["source"],
-            "stream_frames": online["frames"], "offline_sizes": sizes}
+    return {"rows": online["rows"] + memory["rows"] + offline["rows"],
+            "source": online["source"], "stream_frames": online["frames"],
+            "memory_frames": memory["frames"], "offline_sizes": sizes}
+
+
+def bench_perf_memory(data: Path | None, frames: int = 36_000) -> dict[str, Any]:
+    """Traced memory (MB) held by each online keyframer after `frames` frames (every window
+    and history full) and its peak growth over the last half (flat: near zero)."""
+    from .methods import ONLINE_METHODS, online_class
+
+    motion, _ = long_motion(frames, data)
+    stream = motion.frames()
+    rows = []
+    for name in ONLINE_METHODS:
+        online_class(name)(motion.skeleton, motion.fps).push(stream[0])  # imports, plans
+        gc.collect()
+        tracemalloc.start()
+        kf = online_class(name)(motion.skeleton, motion.fps)
+        for frame in stream[: frames // 2]:
+            kf.push(frame)
+        half = tracemalloc.get_traced_memory()[0]
+        tracemalloc.reset_peak()
+        for frame in stream[frames // 2 :]:
+            kf.push(frame)
+        now, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        rows.append({"target": f"memory {name}", "state_mb": now / 2**20,
+                     "growth_mb": (now - half) / 2**20, "peak_mb": peak / 2**20,
+                     "goal": "state <= 20 MB", "met": now / 2**20 <= 20.0})
+    return {"frames": frames, "rows": rows}

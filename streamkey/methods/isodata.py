@@ -179,12 +179,14 @@ class _Stats:
     """Prefix sums of the weighted (y) and plain (x) pose vectors for O(1) run statistics."""
 
     def __init__(self, y: np.ndarray, x: np.ndarray) -> None:
-        zero = np.zeros((1, y.shape[1]))
         self.y, self.x = y, x
-        self.cy = np.concatenate([zero, np.cumsum(y, axis=0)])
+        self.cy, self.cx, self.cxx = (np.empty((len(y) + 1, y.shape[1])) for _ in range(3))
+        self.cy[0] = self.cx[0] = self.cxx[0] = 0.0
+        np.cumsum(y, axis=0, out=self.cy[1:])  # written in place: no full-size temporaries
         self.cyy = np.concatenate([[0.0], np.cumsum(np.einsum("ij,ij->i", y, y))])
-        self.cx = np.concatenate([zero, np.cumsum(x, axis=0)])
-        self.cxx = np.concatenate([zero, np.cumsum(x * x, axis=0)])
+        np.cumsum(x, axis=0, out=self.cx[1:])
+        np.multiply(x, x, out=self.cxx[1:])
+        np.cumsum(self.cxx[1:], axis=0, out=self.cxx[1:])
 
     def sse(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Weighted squared deviations of rows [a, b) about their mean."""
@@ -201,10 +203,19 @@ class _Stats:
 
 def _dispersion(st: _Stats, cl: _Classes) -> np.ndarray:
     """Mean distance of each class's frames to its centre."""
-    centres = _centres(st.cy, cl.starts, cl.n)
     lab = cl.labels()
-    dist = np.linalg.norm(st.y - centres[lab], axis=1)
+    dist = _centre_distances(st, cl, lab)
     return np.bincount(lab, dist) / cl.sizes()
+
+
+def _centre_distances(st: _Stats, cl: _Classes, lab: np.ndarray) -> np.ndarray:
+    """Distance of every frame to its class centre, in row chunks (cache-sized temporaries)."""
+    centres = _centres(st.cy, cl.starts, cl.n)
+    dist = np.empty(cl.n)
+    for lo in range(0, cl.n, 4096):
+        dist[lo : lo + 4096] = np.linalg.norm(
+            st.y[lo : lo + 4096] - centres[lab[lo : lo + 4096]], axis=1)
+    return dist
 
 
 def _best_cut(st: _Stats, a: int, b: int, o_n: int) -> int:
@@ -282,7 +293,7 @@ def _iterate(st: _Stats, cl: _Classes, p: dict[str, Any],
 def _keyframes(st: _Stats, cl: _Classes) -> np.ndarray:
     """Row of each class nearest to its centre (earliest on ties)."""
     lab = cl.labels()
-    dist = np.linalg.norm(st.y - _centres(st.cy, cl.starts, cl.n)[lab], axis=1)
+    dist = _centre_distances(st, cl, lab)
     order = np.lexsort((np.arange(cl.n), dist, lab))
     first = np.searchsorted(lab[order], np.arange(len(cl.starts)))
     return np.sort(order[first])

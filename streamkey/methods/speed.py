@@ -48,8 +48,8 @@ offline global steps:
   whole stream and the sample all its candidates: the offline result, bit for bit.
 
 Memory is bounded by the window (positions, speeds), the Cholesky factors (one per lambda at
-window length, ~9 MB with the defaults, plus a bounded cache of per-length copies) and the
-cut-off sample (the candidates of `cutoff_history` frames).
+window length, ~9 MB with the defaults, plus one copy per lambda at the length it is solved
+at) and the cut-off sample (the candidates of `cutoff_history` frames).
 """
 
 from __future__ import annotations
@@ -118,7 +118,7 @@ class HPBank:
     def _build(self, capacity: int) -> None:
         self.capacity = capacity
         self._prefix: list[np.ndarray | None] = [None] * len(self.lams)
-        self._cache: dict[tuple[int, int], np.ndarray] = {}
+        self._cache: dict[int, tuple[int, np.ndarray]] = {}
 
     def reserve(self, n: int, limit: int) -> None:
         """Grow the capacity (doubling, at most `limit`) until length n fits."""
@@ -127,13 +127,12 @@ class HPBank:
 
     def factor(self, n: int, i: int) -> np.ndarray:
         """Upper banded Cholesky factor (3, n) of the length-n HP system for lambda i."""
-        c = self._cache.get((n, i))
-        if c is None:
-            c = self._factor(n, i)
-            if self.keep:
-                if len(self._cache) > 4 * len(self.lams):
-                    self._cache.clear()
-                self._cache[(n, i)] = c
+        got = self._cache.get(i)
+        if got is not None and got[0] == n:
+            return got[1]
+        c = self._factor(n, i)
+        if self.keep:  # one length per lambda: after warm-up each lambda asks for one length
+            self._cache[i] = (n, c)
         return c
 
     def _factor(self, n: int, i: int) -> np.ndarray:
