@@ -322,6 +322,7 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
     names = methods or [m for m in PERF_OFFLINE_GOALS if m != "features"]
     motion, source = long_motion(max(sizes), data)
     times: dict[str, list[float]] = {m: [] for m in ["features", *names]}
+    compute_features(Motion(motion.skeleton, motion.channels[:100], motion.fps, 0, "warm-up"))
     for n in sizes:
         part = Motion(motion.skeleton, motion.channels[:n], motion.fps, 0, f"bench-{n}")
         t0 = time.process_time()
@@ -342,7 +343,7 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
         goal = PERF_OFFLINE_GOALS.get(name, float("inf"))
         rows.append({"target": name, **{f"s@{n}": s for n, s in zip(sizes, secs, strict=True)},
                      "exponent": slope, "goal": f"<= {goal:g} s at 100k, exponent <= ~1.1",
-                     "met": secs[-1] <= goal and slope <= 1.15})
+                     "met": sizes[-1] >= 100_000 and secs[-1] <= goal and slope <= 1.15})
     return {"sizes": sizes, "source": source, "rows": rows}
 
 

@@ -130,9 +130,10 @@ class FeatureBlock:
     """
 
     def __init__(self, seq: np.ndarray, time: np.ndarray, channels: np.ndarray,
-                 rotations: np.ndarray, skeleton: Skeleton, roles: dict[str, int]) -> None:
+                 rotations: np.ndarray, skeleton: Skeleton, roles: dict[str, int],
+                 stage: FeatureStage | None = None) -> None:
         self.seq, self.time, self.channels, self.rotations = seq, time, channels, rotations
-        self.skeleton, self.roles = skeleton, roles
+        self.skeleton, self.roles, self.stage = skeleton, roles, stage
         self._fk: FKResult | None = None
         self._pelvis: np.ndarray | None = None
         self._feet: np.ndarray | None = None
@@ -143,6 +144,8 @@ class FeatureBlock:
     def _kinematics(self) -> FKResult:
         if self._fk is None:
             self._fk = forward_kinematics(self.skeleton, self.channels)
+            if self.stage is not None:  # someone on this stream reads positions
+                self.stage.full_fk = True
         return self._fk
 
     @property
@@ -161,8 +164,8 @@ class FeatureBlock:
     def foot_heights(self) -> np.ndarray:
         """World Y of the left and right ankle (n, 2)."""
         feet = (self.roles["left_ankle"], self.roles["right_ankle"])
-        if self._fk is not None:
-            return self._fk.positions[:, list(feet), 1]
+        if self._fk is not None or (self.stage is not None and self.stage.full_fk):
+            return self.positions[:, list(feet), 1]  # full FK is (or will be) paid anyway
         if self._feet is None:  # the two leg chains only: the same bits as full FK
             self._feet = joint_heights(self.skeleton, self.channels, feet)
         return self._feet
@@ -175,7 +178,7 @@ class FeatureBlock:
     def slice(self, lo: int, hi: int) -> FeatureBlock:
         """Rows lo..hi-1 (views; FK results are shared when already computed)."""
         out = FeatureBlock(self.seq[lo:hi], self.time[lo:hi], self.channels[lo:hi],
-                           self.rotations[lo:hi], self.skeleton, self.roles)
+                           self.rotations[lo:hi], self.skeleton, self.roles, self.stage)
         if self._fk is not None:
             fk = self._fk
             out._fk = FKResult(fk.positions[lo:hi], fk.root_rotation[lo:hi], fk.names)
@@ -187,7 +190,8 @@ class FeatureBlock:
 class FeatureStage:
     """Per-stream feature computation: FK and derived signals, once per frame.
 
-    State carried between blocks: the unwrap state of the rotation channels only.
+    State carried between blocks: the unwrap state of the rotation channels, and whether any
+    keyframer reads full FK (`full_fk`).
     """
 
     def __init__(self, skeleton: Skeleton, fps: float,
@@ -199,6 +203,9 @@ class FeatureStage:
         self.rotation_columns = skeleton.rotation_columns()
         self.unwrap_prev: np.ndarray | None = None
         self.unwrap_offset: np.ndarray | None = None
+        # Set once a keyframer reads full FK; from then on foot heights come from it too
+        # (same bits as the leg-chain FK), so a pipeline pays for FK once.
+        self.full_fk = False
 
     def compute(self, frames: Sequence[Frame]) -> FeatureBlock:
         """Features of consecutive clean frames (vectorised over the block; FK on demand)."""
@@ -213,7 +220,7 @@ class FeatureStage:
             time = np.array([f.time for f in frames], dtype=np.float64)
         rotations, self.unwrap_prev, self.unwrap_offset = unwrap_step(
             channels[:, self.rotation_columns], self.unwrap_prev, self.unwrap_offset)
-        return FeatureBlock(seq, time, channels, rotations, self.skeleton, self.roles)
+        return FeatureBlock(seq, time, channels, rotations, self.skeleton, self.roles, self)
 
     def reset(self) -> None:
         """Start a new stream (after a long gap): forget the unwrap state."""

@@ -189,6 +189,9 @@ def scale_minima(v: np.ndarray, bank: HPBank, lengths: np.ndarray | None = None,
         trend = bank.solve(v[a:], i)
         m = local_minima(trend) + a
         m = m[m >= start]
+        if len(m) == 0:  # no minimum in the part that counts: the f/2 trend is not needed
+            out.append((m, np.zeros(0)))
+            continue
         out.append((m, np.abs(trend[m - a] - bank.solve(v[b:], s + i)[m - b])))
     return out
 
