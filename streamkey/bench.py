@@ -282,6 +282,8 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
             result = run_live_bench(kind, data_dir, quick)
         elif kind == "offline":
             result = bench_offline(frames, data_dir)
+        elif kind == "perf":
+            result = bench_perf(frames, data_dir)
         else:
             result = bench_online(data_dir, stream_frames, frames)
         result["date"] = time.strftime("%Y-%m-%d %H:%M:%S")
@@ -291,3 +293,131 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
             path.write_text(text + "\n", encoding="utf-8")
             written.append(path)
     return written
+
+
+# --- bench --perf: the issue-13 targets (CPU time, long stream, growth exponents) ----------
+
+PERF_ONLINE_GOALS = {"feature stage": (40.0, 1000.0), "saliency": (80.0, 1000.0),
+                     "speed": (80.0, 1000.0), "simplify": (80.0, 1000.0),
+                     "all three (one pipeline)": (150.0, 1000.0)}
+PERF_OFFLINE_GOALS = {"features": 0.5, "saliency": 0.5, "speed": 1.0, "simplify": 0.5,
+                      "decimate": 2.0, "isodata": 1.0, "curvefit": 10.0}
+
+
+def _cpu_push_costs(make: Callable[[], Any], frames: list[Any], push: str = "push"
+                    ) -> dict[str, float]:
+    """Per-push CPU time of the calling thread (µs): mean, p50, p99, max."""
+    target = make()
+    step = getattr(target, push)
+    costs = np.empty(len(frames))
+    clock = time.thread_time_ns
+    gc.collect()
+    for i, frame in enumerate(frames):
+        t0 = clock()
+        step(frame)
+        costs[i] = clock() - t0
+    us = costs / 1000.0
+    return {"mean_us": float(us.mean()), "p50_us": float(np.percentile(us, 50)),
+            "p99_us": float(np.percentile(us, 99)), "max_us": float(us.max())}
+
+
+def bench_perf_online(frames: int, data: Path | None, methods: list[str] | None = None
+                      ) -> dict[str, Any]:
+    """One frame per push on a long stream of the shared clips concatenated (CPU time)."""
+    from .methods import ONLINE_METHODS, online_class
+    from .online import FeatureStage, Pipeline
+
+    motion, source = long_motion(frames, data)
+    stream = motion.frames()
+    names = methods or list(ONLINE_METHODS)
+
+    def stage() -> Any:
+        st = FeatureStage(motion.skeleton, motion.fps)
+        return lambda f: st.compute([f]).materialise()
+
+    rows = [{"target": "feature stage", **_cpu_push_costs(stage, stream, "__call__")}]
+    for name in names:
+        cls = online_class(name)
+        rows.append({"target": name, **_cpu_push_costs(
+            lambda cls=cls: cls(motion.skeleton, motion.fps), stream)})
+    if methods is None:
+        rows.append({"target": "all three (one pipeline)", **_cpu_push_costs(
+            lambda: Pipeline([online_class(m)(motion.skeleton, motion.fps)
+                              for m in ONLINE_METHODS]), stream)})
+    for row in rows:
+        mean_goal, p99_goal = PERF_ONLINE_GOALS[row["target"]]
+        row["goal"] = f"mean <= {mean_goal:g}, p99 <= {p99_goal:g}"
+        row["met"] = row["mean_us"] <= mean_goal and row["p99_us"] <= p99_goal
+    return {"frames": len(stream), "source": source, "rows": rows}
+
+
+def bench_perf_offline(sizes: list[int], data: Path | None,
+                       methods: list[str] | None = None) -> dict[str, Any]:
+    """CPU seconds of every offline method at each size; exponent of the growth fitted."""
+    from .features import compute_features
+    from .methods import offline_method
+
+    names = methods or [m for m in PERF_OFFLINE_GOALS if m != "features"]
+    motion, source = long_motion(max(sizes), data)
+    times: dict[str, list[float]] = {m: [] for m in ["features", *names]}
+    compute_features(Motion(motion.skeleton, motion.channels[:100], motion.fps, 0, "warm-up"))
+    for n in sizes:
+        part = Motion(motion.skeleton, motion.channels[:n], motion.fps, 0, f"bench-{n}")
+        t0 = time.process_time()
+        feats = compute_features(part)
+        times["features"].append(time.process_time() - t0)
+        count = len(offline_method("saliency")(part, features=feats))
+        for name in names:
+            fn = offline_method(name)
+            kwargs: dict[str, Any] = {"count": count} if name == "decimate" else {
+                "features": feats}
+            gc.collect()
+            t0 = time.process_time()
+            fn(part, **kwargs)
+            times[name].append(time.process_time() - t0)
+    rows = []
+    for name, secs in times.items():
+        slope = float(np.polyfit(np.log(sizes), np.log(secs), 1)[0]) if len(sizes) > 1 else 0.0
+        goal = PERF_OFFLINE_GOALS.get(name, float("inf"))
+        rows.append({"target": name, **{f"s@{n}": s for n, s in zip(sizes, secs, strict=True)},
+                     "exponent": slope, "goal": f"<= {goal:g} s at 100k, exponent <= ~1.1",
+                     "met": sizes[-1] >= 100_000 and secs[-1] <= goal and slope <= 1.15})
+    return {"sizes": sizes, "source": source, "rows": rows}
+
+
+def bench_perf(frames: int, data: Path | None) -> dict[str, Any]:
+    """The issue-13 targets: online per-frame CPU time, offline growth from frames/10."""
+    online = bench_perf_online(frames, data)
+    memory = bench_perf_memory(data)
+    sizes = [frames // 10, frames // 10 * 3, frames]
+    offline = bench_perf_offline(sizes, data)
+    return {"rows": online["rows"] + memory["rows"] + offline["rows"],
+            "source": online["source"], "stream_frames": online["frames"],
+            "memory_frames": memory["frames"], "offline_sizes": sizes}
+
+
+def bench_perf_memory(data: Path | None, frames: int = 36_000) -> dict[str, Any]:
+    """Traced memory (MB) held by each online keyframer after `frames` frames (every window
+    and history full) and its peak growth over the last half (flat: near zero)."""
+    from .methods import ONLINE_METHODS, online_class
+
+    motion, _ = long_motion(frames, data)
+    stream = motion.frames()
+    rows = []
+    for name in ONLINE_METHODS:
+        online_class(name)(motion.skeleton, motion.fps).push(stream[0])  # imports, plans
+        gc.collect()
+        tracemalloc.start()
+        kf = online_class(name)(motion.skeleton, motion.fps)
+        for frame in stream[: frames // 2]:
+            kf.push(frame)
+        half = tracemalloc.get_traced_memory()[0]
+        tracemalloc.reset_peak()
+        for frame in stream[frames // 2 :]:
+            kf.push(frame)
+        now, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        rows.append({"target": f"memory {name}", "state_mb": now / 2**20,
+                     "growth_mb": (now - half) / 2**20, "peak_mb": peak / 2**20,
+                     "goal": "state <= 20 MB", "met": now / 2**20 <= 20.0})
+    return {"frames": frames, "rows": rows}

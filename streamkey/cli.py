@@ -264,7 +264,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """`streamkey bench`: time and memory of the offline and/or online methods, to files."""
     from .bench import run_bench
 
-    kinds = [k for k in ("offline", "online", "agreement") if getattr(args, k)]
+    kinds = [k for k in ("offline", "online", "agreement", "perf") if getattr(args, k)]
     kinds += [k for k in ("memory", "latency", "ws_clients") if getattr(args, k)]
     kinds = kinds or ["offline", "online"]
     for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data,
@@ -489,6 +489,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ws-clients", dest="ws_clients", action="store_true",
                    help="live: event latency with 0, 100 and 300 WebSocket clients")
     p.add_argument("--quick", action="store_true", help="live benches: shorter runs")
+    p.add_argument("--perf", action="store_true",
+                   help="per-frame CPU time on a long stream and offline growth exponents")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")
     p.add_argument("--data", help="folder of CMU clips (default: ../shared/data/cmu if present)")
     p.add_argument("-o", "--output", default="results", help="output folder")

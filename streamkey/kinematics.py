@@ -8,7 +8,7 @@ from .motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 
 __all__ = ["euler_matrices", "local_rotations", "forward_kinematics", "FKResult", "body_height",
            "pelvis_frame", "point_names", "skeleton_defect", "MAX_DEPTH", "MIN_BODY_HEIGHT",
-           "root_relative_joints"]
+           "root_relative_joints", "to_pelvis", "joint_heights"]
 
 MAX_DEPTH = 256  # joints from the root to the deepest leaf; real skeletons stay under 40
 MIN_BODY_HEIGHT = 1e-3  # file units; methods divide positions by the body height
@@ -50,35 +50,62 @@ def _depth_levels(parents: list[int]) -> list[np.ndarray]:
 class _RotationPlan:
     """Index patterns that turn a skeleton's Euler channels into matrices with few numpy ops."""
 
-    def __init__(self, skeleton: Skeleton) -> None:
+    def __init__(self, skeleton: Skeleton, joints: tuple[int, ...] | None = None) -> None:
         assert skeleton.rotation_order is not None and skeleton.pre_rotations is not None
         j = skeleton.n_joints
-        self.columns = np.zeros((j, 3), dtype=np.int64)
-        self.mask = np.zeros((j, 3))
-        axes = np.zeros((j, 3), dtype=np.int64)
-        for joint, order in enumerate(skeleton.rotation_order):
-            for k, name in enumerate(order):
-                self.columns[joint, k] = skeleton.channel_start[joint] + skeleton.channels[
+        parents = np.array(skeleton.parents)
+        keep = np.ones(j, dtype=bool)
+        if joints is not None:  # a sub-plan: those joints and their ancestors only
+            keep[:] = False
+            for q in joints:
+                while q >= 0 and not keep[q]:
+                    keep[q] = True
+                    q = int(parents[q])
+        # World transforms are held in tree-level order (each level one contiguous slice, its
+        # joints sorted by parent), so a level is one gather of parents and one matmul in place.
+        levels = [lv[keep[lv]] for lv in _depth_levels(skeleton.parents)]
+        levels = [lv[np.argsort(parents[lv], kind="stable")] for lv in levels if len(lv)]
+        order = np.concatenate(levels)
+        self.order = order
+        self.where = np.full(j, -1, dtype=np.int64)  # joint -> row in level order
+        self.where[order] = np.arange(len(order))
+        self.levels = []
+        lo = self.n_roots = len(levels[0])
+        for lv in levels[1:]:
+            self.levels.append((lo, lo + len(lv), self.where[parents[lv]]))
+            lo += len(lv)
+        k = len(order)
+        columns = np.zeros((k, 3), dtype=np.int64)
+        # Each elementary axis matrix entry is 0, 1, cos, sin or -sin of one angle: one gather
+        # from [0, 1, cos..., sin..., -sin...] builds all of them (an unused slot: identity).
+        gather = np.zeros((k, 3, 3, 3), dtype=np.int64)
+        gather[:] = np.eye(3, dtype=np.int64)
+        for row, joint in enumerate(order):
+            for slot_k, name in enumerate(skeleton.rotation_order[joint]):
+                columns[row, slot_k] = skeleton.channel_start[joint] + skeleton.channels[
                     joint].index(name)
-                self.mask[joint, k] = 1.0
-                axes[joint, k] = _AXIS[name]
-        eye = _axis_matrices(0, np.zeros(3)) * 0 + np.eye(3)
-        ones, cos, sin = (np.zeros((3, 3, 3)) for _ in range(3))
-        for a in range(3):
-            i, k = [(1, 2), (2, 0), (0, 1)][a]
-            ones[a] = eye[a]
-            ones[a, i, i] = ones[a, k, k] = 0.0
-            cos[a, i, i] = cos[a, k, k] = 1.0
-            sin[a, i, k], sin[a, k, i] = -1.0, 1.0
-        self.ones, self.cos, self.sin = ones[axes], cos[axes], sin[axes]
+                a = _AXIS[name]
+                i, m = [(1, 2), (2, 0), (0, 1)][a]
+                slot = row * 3 + slot_k
+                g = np.zeros((3, 3), dtype=np.int64)
+                g[a, a] = 1
+                g[i, i] = g[m, m] = 2 + slot
+                g[m, i] = 2 + 3 * k + slot
+                g[i, m] = 2 + 6 * k + slot
+                gather[row, slot_k] = g
+        self.columns_flat = columns.reshape(-1)
+        self.gather_levels = gather.reshape(-1)
         pre = [p if p is not None else np.eye(3) for p in skeleton.pre_rotations]
         self.pre = np.array(pre) if any(p is not None for p in skeleton.pre_rotations) else None
-        parents = np.array(skeleton.parents)
-        self.levels = [(lv, parents[lv]) for lv in _depth_levels(skeleton.parents)[1:]]
+        self.pre_levels = None if self.pre is None else self.pre[order]
+        if joints is None:  # natural joint order, for `local_rotations`
+            self.gather = gather.reshape(k, -1)[self.where].reshape(-1)
+        self.skeleton = skeleton
+        self.parents = list(skeleton.parents)
         self.offsets = skeleton.offsets.copy()
         ends = sorted(skeleton.end_sites)
         self.n_points = j + len(ends)
-
+        self.names = point_names(skeleton)
         self.ends = np.array(ends, dtype=np.int64) if ends else None
         self.end_offsets = np.concatenate(
             [np.array([skeleton.end_sites[e] for e in ends]).reshape(-1, 3, 1),
@@ -87,17 +114,51 @@ class _RotationPlan:
         pos = [(a, skeleton.channel_index(0, c)) for a, c in enumerate(POSITION_CHANNELS)]
         self.root_axes = np.array([a for a, c in pos if c is not None], dtype=np.int64)
         self.root_columns = np.array([c for _, c in pos if c is not None], dtype=np.int64)
+        c0 = int(self.root_columns[0]) if len(self.root_columns) else 0
+        if list(self.root_axes) == [0, 1, 2] and list(self.root_columns) == [c0, c0 + 1, c0 + 2]:
+            self.root_axes, self.root_columns = slice(0, 3), slice(c0, c0 + 3)  # type: ignore
+        self.template = np.zeros((k, 4, 4))
+        self.template[:, :3, 3] = self.offsets[order]
+        self.template[:, 3, 3] = 1.0
+        self._subplans: dict[tuple[int, ...], _RotationPlan] = {}
 
-    def matrices(self, channels: np.ndarray) -> np.ndarray:
+    def subplan(self, joints: tuple[int, ...]) -> _RotationPlan:
+        """The plan for some joints and their ancestors (cached)."""
+        got = self._subplans.get(joints)
+        if got is None:
+            got = self._subplans[joints] = _RotationPlan(self.skeleton, joints)
+        return got
+
+    def matrices(self, channels: np.ndarray, level_order: bool = False) -> np.ndarray:
         """Local rotation matrices (n, J, 3, 3) of channel rows (n, C)."""
-        rad = np.deg2rad(channels[:, self.columns]) * self.mask
-        c = np.cos(rad)[..., None, None]
-        s = np.sin(rad)[..., None, None]
-        e = self.ones + c * self.cos + s * self.sin
+        n, j = channels.shape[0], len(self.order)
+        rad = np.deg2rad(channels[:, self.columns_flat])
+        s = np.sin(rad)
+        vals = np.concatenate([np.zeros((n, 1)), np.ones((n, 1)), np.cos(rad), s, -s], axis=1)
+        gather, pre = (self.gather_levels, self.pre_levels) if level_order else (
+            self.gather, self.pre)
+        e = vals[:, gather].reshape(n, j, 3, 3, 3)
         out = e[:, :, 0] @ e[:, :, 1] @ e[:, :, 2]
-        if self.pre is not None:
-            out = self.pre @ out @ self.pre.transpose(0, 2, 1)
+        if pre is not None:
+            out = pre @ out @ pre.transpose(0, 2, 1)
         return out
+
+    def world(self, block: np.ndarray) -> np.ndarray:
+        """World transforms (n, J, 4, 4) of channel rows, joints in level order (`where`)."""
+        local = np.repeat(self.template[None], len(block), axis=0)
+        local[..., :3, :3] = self.matrices(block, level_order=True)
+        local[:, 0, self.root_axes, 3] += block[:, self.root_columns]
+        world = np.empty_like(local)
+        world[:, : self.n_roots] = local[:, : self.n_roots]
+        # Homogeneous transforms: one matmul per tree level moves rotation and position.
+        w, loc = (world[0], local[0]) if len(block) == 1 else (world, local)
+        if len(block) == 1:  # the same products on (J, 4, 4) views: fewer indexing steps
+            for lo, hi, par in self.levels:
+                np.matmul(w[par], loc[lo:hi], out=w[lo:hi])
+        else:
+            for lo, hi, par in self.levels:
+                np.matmul(w[:, par], loc[:, lo:hi], out=w[:, lo:hi])
+        return world
 
 
 _PLANS: dict[int, tuple[Skeleton, _RotationPlan]] = {}
@@ -113,7 +174,12 @@ def _plan(skeleton: Skeleton) -> _RotationPlan:
 
 def local_rotations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
     """Local rotation matrices (n_frames, n_joints, 3, 3) from channel values."""
-    return _plan(skeleton).matrices(np.atleast_2d(np.asarray(channels, dtype=np.float64)))
+    channels = np.atleast_2d(np.asarray(channels, dtype=np.float64))
+    plan = _plan(skeleton)
+    out = np.empty((len(channels), skeleton.n_joints, 3, 3))
+    for lo in range(0, len(channels), 4096):  # bounded temporaries: linear in frames
+        out[lo : lo + 4096] = plan.matrices(channels[lo : lo + 4096])
+    return out
 
 
 def point_names(skeleton: Skeleton) -> list[str]:
@@ -143,26 +209,31 @@ def forward_kinematics(skeleton: Skeleton, channels: np.ndarray, chunk: int = 40
     root_rotation = np.empty((n, 3, 3))
     j = skeleton.n_joints
     for lo in range(0, n, chunk):
-        block = channels[lo : lo + chunk]
-        # Homogeneous transforms: one matmul per tree level moves rotation and position.
-        world = np.zeros((len(block), j, 4, 4))
-        world[..., :3, :3] = plan.matrices(block)
-        world[..., :3, 3] = plan.offsets
-        world[..., 3, 3] = 1.0
-        world[:, 0, plan.root_axes, 3] += block[:, plan.root_columns]
-        for level, par in plan.levels:
-            world[:, level] = world[:, par] @ world[:, level]
-        positions[lo : lo + chunk, :j] = world[..., :3, 3]
+        world = plan.world(channels[lo : lo + chunk])
+        positions[lo : lo + chunk, :j] = world[..., :3, 3][:, plan.where]
         if plan.ends is not None:
-            positions[lo : lo + chunk, j:] = (world[:, plan.ends] @ plan.end_offsets)[..., :3, 0]
+            positions[lo : lo + chunk, j:] = (world[:, plan.where[plan.ends]]
+                                              @ plan.end_offsets)[..., :3, 0]
         root_rotation[lo : lo + chunk] = world[:, 0, :3, :3]
-    return FKResult(positions, root_rotation, point_names(skeleton))
+    return FKResult(positions, root_rotation, plan.names)
+
+
+def joint_heights(skeleton: Skeleton, channels: np.ndarray, joints: tuple[int, ...]) -> np.ndarray:
+    """World Y (n, len(joints)) of some joints, composing only their ancestors: the same bits
+    as `forward_kinematics` (the same product per joint), for less work."""
+    sub = _plan(skeleton).subplan(joints)
+    world = sub.world(np.atleast_2d(np.asarray(channels, dtype=np.float64)))
+    return world[:, sub.where[list(joints)], 1, 3]
 
 
 def pelvis_frame(fk: FKResult, pelvis: int = 0) -> np.ndarray:
     """Positions in the pelvis-fixed frame: R_pelvis^T (p - p_pelvis), (n, points, 3)."""
-    rel = fk.positions - fk.positions[:, pelvis : pelvis + 1]
-    return np.einsum("fba,fpb->fpa", fk.root_rotation, rel)
+    return to_pelvis(fk.positions, fk.positions[:, pelvis], fk.root_rotation)
+
+
+def to_pelvis(points: np.ndarray, pelvis: np.ndarray, root_rotation: np.ndarray) -> np.ndarray:
+    """R^T (p - p_pelvis) of points (n, k, 3), pelvis positions (n, 3), rotations (n, 3, 3)."""
+    return (points - pelvis[:, None]) @ root_rotation
 
 
 def root_relative_joints(positions: np.ndarray, n_joints: int) -> np.ndarray:

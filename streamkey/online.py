@@ -30,7 +30,7 @@ import numpy as np
 
 from .errors import UsageError
 from .keyframes import Event, GapEvent, KeyframeEvent, StatusEvent, params_digest
-from .kinematics import body_height, forward_kinematics, pelvis_frame
+from .kinematics import FKResult, body_height, forward_kinematics, joint_heights, pelvis_frame
 from .motion import Frame, Skeleton
 from .roles import resolve_roles
 from .signal import unwrap_step
@@ -122,35 +122,78 @@ class StreamGuard:
         self.last = None
 
 
-@dataclass
 class FeatureBlock:
     """Features of consecutive clean frames, computed once and shared by every keyframer.
 
     `rotations` are the unwrapped rotation channels (columns `rotation_columns`),
     `positions` world FK points, `pelvis_positions` the same in the pelvis frame,
-    `foot_heights` the world Y of the left and right ankle.
+    `foot_heights` the world Y of the left and right ankle. The FK-based ones are computed on
+    first access (a keyframer that needs no positions never pays for FK) and then shared.
     """
 
-    seq: np.ndarray
-    time: np.ndarray
-    channels: np.ndarray
-    rotations: np.ndarray
-    positions: np.ndarray
-    pelvis_positions: np.ndarray
-    foot_heights: np.ndarray
+    def __init__(self, seq: np.ndarray, time: np.ndarray, channels: np.ndarray,
+                 rotations: np.ndarray, skeleton: Skeleton, roles: dict[str, int],
+                 stage: FeatureStage | None = None) -> None:
+        self.seq, self.time, self.channels, self.rotations = seq, time, channels, rotations
+        self.skeleton, self.roles, self.stage = skeleton, roles, stage
+        self._fk: FKResult | None = None
+        self._pelvis: np.ndarray | None = None
+        self._feet: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(len(self.seq))
 
+    def _kinematics(self) -> FKResult:
+        if self._fk is None:
+            self._fk = forward_kinematics(self.skeleton, self.channels)
+            if self.stage is not None:  # someone on this stream reads positions
+                self.stage.full_fk = True
+        return self._fk
+
+    @property
+    def positions(self) -> np.ndarray:
+        """World FK points (n, points, 3)."""
+        return self._kinematics().positions
+
+    @property
+    def pelvis_positions(self) -> np.ndarray:
+        """FK points in the pelvis-fixed frame (n, points, 3)."""
+        if self._pelvis is None:
+            self._pelvis = pelvis_frame(self._kinematics(), self.roles["pelvis"])
+        return self._pelvis
+
+    @property
+    def foot_heights(self) -> np.ndarray:
+        """World Y of the left and right ankle (n, 2)."""
+        feet = (self.roles["left_ankle"], self.roles["right_ankle"])
+        if self._fk is not None or (self.stage is not None and self.stage.full_fk):
+            return self.positions[:, list(feet), 1]  # full FK is (or will be) paid anyway
+        if self._feet is None:  # the two leg chains only: the same bits as full FK
+            self._feet = joint_heights(self.skeleton, self.channels, feet)
+        return self._feet
+
+    def materialise(self) -> FeatureBlock:
+        """Compute every lazy feature now (benchmarks)."""
+        self.pelvis_positions  # noqa: B018 - computes FK and the pelvis frame
+        return self
+
     def slice(self, lo: int, hi: int) -> FeatureBlock:
-        """Rows lo..hi-1 of every array (views)."""
-        return FeatureBlock(*(getattr(self, f)[lo:hi] for f in self.__dataclass_fields__))
+        """Rows lo..hi-1 (views; FK results are shared when already computed)."""
+        out = FeatureBlock(self.seq[lo:hi], self.time[lo:hi], self.channels[lo:hi],
+                           self.rotations[lo:hi], self.skeleton, self.roles, self.stage)
+        if self._fk is not None:
+            fk = self._fk
+            out._fk = FKResult(fk.positions[lo:hi], fk.root_rotation[lo:hi], fk.names)
+        if self._pelvis is not None:
+            out._pelvis = self._pelvis[lo:hi]
+        return out
 
 
 class FeatureStage:
     """Per-stream feature computation: FK and derived signals, once per frame.
 
-    State carried between blocks: the unwrap state of the rotation channels only.
+    State carried between blocks: the unwrap state of the rotation channels, and whether any
+    keyframer reads full FK (`full_fk`).
     """
 
     def __init__(self, skeleton: Skeleton, fps: float,
@@ -162,20 +205,24 @@ class FeatureStage:
         self.rotation_columns = skeleton.rotation_columns()
         self.unwrap_prev: np.ndarray | None = None
         self.unwrap_offset: np.ndarray | None = None
+        # Set once a keyframer reads full FK; from then on foot heights come from it too
+        # (same bits as the leg-chain FK), so a pipeline pays for FK once.
+        self.full_fk = False
 
     def compute(self, frames: Sequence[Frame]) -> FeatureBlock:
-        """Features of consecutive clean frames (vectorised over the block)."""
-        channels = np.array([f.channels for f in frames], dtype=np.float64).reshape(
-            len(frames), self.skeleton.n_channels)
+        """Features of consecutive clean frames (vectorised over the block; FK on demand)."""
+        if len(frames) == 1:
+            f = frames[0]
+            channels = np.array(f.channels, dtype=np.float64).reshape(1, -1)
+            seq, time = np.array([f.seq], dtype=np.int64), np.array([f.time], dtype=np.float64)
+        else:
+            channels = np.array([f.channels for f in frames], dtype=np.float64).reshape(
+                len(frames), self.skeleton.n_channels)
+            seq = np.array([f.seq for f in frames], dtype=np.int64)
+            time = np.array([f.time for f in frames], dtype=np.float64)
         rotations, self.unwrap_prev, self.unwrap_offset = unwrap_step(
             channels[:, self.rotation_columns], self.unwrap_prev, self.unwrap_offset)
-        fk = forward_kinematics(self.skeleton, channels)
-        feet = fk.positions[:, [self.roles["left_ankle"], self.roles["right_ankle"]], 1]
-        return FeatureBlock(
-            seq=np.array([f.seq for f in frames], dtype=np.int64),
-            time=np.array([f.time for f in frames], dtype=np.float64),
-            channels=channels, rotations=rotations, positions=fk.positions,
-            pelvis_positions=pelvis_frame(fk, self.roles["pelvis"]), foot_heights=feet)
+        return FeatureBlock(seq, time, channels, rotations, self.skeleton, self.roles, self)
 
     def reset(self) -> None:
         """Start a new stream (after a long gap): forget the unwrap state."""

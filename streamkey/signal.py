@@ -62,12 +62,20 @@ def unwrap_step(raw: np.ndarray, prev_raw: np.ndarray | None,
         return raw.copy(), prev_raw, offset  # type: ignore[return-value]
     if prev_raw is None or offset is None:
         prev_raw, offset = raw[0], np.zeros(raw.shape[1:])
-    dd = np.diff(np.concatenate([prev_raw[None], raw]), axis=0)
-    ddmod = np.mod(dd + 180.0, 360.0) - 180.0
-    np.copyto(ddmod, 180.0, where=(ddmod == -180.0) & (dd > 0))
-    correction = ddmod - dd
-    np.copyto(correction, 0.0, where=np.abs(dd) < 180.0)
-    acc = np.add.accumulate(np.concatenate([offset[None], correction]), axis=0)[1:]
+    dd = np.empty(raw.shape)
+    np.subtract(raw[:1], prev_raw, out=dd[:1])
+    np.subtract(raw[1:], raw[:-1], out=dd[1:])
+    jumps = np.flatnonzero(np.abs(dd) >= 180.0)
+    if len(jumps) == 0:  # every correction is zero
+        return raw + offset, raw[-1].copy(), offset
+    # Corrections only where a jump is (x + 0 == x: the running sum is the dense one's).
+    d = dd.reshape(-1)[jumps]
+    dmod = np.mod(d + 180.0, 360.0) - 180.0
+    np.copyto(dmod, 180.0, where=(dmod == -180.0) & (d > 0))
+    acc = np.zeros(raw.shape)
+    acc.reshape(-1)[jumps] = dmod - d
+    acc[0] += offset
+    np.add.accumulate(acc, axis=0, out=acc)
     return raw + acc, raw[-1].copy(), acc[-1].copy()
 
 

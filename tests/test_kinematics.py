@@ -86,3 +86,34 @@ def test_features_give_foot_heights_near_the_floor_during_a_walk():
     # Each ankle touches its lowest level for part of the walk and lifts during swing.
     for side in range(2):
         assert np.ptp(feet[:, side]) > 0.03 * height
+
+
+def test_joint_heights_of_a_few_joints_equal_full_fk_bit_for_bit():
+    from streamkey.kinematics import joint_heights
+
+    for name in ("05_06.bvh", "16_11.bvh"):
+        motion = read_bvh(DATA / name)
+        full = forward_kinematics(motion.skeleton, motion.channels).positions
+        for joints in ((4, 9), (0,), (len(motion.skeleton.names) - 1, 2)):
+            got = joint_heights(motion.skeleton, motion.channels, joints)
+            np.testing.assert_array_equal(got, full[:, list(joints), 1])
+            one = joint_heights(motion.skeleton, motion.channels[7:8], joints)
+            np.testing.assert_array_equal(one, full[7:8, list(joints), 1])
+
+
+def test_unwrap_equals_numpy_for_any_layout_and_block_split():
+    from streamkey.signal import unwrap_degrees, unwrap_step
+
+    motion = read_bvh(DATA / "131_03.bvh")
+    x = motion.channels[:, motion.skeleton.rotation_columns()]
+    rng = np.random.default_rng(5)
+    jumpy = np.cumsum(rng.normal(0, 150, (3000, 6)), axis=0) % 360 - 180
+    for angles in (x, np.asfortranarray(x), jumpy):
+        whole = unwrap_degrees(angles)
+        np.testing.assert_array_equal(whole, np.unwrap(angles, period=360, axis=0))
+        prev = off = None
+        parts = []
+        for lo, hi in ((0, 1), (1, 9), (9, 700), (700, len(angles))):
+            out, prev, off = unwrap_step(angles[lo:hi], prev, off)
+            parts.append(out)
+        np.testing.assert_array_equal(np.concatenate(parts), whole)

@@ -362,3 +362,38 @@ def test_the_analysis_hop_defaults_to_a_fifth_of_the_lookahead() -> None:
     assert speed.Online(m.skeleton, m.fps, lookahead=10).hop == 2
     events = run_online(load("05_06.bvh"), lookahead=60)
     assert events and all(e.latency_frames <= 60 for e in events)
+
+
+def test_1d_ward_gives_scipys_levels_and_mojena_verdict() -> None:
+    from scipy.cluster.hierarchy import linkage
+
+    rng = np.random.default_rng(13)
+    levels_set = np.array([0.0, 0.3, 1.7, 2.25, 9.5, 40.125, 41.0, 300.5])
+    for case in range(150):  # exact duplicates (zeros above all) plus spread values
+        u = np.concatenate([rng.choice(levels_set, int(rng.integers(3, 60))),
+                            np.abs(rng.standard_cauchy(int(rng.integers(0, 60))))])
+        levels = np.sort(linkage(u.reshape(-1, 1), method="ward")[:, 2] ** 2)
+        np.testing.assert_allclose(np.sort(speed.ward_1d(u)[0]), levels, rtol=1e-9,
+                                   atol=1e-12, err_msg=f"case {case}")
+        scipy_way = speed.mojena_threshold(u)
+        old, speed.WARD_1D_FROM = speed.WARD_1D_FROM, 0
+        try:
+            ours = speed.mojena_threshold(u)
+        finally:
+            speed.WARD_1D_FROM = old
+        assert (ours.threshold, ours.n_clusters) == (scipy_way.threshold, scipy_way.n_clusters)
+
+
+def test_1d_ward_keeps_the_offline_keyposes_on_the_shared_clips_concatenated() -> None:
+    from streamkey.bench import long_motion
+
+    motion, _ = long_motion(20_000, DATA)
+    feats = compute_features(motion)
+    ours = speed.extract(motion, features=feats)
+    assert len(ours.info["candidates"]) >= speed.WARD_1D_FROM  # the 1-D path ran
+    old, speed.WARD_1D_FROM = speed.WARD_1D_FROM, 10**9
+    try:
+        scipy_way = speed.extract(motion, features=feats)
+    finally:
+        speed.WARD_1D_FROM = old
+    np.testing.assert_array_equal(ours.frames, scipy_way.frames)

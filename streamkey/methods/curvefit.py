@@ -296,8 +296,8 @@ class _Cache:
 
 
 def _dp(p: _Problem, key_cost: float, gram: np.ndarray, cache: _Cache,
-        channels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One search pass (Önder steps 2-5) over a batch: (keys mask C x n, cost per channel).
+        channels: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """One search pass (Önder steps 2-5) over a batch: (keys per channel, cost per channel).
 
     `channels` are the batch's column numbers (cache keys)."""
     n = p.x.shape[1]
@@ -332,19 +332,26 @@ def _dp(p: _Problem, key_cost: float, gram: np.ndarray, cache: _Cache,
     return _trace(cand, back, p.count - 1, n), cost
 
 
-def _trace(cand: np.ndarray, back: np.ndarray, last: np.ndarray, n: int) -> np.ndarray:
-    """Follow the saved predecessors back from every channel's last key: mask C x n."""
+def _trace(cand: np.ndarray, back: np.ndarray, last: np.ndarray, n: int) -> list[np.ndarray]:
+    """Follow the saved predecessors back from every channel's last key: sorted key frames
+    per channel (O(keys), whatever the clip length)."""
     c_n = len(last)
     rows = np.arange(c_n)
-    mask = np.zeros((c_n, n), dtype=bool)
     k, j = last.copy(), np.full(c_n, SEARCH)
-    mask[rows, cand[rows, k, j]] = True
+    hit_rows, hit_frames = [rows], [cand[rows, k, j]]
     while np.any(k > 0):
         on = k > 0
         r, kk, jj = rows[on], k[on], j[on]
         k[on], j[on] = kk - back[r, kk, jj, 0], back[r, kk, jj, 1]
-        mask[r, cand[r, k[on], j[on]]] = True
-    return mask
+        hit_rows.append(r)
+        hit_frames.append(cand[r, k[on], j[on]])
+    r_all, f_all = np.concatenate(hit_rows), np.concatenate(hit_frames)
+    order = np.lexsort((f_all, r_all))
+    r_all, f_all = r_all[order], f_all[order]
+    keep = np.ones(len(r_all), dtype=bool)
+    keep[1:] = (r_all[1:] != r_all[:-1]) | (f_all[1:] != f_all[:-1])
+    r_all, f_all = r_all[keep], f_all[keep]
+    return np.split(f_all.astype(np.int64), np.searchsorted(r_all, np.arange(1, c_n)))
 
 
 def _pad(key_lists: list[np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -389,13 +396,13 @@ def fit_channels(x: np.ndarray, m: np.ndarray, init: list[np.ndarray], key_cost:
         still = []
         for batch in _batches(active, counts):
             padded, count = _pad([keys[c] for c in batch], n)
-            mask, new = _dp(_Problem(xt[batch], mt[batch], padded, count), key_cost, gram,
+            found, new = _dp(_Problem(xt[batch], mt[batch], padded, count), key_cost, gram,
                             cache, batch)
             for i, c in enumerate(batch):
                 if new[i] < cost[c] * (1 - 1e-12):
                     if new[i] < cost[c] * (1 - tol):
                         still.append(c)
-                    keys[c], cost[c] = np.flatnonzero(mask[i]), new[i]
+                    keys[c], cost[c] = found[i], new[i]
         cache.end_pass()
         history.append(float(cost.sum()))
         active = np.array(sorted(still), dtype=np.int64)

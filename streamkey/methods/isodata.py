@@ -91,9 +91,12 @@ def joint_weights(skeleton: Skeleton) -> np.ndarray:
 
 def pose_vectors(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
     """Per-joint sign-continuous quaternions x 360/pi, (n, joints, 4) (module docstring)."""
-    rot = local_rotations(skeleton, channels)
-    n, joints = rot.shape[:2]
-    q = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat().reshape(n, joints, 4)
+    n, joints = len(channels), skeleton.n_joints
+    q = np.empty((n, joints, 4))
+    for lo in range(0, n, 4096):  # bounded temporaries keep this linear in frames
+        rot = local_rotations(skeleton, channels[lo : lo + 4096])
+        q[lo : lo + 4096] = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat().reshape(
+            len(rot), joints, 4)
     q[0] *= np.where(q[0, :, 3:] < 0, -1.0, 1.0)
     flip = np.where(np.einsum("fjk,fjk->fj", q[1:], q[:-1]) < 0, -1.0, 1.0)
     q[1:] *= np.cumprod(flip, axis=0)[..., None]
@@ -176,12 +179,14 @@ class _Stats:
     """Prefix sums of the weighted (y) and plain (x) pose vectors for O(1) run statistics."""
 
     def __init__(self, y: np.ndarray, x: np.ndarray) -> None:
-        zero = np.zeros((1, y.shape[1]))
         self.y, self.x = y, x
-        self.cy = np.concatenate([zero, np.cumsum(y, axis=0)])
+        self.cy, self.cx, self.cxx = (np.empty((len(y) + 1, y.shape[1])) for _ in range(3))
+        self.cy[0] = self.cx[0] = self.cxx[0] = 0.0
+        np.cumsum(y, axis=0, out=self.cy[1:])  # written in place: no full-size temporaries
         self.cyy = np.concatenate([[0.0], np.cumsum(np.einsum("ij,ij->i", y, y))])
-        self.cx = np.concatenate([zero, np.cumsum(x, axis=0)])
-        self.cxx = np.concatenate([zero, np.cumsum(x * x, axis=0)])
+        np.cumsum(x, axis=0, out=self.cx[1:])
+        np.multiply(x, x, out=self.cxx[1:])
+        np.cumsum(self.cxx[1:], axis=0, out=self.cxx[1:])
 
     def sse(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Weighted squared deviations of rows [a, b) about their mean."""
@@ -198,10 +203,19 @@ class _Stats:
 
 def _dispersion(st: _Stats, cl: _Classes) -> np.ndarray:
     """Mean distance of each class's frames to its centre."""
-    centres = _centres(st.cy, cl.starts, cl.n)
     lab = cl.labels()
-    dist = np.linalg.norm(st.y - centres[lab], axis=1)
+    dist = _centre_distances(st, cl, lab)
     return np.bincount(lab, dist) / cl.sizes()
+
+
+def _centre_distances(st: _Stats, cl: _Classes, lab: np.ndarray) -> np.ndarray:
+    """Distance of every frame to its class centre, in row chunks (cache-sized temporaries)."""
+    centres = _centres(st.cy, cl.starts, cl.n)
+    dist = np.empty(cl.n)
+    for lo in range(0, cl.n, 4096):
+        dist[lo : lo + 4096] = np.linalg.norm(
+            st.y[lo : lo + 4096] - centres[lab[lo : lo + 4096]], axis=1)
+    return dist
 
 
 def _best_cut(st: _Stats, a: int, b: int, o_n: int) -> int:
@@ -279,7 +293,7 @@ def _iterate(st: _Stats, cl: _Classes, p: dict[str, Any],
 def _keyframes(st: _Stats, cl: _Classes) -> np.ndarray:
     """Row of each class nearest to its centre (earliest on ties)."""
     lab = cl.labels()
-    dist = np.linalg.norm(st.y - _centres(st.cy, cl.starts, cl.n)[lab], axis=1)
+    dist = _centre_distances(st, cl, lab)
     order = np.lexsort((np.arange(cl.n), dist, lab))
     first = np.searchsorted(lab[order], np.arange(len(cl.starts)))
     return np.sort(order[first])

@@ -433,6 +433,11 @@ class Online(OnlineKeyframer):
         events: list[KeyframeEvent] = []
         g, ready = self.n_class, t - self.radius - 1
         edge: tuple[int, np.ndarray] | None = None
+        rows = self.clusterer.rows
+        if g <= min(t, ready) and t >= (rows[0] if rows else g) + self.lookahead:
+            # Frames with stored maps, as one block: the statistics do not change meanwhile.
+            events.extend(self._classify(g, min(t, ready), due=t))
+            g = self.n_class
         while g <= t:
             rows = self.clusterer.rows
             if t < (rows[0] if rows else g) + self.lookahead:
@@ -574,10 +579,12 @@ class Online(OnlineKeyframer):
         self.s_ready = f + 1
         self._norm = None
 
-    def _classify(self, g0: int, g1: int, s: np.ndarray | None = None
-                  ) -> list[KeyframeEvent]:
+    def _classify(self, g0: int, g1: int, s: np.ndarray | None = None,
+                  due: int | None = None) -> list[KeyframeEvent]:
         """Candidates of frames g0..g1 with the current statistics, fed to the clusterer;
-        `s` their maps when not the stored ones."""
+        `s` their maps when not the stored ones. With `due` (the newest frame), stop before
+        the first frame not yet due (the open cluster's start, or the frame itself, plus the
+        lookahead after `due`)."""
         if self._norm is None:
             warm = self.warm
             self._norm = normalisation(warm if warm is not None and self.st.n < warm.n
@@ -590,9 +597,14 @@ class Online(OnlineKeyframer):
         rel = sal / np.where(thr > 0, thr, 1.0)
         closed: list[tuple[int, float]] = []
         level = rel @ self.weights / max(float(self.weights.sum()), 1e-300)
+        rows = self.clusterer.rows
         for i in range(len(s)):
+            if due is not None and due < (rows[0] if rows else g0 + i) + self.lookahead:
+                g1 = g0 + i - 1
+                break
             closed.extend(self.clusterer.add(g0 + i, cand[i], self.weights, self.footmask,
                                              rel[i]))
+            rows = self.clusterer.rows
             self.trace.append((self.seq0 + g0 + i, float(level[i])))
         self.n_class = g1 + 1
         return self._emit(closed)

@@ -19,6 +19,10 @@ Offline: `extract(motion)`. Definitions this module settles (the paper leaves th
   an intensity threshold: keyposes are the candidates with U above the dropped cluster's
   largest intensity (0 for a single cluster). On every shared clip Ward's clusters are
   intervals of intensity, so this is the paper's rule (`info["contiguous_clusters"]` checks).
+  From `WARD_1D_FROM` values on, Ward runs as greedy merging of sorted neighbours
+  (`ward_1d`, O(n log n); in 1-D the closest pair is always adjacent) instead of scipy's
+  O(n^2) linkage: same levels to rounding, the same keys on every shared clip and at 100,000
+  frames (3.2 -> 2.0 s CPU there); online, ~550 values per update: 3.7 -> 1.2 ms.
 
 Online (`Online`): every `hop` frames the window (the last `history + lookahead + hop` frames)
 is re-analysed and the candidates whose deadline (frame + lookahead) falls before the next
@@ -45,8 +49,8 @@ offline global steps:
   whole stream and the sample all its candidates: the offline result, bit for bit.
 
 Memory is bounded by the window (positions, speeds), the Cholesky factors (one per lambda at
-window length, ~9 MB with the defaults, plus a bounded cache of per-length copies) and the
-cut-off sample (the candidates of `cutoff_history` frames).
+window length, ~9 MB with the defaults, plus one copy per lambda at the length it is solved
+at) and the cut-off sample (the candidates of `cutoff_history` frames).
 """
 
 from __future__ import annotations
@@ -69,7 +73,7 @@ from ..signal import hp_banded, hp_filter, hp_lambda, local_minima
 
 __all__ = ["extract", "scale_frequencies", "speed_signal", "HPBank", "scale_minima",
            "match_minima", "intensities", "mojena_threshold", "MojenaResult", "METHOD", "Online",
-           "scale_lambdas", "settle_frames"]
+           "scale_lambdas", "settle_frames", "ward_1d", "WARD_1D_FROM"]
 
 METHOD = "speed"
 _PBTRS = get_lapack_funcs("pbtrs", (np.empty(1),))
@@ -115,7 +119,7 @@ class HPBank:
     def _build(self, capacity: int) -> None:
         self.capacity = capacity
         self._prefix: list[np.ndarray | None] = [None] * len(self.lams)
-        self._cache: dict[tuple[int, int], np.ndarray] = {}
+        self._cache: dict[int, tuple[int, np.ndarray]] = {}
 
     def reserve(self, n: int, limit: int) -> None:
         """Grow the capacity (doubling, at most `limit`) until length n fits."""
@@ -124,13 +128,12 @@ class HPBank:
 
     def factor(self, n: int, i: int) -> np.ndarray:
         """Upper banded Cholesky factor (3, n) of the length-n HP system for lambda i."""
-        c = self._cache.get((n, i))
-        if c is None:
-            c = self._factor(n, i)
-            if self.keep:
-                if len(self._cache) > 4 * len(self.lams):
-                    self._cache.clear()
-                self._cache[(n, i)] = c
+        got = self._cache.get(i)
+        if got is not None and got[0] == n:
+            return got[1]
+        c = self._factor(n, i)
+        if self.keep:  # one length per lambda: after warm-up each lambda asks for one length
+            self._cache[i] = (n, c)
         return c
 
     def _factor(self, n: int, i: int) -> np.ndarray:
@@ -187,6 +190,9 @@ def scale_minima(v: np.ndarray, bank: HPBank, lengths: np.ndarray | None = None,
         trend = bank.solve(v[a:], i)
         m = local_minima(trend) + a
         m = m[m >= start]
+        if len(m) == 0:  # no minimum in the part that counts: the f/2 trend is not needed
+            out.append((m, np.zeros(0)))
+            continue
         out.append((m, np.abs(trend[m - a] - bank.solve(v[b:], s + i)[m - b])))
     return out
 
@@ -353,6 +359,52 @@ class MojenaResult:
     contiguous: bool
 
 
+WARD_1D_FROM = 64  # values from which the O(n log n) 1-D Ward replaces scipy's O(n^2) one
+
+
+def ward_1d(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ward's agglomeration of 1-D values in O(n log n): (fusion levels alpha in merge order,
+    the sorting permutation, and per merge the sorted position where its right cluster starts).
+
+    In one dimension a Ward merge of two clusters with a third between them never costs less
+    than merging that third with one of them (with d = n_a n_b / (n_a + n_b) (mu_a - mu_b)^2:
+    min(n_a x^2, n_c y^2) <= n_a n_c / (n_a + n_c) (x + y)^2), so the closest pair is always
+    adjacent in sorted order and greedy merging of neighbours gives scipy's hierarchy; alpha
+    = 2 d, scipy's squared heights, computed directly instead of by Lance-Williams updates.
+    """
+    import heapq
+
+    order = np.argsort(u, kind="stable")
+    v = u[order].tolist()
+    n = len(v)
+    size, total = [1.0] * n, list(v)
+    left, right = list(range(-1, n - 1)), list(range(1, n + 1))
+    alive = [True] * n
+    heap = [(0.5 * (v[i + 1] - v[i]) ** 2, i, i + 1, 2.0) for i in range(n - 1)]
+    heapq.heapify(heap)
+    alpha, bounds = np.empty(n - 1), np.empty(n - 1, dtype=np.int64)
+    done = 0
+    while done < n - 1:
+        d, a, b, both = heapq.heappop(heap)
+        if not (alive[a] and alive[b]) or right[a] != b or size[a] + size[b] != both:
+            continue  # stale: one side has grown since
+        alpha[done], bounds[done] = 2.0 * d, b
+        done += 1
+        # b joins a (clusters are runs of sorted positions named by their first one)
+        alive[b] = False
+        size[a] += size[b]
+        total[a] += total[b]
+        right[a] = right[b]
+        if right[a] < n:
+            left[right[a]] = a
+        for x, y in ((left[a], a), (a, right[a])):
+            if 0 <= x and y < n:
+                nx, ny = size[x], size[y]
+                diff = total[x] / nx - total[y] / ny
+                heapq.heappush(heap, (nx * ny / (nx + ny) * diff * diff, x, y, nx + ny))
+    return alpha, order, bounds
+
+
 def mojena_threshold(u: np.ndarray, k: float = 2.75) -> MojenaResult:
     """Ward clustering of intensities, Mojena rule one, dropped cluster -> threshold (§3.2)."""
     u = np.asarray(u, dtype=np.float64)
@@ -360,14 +412,24 @@ def mojena_threshold(u: np.ndarray, k: float = 2.75) -> MojenaResult:
         return MojenaResult(0.0, len(u), float("nan"), True)
     if len(u) < 3:  # one fusion level: no spread to judge it by, one cluster
         return MojenaResult(0.0, 1, float("nan"), True)
-    z = linkage(u.reshape(-1, 1), method="ward")
-    alpha = z[:, 2] ** 2  # Lance-Williams fusion levels of squared distances
+    if len(u) >= WARD_1D_FROM:
+        alpha, order, bounds = ward_1d(u)
+    else:
+        z = linkage(u.reshape(-1, 1), method="ward")
+        alpha = z[:, 2] ** 2  # Lance-Williams fusion levels of squared distances
     cutoff = float(alpha.mean() + k * alpha.std(ddof=1))
     n_clusters = 1 + int(np.count_nonzero(alpha > cutoff))
     if n_clusters == 1:
         return MojenaResult(0.0, 1, cutoff, True)
     # Ward is monotone: cutting just above the last level kept gives exactly n_clusters.
-    labels = fcluster(z, z[len(u) - 1 - n_clusters, 2], criterion="distance") - 1
+    if len(u) >= WARD_1D_FROM:
+        merged = np.zeros(len(u), dtype=bool)  # boundary before sorted position i merged
+        cut = alpha[len(u) - 1 - n_clusters]
+        merged[bounds[alpha <= cut]] = True
+        labels = np.empty(len(u), dtype=np.int64)
+        labels[order] = np.cumsum(~merged) - 1
+    else:
+        labels = fcluster(z, z[len(u) - 1 - n_clusters, 2], criterion="distance") - 1
     zero = np.flatnonzero(u == 0)
     if len(zero):
         drop = labels[zero[0]]
