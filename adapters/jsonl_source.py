@@ -15,8 +15,9 @@ behind (backpressure through the pipe), so a file piped in is never thinned out.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
+import contextlib
 import json
-import math
 import sys
 import threading
 import time
@@ -27,7 +28,7 @@ import numpy as np
 from streamkey.errors import BVHError, InputError
 from streamkey.motion import Frame, Skeleton
 
-from .base import MAX_CHANNELS, Source, frame_numbers_problem
+from .base import MAX_CHANNELS, Source, fps_problem, frame_numbers_problem
 
 __all__ = ["StdinSource", "read_skeleton_line", "decode_frame_line", "MAX_LINE_BYTES",
            "POSITIONS_ONLY"]
@@ -68,8 +69,8 @@ def read_skeleton_line(stream: IO[bytes], where: str = "stdin") -> tuple[Skeleto
         if not isinstance(info, dict) or info.get("type") != "skeleton":
             raise ValueError("not a skeleton line")
         fps = float(info.get("fps", 120.0))
-        if not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"fps must be positive, got {fps}")
+        if (problem := fps_problem(fps)) is not None:
+            raise ValueError(problem)
         skeleton = parse_bvh(str(info["bvh"]), source=f"{where} skeleton").skeleton
     except (ValueError, KeyError, TypeError, BVHError) as exc:
         raise InputError(f"{where}:{number}: expected a skeleton line "
@@ -84,8 +85,8 @@ def decode_frame_line(line: bytes, fps: float) -> Frame | dict[str, Any] | None:
         return None
     try:
         obj = json.loads(line)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"not JSON: {exc}") from None
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"not JSON: {type(exc).__name__}: {exc}") from None
     if not isinstance(obj, dict):
         raise ValueError("expected a JSON object")
     if obj.get("type") == "skeleton":
@@ -140,7 +141,11 @@ class StdinSource(Source):
                     pass
                 item = b"" if too_long else line
                 asyncio.run_coroutine_threadsafe(self.accept(item, too_long), loop).result()
-        except (RuntimeError, OSError, ValueError):  # loop closed or stream closed under us
+        except (RuntimeError, concurrent.futures.CancelledError):  # the loop stopped under us
+            return
+        except Exception as exc:  # noqa: BLE001 - a reader that stops ends the run, loudly
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(self.die, f"stdin: {type(exc).__name__}: {exc}")
             return
         try:
             asyncio.run_coroutine_threadsafe(self.frames.queue.put(None), loop).result()

@@ -98,9 +98,10 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
     paths = find_motion_files(args.paths)
     if args.online:
-        from .streaming import extract_files_online
+        from .streaming import check_online_params, extract_files_online
 
         methods = parse_methods(args.method, online=True)
+        check_online_params(methods, _method_params(args))
         results = list(extract_files_online(paths, methods, _method_params(args),
                                             args.lookahead, _progress(args.quiet),
                                             roles=_roles(args)))
@@ -205,12 +206,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     from .amc import bvh_equivalent, read_motion
     from .live import run_live
     from .methods import parse_methods
+    from .streaming import check_online_params
 
     methods = parse_methods(args.method, online=True)
     # Frames on the wire come from `replay`, which sends AMC clips as their BVH equivalent.
     skeleton_motion = bvh_equivalent(read_motion(args.skeleton)) if args.skeleton else None
     if skeleton_motion is not None:
         skeleton_motion.skeleton.roles = _roles(args) or skeleton_motion.skeleton.roles
+    check_online_params(methods, _online_params(args))
     source: Any
     if Path(args.source).suffix.lower() in (".bvh", ".amc"):
         source = _read(args.source, args)  # fully read and checked before the engine starts

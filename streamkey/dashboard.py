@@ -319,7 +319,7 @@ class DashboardSink(WebSocketSink):
         eng = self.engine
         if eng is None:
             return out
-        src = eng.source.stats
+        src = eng.source.counters()
         out["frames"] = eng.summary.frames_in
         out["drops"] = src.queue_drops + sum(src.malformed.values())
         if eng.pipeline is not None:

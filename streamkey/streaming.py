@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -9,12 +10,28 @@ from typing import Any
 import numpy as np
 
 from .batch import FileResult, load_motion, per_file
+from .errors import UsageError
 from .keyframes import KeyframeEvent, Keyframes
 from .methods import online_class
 from .motion import Motion
 from .online import OnlineKeyframer, Pipeline
 
 __all__ = ["make_keyframers", "run_online", "extract_files_online"]
+
+
+def check_online_params(methods: list[str], params: dict[str, dict[str, Any]] | None) -> None:
+    """Refuse, before anything runs, a parameter that a chosen online keyframer cannot honour
+    (e.g. `--count` for online simplify, which decides by tolerance as frames arrive)."""
+    for name in methods:
+        given = [k for k, v in (params or {}).get(name, {}).items() if v is not None]
+        accepted = inspect.signature(online_class(name)).parameters
+        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in accepted.values()):
+            continue
+        unknown = [k for k in given if k not in accepted]
+        if unknown:
+            flags = ", ".join("--" + k.replace("_", "-") for k in unknown)
+            raise UsageError(f"{name} online does not take {flags}; choose other methods with "
+                             f"--method or leave {flags} out")
 
 
 def make_keyframers(motion: Motion, methods: list[str],
@@ -25,6 +42,7 @@ def make_keyframers(motion: Motion, methods: list[str],
     `params["*"]["max_gap"]` (seconds) wraps each in `optimal.MaxGap`."""
     params = params or {}
     max_gap = params.get("*", {}).get("max_gap")
+    check_online_params(methods, params)
     out = []
     for name in methods:
         kwargs = {k: v for k, v in params.get(name, {}).items() if v is not None}

@@ -25,6 +25,7 @@ from streamkey.bvh import format_bvh, parse_bvh, read_bvh
 from streamkey.cli import main
 from streamkey.keyframes import KeyframeEvent
 from streamkey.kinematics import forward_kinematics
+from streamkey.methods import ONLINE_METHODS
 from streamkey.motion import Motion
 from streamkey.online import Pipeline
 from streamkey.streaming import make_keyframers
@@ -136,7 +137,7 @@ def test_replayed_amc_frames_are_fk_equal_to_the_amc_reader(receive) -> None:  #
 
 
 def direct_events(motion: Motion) -> list[tuple[str, int, int]]:
-    pipeline = Pipeline(make_keyframers(motion, ["saliency", "speed", "simplify"]))
+    pipeline = Pipeline(make_keyframers(motion, list(ONLINE_METHODS)))
     events = pipeline.push_block(motion.frames()) + pipeline.flush()
     return sorted((e.method, e.frame, e.decided_at) for e in events
                   if isinstance(e, KeyframeEvent))

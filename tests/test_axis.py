@@ -27,6 +27,7 @@ from streamkey.adapters.axis import (
 )
 from streamkey.adapters.base import SourceStats, parse_address
 from streamkey.bvh import read_bvh
+from streamkey.methods import ONLINE_METHODS
 from streamkey.rigs import axis_skeleton
 
 CLIP = DATA / "07_01.bvh"
@@ -128,7 +129,7 @@ def test_run_from_axis_tcp_equals_run_from_the_file(tmp_path, file_keyframes, se
     got, err = _run_against_sender(tmp_path, *sender_args)
     assert "frames in: 316" in err and "0 queue" in err
     assert got == file_keyframes
-    assert {m for m, _, _ in got} == {"saliency", "speed", "simplify"}
+    assert {m for m, _, _ in got} == set(ONLINE_METHODS)
 
 
 def test_udp_datagrams_with_the_built_in_axis_skeleton():

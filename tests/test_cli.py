@@ -97,3 +97,13 @@ def test_decimate_and_simplify_take_the_space_switch_positions_by_default(tmp_pa
                                                                            space=space))):
             assert methods[name]["params"]["space"] == want
             assert methods[name]["keyframes"] == fn(m, 20, space=want).frames.tolist()
+
+
+def test_count_on_an_online_method_that_cannot_honour_it_is_refused_up_front(capsys):
+    clip = str(DATA / "07_01.bvh")
+    for argv in (["run", "--from", clip, "--fast", "--count", "5"],
+                 ["extract", "--online", "--method", "all", "--count", "5", clip, "-q"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: simplify online does not take --count")
+        assert "Traceback" not in err and err.count("\n") == 1

@@ -16,6 +16,7 @@ from live_helpers import MS, read_jsonl
 from streamkey.adapters.jsonl_source import MAX_LINE_BYTES, StdinSource, read_skeleton_line
 from streamkey.bvh import read_bvh
 from streamkey.errors import InputError
+from streamkey.methods import ONLINE_METHODS
 
 CLIP = DATA / "07_01.bvh"
 CMD = [sys.executable, "-m", "streamkey"]
@@ -41,7 +42,7 @@ def test_replay_to_stdout_piped_into_run_from_stdin_equals_run_from_the_file(tmp
                          capture_output=True, text=True, timeout=120 * MS)
     assert ref.returncode == 0, ref.stderr
     got, want = _keys(read_jsonl(piped)), _keys(read_jsonl(direct))
-    assert got == want and {k[0] for k in want} == {"saliency", "speed", "simplify"}
+    assert got == want and {k[0] for k in want} == set(ONLINE_METHODS)
 
 
 def test_stdin_without_a_skeleton_line_is_one_clear_error():
@@ -125,3 +126,25 @@ def test_positions_only_frames_are_refused_with_a_clear_reason():
     assert _collect(source) == []
     assert source.stats.malformed["positions_only"] == 3
     assert "positions-only" in source.stats.last_error
+
+
+def test_deep_json_and_out_of_range_numbers_are_counted_and_the_stream_goes_on():
+    motion = read_bvh(CLIP)
+    good = [json.dumps({"seq": f.seq, "time": f.time, "channels": f.channels.tolist()}).encode()
+            for f in motion.frames()[:5]]
+    hostile = [b'{"seq": ' + b"[" * 100_000, b'{"seq": 1e30, "channels": [1]}',
+               b'{"seq": 7, "time": 1e300, "channels": [1]}']
+    source = StdinSource(motion.skeleton, motion.fps,
+                         io.BytesIO(b"\n".join(good[:2] + hostile + good[2:]) + b"\n"))
+    frames = _collect(source)
+    assert [f.seq for f in frames] == [f.seq for f in motion.frames()[:5]]
+    assert sum(source.stats.malformed.values()) == len(hostile)
+    assert source.fatal is None
+
+
+@pytest.mark.parametrize("fps", [1e-6, 0, 1e9, "nan"])
+def test_a_skeleton_line_with_an_unusable_frame_rate_is_one_clear_error(fps):
+    text = CLIP.read_text()
+    line = json.dumps({"type": "skeleton", "bvh": text[: text.index("MOTION")], "fps": fps})
+    with pytest.raises(InputError, match="expected a skeleton line"):
+        read_skeleton_line(io.BytesIO(line.encode() + b"\n"))

@@ -21,6 +21,7 @@ from streamkey.adapters.base import parse_address
 from streamkey.adapters.vmc import VmcDecoder, VmcSource
 from streamkey.bvh import read_bvh, write_bvh
 from streamkey.kinematics import body_height
+from streamkey.methods import ONLINE_METHODS
 from streamkey.motion import Motion
 from streamkey.rigs import humanoid_skeleton
 
@@ -141,7 +142,7 @@ def test_run_fed_by_vmc_equals_run_from_the_file(tmp_path, humanoid_clip):
     assert run.returncode == 0, err
     assert f"frames in: {motion.n_frames}" in err and "0 queue" in err
     got, want = keyframes_of(read_jsonl(live)), keyframes_of(read_jsonl(direct))
-    assert got == want and {m for m, _, _ in want} == {"saliency", "speed", "simplify"}
+    assert got == want and {m for m, _, _ in want} == set(ONLINE_METHODS)
 
 
 def test_fuzzed_vmc_datagrams_are_counted_never_raised(humanoid_clip):
