@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from .amc import read_motion
-from .errors import InputError, StreamkeyError, UsageError
+from .errors import InputError, StreamkeyError
 from .features import compute_features
 from .keyframes import SCHEMA_VERSION, Keyframes
 from .methods import COUNTED_METHODS, offline_method
@@ -83,7 +83,7 @@ def per_file(paths: list[Path], work: Callable[[Path], FileResult],
             progress(i, len(paths), path)
         try:
             yield work(path)
-        except (KeyboardInterrupt, MemoryError, UsageError):
+        except (KeyboardInterrupt, MemoryError):
             raise
         except Exception as exc:  # noqa: BLE001 - one file must not lose the batch
             yield FileResult(path, None, {}, file_error(path, exc))
