@@ -284,33 +284,45 @@ class Solver:
         return [k + self.base for k in path]
 
 
-def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> np.ndarray:
-    """Offline λ / tolerance: the online solver over every row, nothing forced."""
+def _segment_errors(f: np.ndarray, keys: np.ndarray, lam: float) -> np.ndarray:
+    """Costs of the segments between consecutive keys from the DP's F (F(b) = F(a) +
+    cost(a, b) + λ along a chain; λ = 0 in tolerance mode)."""
+    return np.maximum(np.diff(f[keys]) - lam, 0.0)
+
+
+def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Offline λ / tolerance: the online solver over every row, nothing forced; the keys and
+    the costs of the segments between them."""
     solver = Solver(max_len, **mode)
     solver.add(x)
-    return np.array(solver.finish(), dtype=np.int64)
+    keys = np.array(solver.finish(), dtype=np.int64)
+    lam = 0.0 if solver.tolerance is not None else solver.lam
+    return keys, _segment_errors(solver.f, keys - solver.base, lam)
 
 
-def _rate_keys(x: np.ndarray, max_len: int, rate: float) -> tuple[np.ndarray, float]:
+def _rate_keys(x: np.ndarray, max_len: int,
+               rate: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Offline rate: λ from every frame's cost (as the online controller ends up with), then
-    one penalised pass. Same chunks and sums as `Solver`, so bit-identical to it."""
+    one penalised pass (keys, segment costs, λ). Same chunks and sums as `Solver`, so
+    bit-identical to it."""
     solver = Solver(max_len, rate=rate)
     band = np.empty((len(x), max_len))
     for b0 in range(0, len(x), om.CHUNK):
         b1 = min(len(x), b0 + om.CHUNK)
         band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
         lam = solver.rate_lambda(band[b0:b1])
-    return _penalised(band, lam), lam
+    keys, f = _penalised(band, lam)
+    return keys, _segment_errors(f, keys, lam), lam
 
 
-def _penalised(band: np.ndarray, lam: float) -> np.ndarray:
+def _penalised(band: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
     n = len(band)
     f = np.full(n, np.inf)
     bp = np.full(n, -1, dtype=np.int64)
     keys = np.zeros(n, dtype=np.int64)
     f[0], keys[0] = 0.0, 1
     om.dp_rows(band, f, bp, keys, 1, n, lam)
-    return np.array(om.chain(bp, n - 1), dtype=np.int64)
+    return np.array(om.chain(bp, n - 1), dtype=np.int64), f
 
 
 def _exact_count(band: np.ndarray, count: int) -> np.ndarray:
@@ -392,7 +404,7 @@ def _count_keys(x: np.ndarray, count: int, max_len: int) -> tuple[np.ndarray, di
         lo = grid[above[-1]] if len(above) else lo - 4.0
         hi = grid[below[0]] if len(below) else hi + 4.0
     near = min(best, key=lambda k: (abs(k - count), k < count))
-    keys = _adjust(x, _penalised(band32, math.exp(best[near])), count)
+    keys = _adjust(x, _penalised(band32, math.exp(best[near]))[0], count)
     return keys, {"solver": "lambda" if near == count else "lambda+greedy",
                   "lambda_count": near, "max_segment_frames": max_len}
 
@@ -430,17 +442,16 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
                               "weights": None if weights is None else list(weights)}
     info: dict[str, Any] = {}
     if n == 1:
-        rows = np.zeros(1, dtype=np.int64)
+        rows, err = np.zeros(1, dtype=np.int64), np.zeros(0)
     elif "count" in mode:
         if mode["count"] > n:
             raise UsageError(f"count must be in [2, {n}] (captured frames), got {count}")
         rows, info = _count_keys(x, mode["count"], max_len)
+        err = om.pair_costs(x, rows[:-1], rows[1:])
+    elif "rate" in mode:
+        rows, err, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps)
     else:
-        if "rate" in mode:
-            rows, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps)
-        else:
-            rows = _solve_all(x, max_len, **mode)
-    err = om.pair_costs(x, rows[:-1], rows[1:])
+        rows, err = _solve_all(x, max_len, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
     scores = np.zeros(len(rows))
     scores[1:] += err
