@@ -259,15 +259,20 @@ class Solver:
         lo, hi = self.floor - base, d - base
         if hi > lo:
             self.f[lo + 1 : hi + 1] = np.inf
-        # Frames after d whose best chain skips the decision are solved again, from the first
-        # (a frame whose chain passes through it keeps its value: it only lost options).
+        # Frames after d whose best chain skips the decision, or passes through such a frame,
+        # are solved again (first to last of them). Any other frame keeps its value and its
+        # back-pointer: its other options only got worse.
         end = self.done - base
-        p = self.bp[hi + 1 : end]
-        stale = np.flatnonzero((p <= hi) & (p != lo))
-        if len(stale):
-            first = hi + 1 + int(stale[0])
-            om.dp_rows(self.costs, self.f, self.bp, self.keys, first, end, self.lam, lo,
-                       self.tolerance)
+        p = self.bp[hi + 1 : end].tolist()
+        stale = [a <= hi and a != lo for a in p]
+        last = -1
+        for i, a in enumerate(p):  # back-pointers point backwards: one pass
+            if stale[i] or (a > hi and stale[a - hi - 1]):
+                stale[i] = True
+                last = i
+        if last >= 0:
+            om.dp_rows(self.costs, self.f, self.bp, self.keys, hi + 1 + stale.index(True),
+                       hi + 2 + last, self.lam, lo, self.tolerance)
         return keys
 
     def finish(self) -> list[int]:
