@@ -31,7 +31,8 @@ A key is final once every back-pointer chain from the frames that could still pr
 future key (the last L frames) passes through it (Viterbi traceback convergence). When the
 oldest undecided frame is `lookahead` frames old, the chain of the newest priced frame
 decides it and everything before it; later chains are re-priced to pass through that
-decision. Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, default 120). With
+decision (only the frames whose chains it broke, on the next frame: `Solver.settle`).
+Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, default 120). With
 an unbounded lookahead nothing is forced and `flush()` traces back from the last frame: the
 offline result exactly.
 
@@ -140,6 +141,7 @@ class Solver:
         self.done = 0  # frames with F computed
         self.floor = 0  # last committed key (stream index)
         self.decided = -1  # every frame <= decided is final
+        self.stale: tuple[int, int] | None = None  # frames to solve again (stream indices)
         self.log_sum = 0.0  # rate controller: sum and count of log cost(b - s, b)
         self.log_n = 0
         self.lam = self.lam0 if self.rate is None else self.rate_estimate()
@@ -190,6 +192,7 @@ class Solver:
 
     def _solve(self, end: int) -> None:
         """Price and solve frames done .. end − 1 (one chunk, or the tail at finish)."""
+        self.settle()
         b0, b1 = self.done - self.base, end - self.base
         costs = self.pricer.price(self.x, self.base, self.done, end)
         if self.keep_costs:
@@ -226,6 +229,7 @@ class Solver:
 
     def resolve(self, lam: float) -> None:
         """Solve every undecided frame again with penalty `lam`."""
+        self.settle()
         self.lam = lam
         lo = self.floor - self.base
         om.dp_rows(self.costs, self.f, self.bp, self.keys, lo + 1, self.done - self.base, lam,
@@ -233,6 +237,7 @@ class Solver:
 
     def converge(self) -> list[int]:
         """Keys that every chain from the last L priced frames shares, newly final."""
+        self.settle()
         t = self.done - 1
         lo = max(self.floor, t - self.max_len + 1) - self.base
         cur = np.arange(lo, t - self.base + 1)
@@ -250,6 +255,7 @@ class Solver:
     def force(self, d: int) -> list[int]:
         """Decide every frame <= d from the chain of the newest priced frame; re-price the
         frames after d so every chain passes through the decision."""
+        self.settle()
         base = self.base
         path = om.chain(self.bp, self.done - 1 - base, self.decided - base)
         keys = [k + base for k in path if k + base <= d]
@@ -270,13 +276,21 @@ class Solver:
             if stale[i] or (a > hi and stale[a - hi - 1]):
                 stale[i] = True
                 last = i
-        if last >= 0:
-            om.dp_rows(self.costs, self.f, self.bp, self.keys, hi + 1 + stale.index(True),
-                       hi + 2 + last, self.lam, lo, self.tolerance)
+        if last >= 0:  # solved by `settle`, before anything reads them (spreads the work)
+            self.stale = (hi + 1 + stale.index(True) + base, hi + 2 + last + base)
         return keys
+
+    def settle(self) -> None:
+        """Solve again the frames a deadline decision left stale (`force`), if any."""
+        if self.stale is not None:
+            lo, hi = self.stale
+            self.stale = None
+            om.dp_rows(self.costs, self.f, self.bp, self.keys, lo - self.base, hi - self.base,
+                       self.lam, self.floor - self.base, self.tolerance)
 
     def finish(self) -> list[int]:
         """End of stream: price the tail, trace back from the last frame (always a key)."""
+        self.settle()
         if self.n == 0:
             return []
         if self.done < self.n:
@@ -518,6 +532,7 @@ class Online(OnlineKeyframer):
         for i in range(len(block)):
             self.seq.append(int(block.seq[i]))
             self.time.append(float(block.time[i]))
+            s.settle()  # the frame after a chunk's: the work its deadline decision left
             for end in s.add(rows[i : i + 1]):
                 keys = [] if s.rate is not None else s.converge()
                 d = end + om.CHUNK - 1 - self.lookahead
