@@ -180,7 +180,8 @@ class Solver:
     def add(self, rows: np.ndarray) -> list[int]:
         """Append rows; price and solve every completed chunk. Returns the stream indices of
         the chunk ends solved (the frames after which convergence may be checked)."""
-        self._grow(len(rows), rows.shape[1])
+        if self.n - self.base + len(rows) > len(self.f):
+            self._grow(len(rows), rows.shape[1])
         lo = self.n - self.base
         self.x[lo : lo + len(rows)] = rows
         self.n += len(rows)
@@ -532,7 +533,8 @@ class Online(OnlineKeyframer):
         for i in range(len(block)):
             self.seq.append(int(block.seq[i]))
             self.time.append(float(block.time[i]))
-            s.settle()  # the frame after a chunk's: the work its deadline decision left
+            if s.stale is not None:  # the frame after a chunk's: its decision's re-solve
+                s.settle()
             for end in s.add(rows[i : i + 1]):
                 keys = [] if s.rate is not None else s.converge()
                 d = end + om.CHUNK - 1 - self.lookahead
