@@ -153,7 +153,9 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
     long, _ = long_motion(frames_long, data)
     long_frames = long.frames()
     for name, make in (("optimal", lambda: online_class("optimal")(long.skeleton, long.fps)),
-                       ("feature stage only", lambda: _FeaturesOnly(long.skeleton, long.fps))):
+                       ("feature stage only", lambda: _FeaturesOnly(long.skeleton, long.fps)),
+                       ("feature stage + FK positions (what optimal reads)",
+                        lambda: _FeaturesOnly(long.skeleton, long.fps, positions=True))):
         rows.append({"method": f"{name} ({len(long_frames):,} frames)",
                      **_push_costs(make, long_frames)})
     memory = _stream_memory(pipeline, motion, stream_frames)
@@ -164,16 +166,19 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
 class _FeaturesOnly:
     """Baseline of the per-frame cost: the guard and the shared feature stage, no method."""
 
-    def __init__(self, skeleton: Any, fps: float) -> None:
+    def __init__(self, skeleton: Any, fps: float, positions: bool = False) -> None:
         from .online import FeatureStage, StreamGuard
 
         self.guard = StreamGuard(skeleton.n_channels)
         self.stage = FeatureStage(skeleton, fps)
+        self.positions = positions  # also read the FK positions (computed on first access)
 
     def push(self, frame: Any) -> None:
         clean, _, _ = self.guard.accept(frame)
         if clean:
-            self.stage.compute(clean)
+            block = self.stage.compute(clean)
+            if self.positions:
+                block.positions  # noqa: B018 - computes FK
 
     def flush(self) -> None:
         self.guard.reset()

@@ -31,7 +31,8 @@ A key is final once every back-pointer chain from the frames that could still pr
 future key (the last L frames) passes through it (Viterbi traceback convergence). When the
 oldest undecided frame is `lookahead` frames old, the chain of the newest priced frame
 decides it and everything before it; later chains are re-priced to pass through that
-decision. Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, default 120). With
+decision (only the frames whose chains it broke, on the next frame: `Solver.settle`).
+Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, default 120). With
 an unbounded lookahead nothing is forced and `flush()` traces back from the last frame: the
 offline result exactly.
 
@@ -140,6 +141,7 @@ class Solver:
         self.done = 0  # frames with F computed
         self.floor = 0  # last committed key (stream index)
         self.decided = -1  # every frame <= decided is final
+        self.stale: tuple[int, int] | None = None  # frames to solve again (stream indices)
         self.log_sum = 0.0  # rate controller: sum and count of log cost(b - s, b)
         self.log_n = 0
         self.lam = self.lam0 if self.rate is None else self.rate_estimate()
@@ -178,7 +180,8 @@ class Solver:
     def add(self, rows: np.ndarray) -> list[int]:
         """Append rows; price and solve every completed chunk. Returns the stream indices of
         the chunk ends solved (the frames after which convergence may be checked)."""
-        self._grow(len(rows), rows.shape[1])
+        if self.n - self.base + len(rows) > len(self.f):
+            self._grow(len(rows), rows.shape[1])
         lo = self.n - self.base
         self.x[lo : lo + len(rows)] = rows
         self.n += len(rows)
@@ -190,6 +193,7 @@ class Solver:
 
     def _solve(self, end: int) -> None:
         """Price and solve frames done .. end − 1 (one chunk, or the tail at finish)."""
+        self.settle()
         b0, b1 = self.done - self.base, end - self.base
         costs = self.pricer.price(self.x, self.base, self.done, end)
         if self.keep_costs:
@@ -226,6 +230,7 @@ class Solver:
 
     def resolve(self, lam: float) -> None:
         """Solve every undecided frame again with penalty `lam`."""
+        self.settle()
         self.lam = lam
         lo = self.floor - self.base
         om.dp_rows(self.costs, self.f, self.bp, self.keys, lo + 1, self.done - self.base, lam,
@@ -233,6 +238,7 @@ class Solver:
 
     def converge(self) -> list[int]:
         """Keys that every chain from the last L priced frames shares, newly final."""
+        self.settle()
         t = self.done - 1
         lo = max(self.floor, t - self.max_len + 1) - self.base
         cur = np.arange(lo, t - self.base + 1)
@@ -250,6 +256,7 @@ class Solver:
     def force(self, d: int) -> list[int]:
         """Decide every frame <= d from the chain of the newest priced frame; re-price the
         frames after d so every chain passes through the decision."""
+        self.settle()
         base = self.base
         path = om.chain(self.bp, self.done - 1 - base, self.decided - base)
         keys = [k + base for k in path if k + base <= d]
@@ -259,19 +266,32 @@ class Solver:
         lo, hi = self.floor - base, d - base
         if hi > lo:
             self.f[lo + 1 : hi + 1] = np.inf
-        # Frames after d whose best chain skips the decision are solved again, from the first
-        # (a frame whose chain passes through it keeps its value: it only lost options).
+        # Frames after d whose best chain skips the decision, or passes through such a frame,
+        # are solved again (first to last of them). Any other frame keeps its value and its
+        # back-pointer: its other options only got worse.
         end = self.done - base
-        p = self.bp[hi + 1 : end]
-        stale = np.flatnonzero((p <= hi) & (p != lo))
-        if len(stale):
-            first = hi + 1 + int(stale[0])
-            om.dp_rows(self.costs, self.f, self.bp, self.keys, first, end, self.lam, lo,
-                       self.tolerance)
+        p = self.bp[hi + 1 : end].tolist()
+        stale = [a <= hi and a != lo for a in p]
+        last = -1
+        for i, a in enumerate(p):  # back-pointers point backwards: one pass
+            if stale[i] or (a > hi and stale[a - hi - 1]):
+                stale[i] = True
+                last = i
+        if last >= 0:  # solved by `settle`, before anything reads them (spreads the work)
+            self.stale = (hi + 1 + stale.index(True) + base, hi + 2 + last + base)
         return keys
+
+    def settle(self) -> None:
+        """Solve again the frames a deadline decision left stale (`force`), if any."""
+        if self.stale is not None:
+            lo, hi = self.stale
+            self.stale = None
+            om.dp_rows(self.costs, self.f, self.bp, self.keys, lo - self.base, hi - self.base,
+                       self.lam, self.floor - self.base, self.tolerance)
 
     def finish(self) -> list[int]:
         """End of stream: price the tail, trace back from the last frame (always a key)."""
+        self.settle()
         if self.n == 0:
             return []
         if self.done < self.n:
@@ -284,33 +304,45 @@ class Solver:
         return [k + self.base for k in path]
 
 
-def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> np.ndarray:
-    """Offline λ / tolerance: the online solver over every row, nothing forced."""
+def _segment_errors(f: np.ndarray, keys: np.ndarray, lam: float) -> np.ndarray:
+    """Costs of the segments between consecutive keys from the DP's F (F(b) = F(a) +
+    cost(a, b) + λ along a chain; λ = 0 in tolerance mode)."""
+    return np.maximum(np.diff(f[keys]) - lam, 0.0)
+
+
+def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Offline λ / tolerance: the online solver over every row, nothing forced; the keys and
+    the costs of the segments between them."""
     solver = Solver(max_len, **mode)
     solver.add(x)
-    return np.array(solver.finish(), dtype=np.int64)
+    keys = np.array(solver.finish(), dtype=np.int64)
+    lam = 0.0 if solver.tolerance is not None else solver.lam
+    return keys, _segment_errors(solver.f, keys - solver.base, lam)
 
 
-def _rate_keys(x: np.ndarray, max_len: int, rate: float) -> tuple[np.ndarray, float]:
+def _rate_keys(x: np.ndarray, max_len: int,
+               rate: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Offline rate: λ from every frame's cost (as the online controller ends up with), then
-    one penalised pass. Same chunks and sums as `Solver`, so bit-identical to it."""
+    one penalised pass (keys, segment costs, λ). Same chunks and sums as `Solver`, so
+    bit-identical to it."""
     solver = Solver(max_len, rate=rate)
     band = np.empty((len(x), max_len))
     for b0 in range(0, len(x), om.CHUNK):
         b1 = min(len(x), b0 + om.CHUNK)
         band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
         lam = solver.rate_lambda(band[b0:b1])
-    return _penalised(band, lam), lam
+    keys, f = _penalised(band, lam)
+    return keys, _segment_errors(f, keys, lam), lam
 
 
-def _penalised(band: np.ndarray, lam: float) -> np.ndarray:
+def _penalised(band: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
     n = len(band)
     f = np.full(n, np.inf)
     bp = np.full(n, -1, dtype=np.int64)
     keys = np.zeros(n, dtype=np.int64)
     f[0], keys[0] = 0.0, 1
     om.dp_rows(band, f, bp, keys, 1, n, lam)
-    return np.array(om.chain(bp, n - 1), dtype=np.int64)
+    return np.array(om.chain(bp, n - 1), dtype=np.int64), f
 
 
 def _exact_count(band: np.ndarray, count: int) -> np.ndarray:
@@ -392,7 +424,7 @@ def _count_keys(x: np.ndarray, count: int, max_len: int) -> tuple[np.ndarray, di
         lo = grid[above[-1]] if len(above) else lo - 4.0
         hi = grid[below[0]] if len(below) else hi + 4.0
     near = min(best, key=lambda k: (abs(k - count), k < count))
-    keys = _adjust(x, _penalised(band32, math.exp(best[near])), count)
+    keys = _adjust(x, _penalised(band32, math.exp(best[near]))[0], count)
     return keys, {"solver": "lambda" if near == count else "lambda+greedy",
                   "lambda_count": near, "max_segment_frames": max_len}
 
@@ -430,17 +462,16 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
                               "weights": None if weights is None else list(weights)}
     info: dict[str, Any] = {}
     if n == 1:
-        rows = np.zeros(1, dtype=np.int64)
+        rows, err = np.zeros(1, dtype=np.int64), np.zeros(0)
     elif "count" in mode:
         if mode["count"] > n:
             raise UsageError(f"count must be in [2, {n}] (captured frames), got {count}")
         rows, info = _count_keys(x, mode["count"], max_len)
+        err = om.pair_costs(x, rows[:-1], rows[1:])
+    elif "rate" in mode:
+        rows, err, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps)
     else:
-        if "rate" in mode:
-            rows, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps)
-        else:
-            rows = _solve_all(x, max_len, **mode)
-    err = om.pair_costs(x, rows[:-1], rows[1:])
+        rows, err = _solve_all(x, max_len, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
     scores = np.zeros(len(rows))
     scores[1:] += err
@@ -502,6 +533,8 @@ class Online(OnlineKeyframer):
         for i in range(len(block)):
             self.seq.append(int(block.seq[i]))
             self.time.append(float(block.time[i]))
+            if s.stale is not None:  # the frame after a chunk's: its decision's re-solve
+                s.settle()
             for end in s.add(rows[i : i + 1]):
                 keys = [] if s.rate is not None else s.converge()
                 d = end + om.CHUNK - 1 - self.lookahead

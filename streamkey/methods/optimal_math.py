@@ -219,9 +219,12 @@ def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, 
     max_len = costs.shape[1]
     b = b0
     while b < b1:
-        if tolerance is None and b >= max_len:
+        if b >= max_len:
             e = min(b1, b + CHUNK)
-            _dp_block(costs[b - c0 : e - c0], f, bp, keys, b, lam, floor)
+            if tolerance is None:
+                _dp_block(costs[b - c0 : e - c0], f, bp, keys, b, lam, floor)
+            else:
+                _dp_block_tolerance(costs[b - c0 : e - c0], f, bp, keys, b, tolerance, floor)
             b = e
             continue
         lo = max(b - max_len, floor)
@@ -273,6 +276,48 @@ def _dp_block(band: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray,
         f[b + i] = done[i]
         bp[b + i] = a
         keys[b + i] = keys[a] + 1
+
+
+def _dp_block_tolerance(band: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray,
+                        b: int, tolerance: float, floor: int) -> None:
+    """Tolerance DP rows b .. b + len(band) − 1 (b >= L), as `_dp_block`: fewest keys, then
+    least F, then the earliest a; the same comparisons as the row-by-row loop."""
+    nb, max_len = band.shape
+    fs, ks = f.strides[0], keys.strides[0]
+    fv = np.ndarray((nb, max_len), f.dtype, f, (b - max_len) * fs, (fs, fs))
+    kv = np.ndarray((nb, max_len), keys.dtype, keys, (b - max_len) * ks, (ks, ks))
+    vals = fv + band
+    ok = band <= tolerance * np.arange(max_len, 0, -1)
+    ok &= np.isfinite(vals)
+    ok &= ~_inside(nb, max_len)
+    if floor > b - max_len:
+        ok &= np.arange(max_len)[None, :] >= floor - b + max_len - np.arange(nb)[:, None]
+    big = np.iinfo(np.int64).max
+    kk = np.where(ok, kv, big)
+    kmin = kk.min(axis=1)
+    arg = np.argmin(np.where(kk == kmin[:, None], vals, np.inf), axis=1)
+    pre = vals[np.arange(nb), arg].tolist()
+    pre_k = kmin.tolist()
+    rows = band[:, max_len - nb :].tolist()
+    done: list[float] = []
+    done_k: list[int] = []
+    for i in range(nb):
+        best, best_k = pre[i], pre_k[i]
+        a = b - max_len + i + int(arg[i]) if best_k != big else -1
+        row = rows[i]
+        for k in range(max(0, floor - b), i):  # candidate a = b + k
+            c = row[nb - i + k]
+            v = done[k] + c
+            if c <= tolerance * (i - k) and v < np.inf and (
+                    done_k[k] < best_k or (done_k[k] == best_k and v < best)):
+                best, best_k, a = v, done_k[k], b + k
+        if a < 0:
+            best, kb = np.inf, 0
+        else:
+            kb = int(keys[a]) + 1
+        done.append(best)
+        done_k.append(kb)
+        f[b + i], bp[b + i], keys[b + i] = best, a, kb
 
 
 _INSIDE: dict[tuple[int, int], np.ndarray] = {}
