@@ -148,7 +148,7 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
         return Pipeline([online_class(m)(motion.skeleton, motion.fps) for m in ONLINE_METHODS])
 
     rows.append({"method": "all (one pipeline)", **_push_costs(pipeline, frames)})
-    rows.append({"method": "feature stage only (guard + FK, the shared part)",
+    rows.append({"method": "feature stage only (guard + unwrap; FK only when a keyframer reads it)",
                  **_push_costs(lambda: _FeaturesOnly(motion.skeleton, motion.fps), frames)})
     long, _ = long_motion(frames_long, data)
     long_frames = long.frames()
