@@ -42,7 +42,7 @@ from streamkey.errors import UsageError
 from streamkey.motion import Frame, Skeleton
 
 from .base import MAX_CHANNELS, Address, Source, SourceStats, bind_host, frame_numbers_problem
-from .udp_listen import listen_udp
+from .udp_listen import listen_udp, refresh_kernel_drops
 
 __all__ = ["AxisSource", "AxisParser", "AxisLayout", "AxisPacket", "HEADER", "TOKEN1", "TOKEN2",
            "encode_binary", "encode_text"]
@@ -264,7 +264,13 @@ class AxisSource(Source):
             self.stats.received += 1
             self.frames.put(Frame(seq, seq / self.fps, channels))
 
+    def counters(self) -> SourceStats:
+        """Counters, with the kernel's receive-buffer drops when listening on UDP."""
+        sock = self.transport.get_extra_info("socket") if self.transport is not None else None
+        return refresh_kernel_drops(self.stats, sock)
+
     async def close(self) -> None:
+        self.counters()
         if self.task is not None:
             self.task.cancel()
         if self.transport is not None:

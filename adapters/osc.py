@@ -21,7 +21,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-import os
 import socket
 import struct
 import sys
@@ -50,6 +49,7 @@ from .base import (
     frame_numbers_problem,
     is_loopback,
 )
+from .udp_listen import refresh_kernel_drops
 
 __all__ = ["FRAME_ADDRESS", "SKELETON_ADDRESS", "KEYFRAME_ADDRESS", "encode_frame",
            "decode_frame", "encode_skeleton", "encode_event", "OscDecodeError", "OscSource",
@@ -305,11 +305,7 @@ class OscSource(Source):
     def counters(self) -> SourceStats:
         """Counters, with the kernel's drop count for this socket from /proc/net/udp (the
         ancillary count only arrives with the next datagram after a drop)."""
-        if self.sock is not None and self.sock.fileno() >= 0:
-            drops = _proc_udp_drops(self.sock)
-            if drops is not None:
-                self.stats.kernel_drops = max(self.stats.kernel_drops or 0, drops)
-        return self.stats
+        return refresh_kernel_drops(self.stats, self.sock)
 
     async def close(self) -> None:
         self.counters()
@@ -318,20 +314,6 @@ class OscSource(Source):
             with contextlib.suppress(Exception):
                 asyncio.get_running_loop().remove_reader(self.sock.fileno())
             self.sock.close()
-
-
-def _proc_udp_drops(sock: socket.socket) -> int | None:
-    """The `drops` column of /proc/net/udp for this socket (Linux), else None."""
-    try:
-        inode = str(os.fstat(sock.fileno()).st_ino)
-        with open("/proc/net/udp", encoding="ascii") as table:
-            for line in table:
-                fields = line.split()
-                if len(fields) >= 13 and fields[9] == inode:
-                    return int(fields[12])
-    except (OSError, ValueError):
-        return None
-    return None
 
 
 _BUNDLE_HEAD = b"#bundle\0"

@@ -4,15 +4,39 @@ to a callback on the event loop, name the bound address for the ready line."""
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 from collections.abc import Callable
 from typing import Any
 
 from streamkey.errors import InputError
 
-from .base import Address
+from .base import Address, SourceStats
 
-__all__ = ["listen_udp"]
+__all__ = ["listen_udp", "proc_udp_drops", "refresh_kernel_drops"]
+
+
+def proc_udp_drops(sock: socket.socket) -> int | None:
+    """The `drops` column of /proc/net/udp for this socket (Linux), else None."""
+    try:
+        inode = str(os.fstat(sock.fileno()).st_ino)
+        with open("/proc/net/udp", encoding="ascii") as table:
+            for line in table:
+                fields = line.split()
+                if len(fields) >= 13 and fields[9] == inode:
+                    return int(fields[12])
+    except (OSError, ValueError):
+        return None
+    return None
+
+
+def refresh_kernel_drops(stats: SourceStats, sock: socket.socket | None) -> SourceStats:
+    """`stats` with the kernel's receive-buffer drops of `sock` (none known: unchanged)."""
+    if sock is not None and sock.fileno() >= 0:
+        drops = proc_udp_drops(sock)
+        if drops is not None:
+            stats.kernel_drops = max(stats.kernel_drops or 0, drops)
+    return stats
 
 
 async def listen_udp(address: Address, host: str, receive: Callable[[bytes], None]

@@ -42,8 +42,8 @@ from scipy.spatial.transform import Rotation
 from streamkey.errors import UsageError
 from streamkey.motion import POSITION_CHANNELS, Frame, Skeleton
 
-from .base import MAX_MESSAGE_BYTES, Address, Source, bind_host
-from .udp_listen import listen_udp
+from .base import MAX_MESSAGE_BYTES, Address, Source, SourceStats, bind_host
+from .udp_listen import listen_udp, refresh_kernel_drops
 
 __all__ = ["VmcSource", "VmcDecoder", "ROOT_ADDRESS", "BONE_ADDRESS"]
 
@@ -182,6 +182,12 @@ class VmcSource(Source):
         self.frames.put(Frame(self.seq, self.seq / self.fps, channels))
         self.seq += 1
 
+    def counters(self) -> SourceStats:
+        """Counters, with the kernel's receive-buffer drops of the listening socket."""
+        sock = self.transport.get_extra_info("socket") if self.transport is not None else None
+        return refresh_kernel_drops(self.stats, sock)
+
     async def close(self) -> None:
+        self.counters()
         if self.transport is not None:
             self.transport.close()

@@ -264,6 +264,29 @@ def test_max_gap_online_wraps_any_keyframer():
     assert head + run(clone, frames_in[500:]) == events  # pickled mid-stream, resumed
 
 
+def test_max_gap_keeps_the_inner_re_analysis_off_the_due_path():
+    """Speed's window re-analysis waits for `idle` under `--max-gap` as it does without it,
+    and the events equal those of the wrapper run with idle right after every frame."""
+    from streamkey.methods import speed
+    from streamkey.online import Pipeline
+
+    m = load("07_01.bvh")
+    kf = optimal.MaxGap(speed.Online(m.skeleton, m.fps), 0.5)
+    pipeline = Pipeline([kf])
+    deferred, events = 0, []
+    for f in m.frames():
+        events += pipeline.push(f)
+        deferred += kf.inner._analysis_due
+        events += pipeline.idle()
+        assert not kf.inner._analysis_due
+    events += pipeline.flush()
+    assert deferred > 0
+    keys = [(e.frame, e.decided_at) for e in events if isinstance(e, KeyframeEvent)]
+    block = Pipeline([optimal.MaxGap(speed.Online(m.skeleton, m.fps), 0.5)])
+    same = block.push_block(m.frames()) + block.flush()
+    assert keys == [(e.frame, e.decided_at) for e in same if isinstance(e, KeyframeEvent)]
+
+
 def test_cli_optimal_and_max_gap(tmp_path, capsys):
     out = tmp_path / "keys.csv"
     clip = str(DATA / "07_01.bvh")

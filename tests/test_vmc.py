@@ -167,3 +167,26 @@ def test_fuzzed_vmc_datagrams_are_counted_never_raised(humanoid_clip):
     for data in good:
         source.receive(data)
     assert source.stats.received == before + len(good)
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="/proc/net/udp is Linux's")
+def test_kernel_receive_buffer_drops_are_counted_for_the_vmc_listener():
+    """A flood the loop never reads overflows the socket; the kernel's count reaches the
+    source's counters (not 'not counted')."""
+    import asyncio
+
+    async def main() -> int | None:
+        source = VmcSource(parse_address("vmc://127.0.0.1:0"))
+        ready = await source.start()
+        port = int(ready.rsplit(":", 1)[1])
+        sock = source.transport.get_extra_info("socket")
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            for _ in range(2000):  # sent without yielding: nothing reads in between
+                tx.sendto(b"x" * 512, ("127.0.0.1", port))
+        drops = source.counters().kernel_drops
+        await source.close()
+        return drops
+
+    drops = asyncio.run(main())
+    assert drops is not None and drops > 0

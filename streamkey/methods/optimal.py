@@ -602,6 +602,7 @@ class MaxGap(OnlineKeyframer):
         self.time: list[float] = []
         self.t0 = 0  # stream index of rows[0]
         self.t = -1
+        self._idle_final = 0  # the final frame `idle` fills gaps up to
         self.last = 0  # stream index of the last key (the first frame is an anchor)
 
     def _fill(self, end: int) -> list[KeyframeEvent]:
@@ -633,18 +634,30 @@ class MaxGap(OnlineKeyframer):
         return out
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
-        """Frame by frame: the inner keyframer (and its deferred work), then gap filling
-        over the part it has finalised (older than its lookahead)."""
+        """Frame by frame: the inner keyframer, then gap filling over the part it has
+        finalised (older than its lookahead). The inner deferred work of the block's last
+        frame is left to `idle`, so a re-analysis (speed) stays off the due path; until then
+        frame t - lookahead may still get an inner key, so filling stops one frame short."""
         rows = om.body_rows(block.positions, self.scale)
         out: list[KeyframeEvent] = []
+        last = len(block) - 1
         for i in range(len(block)):
             self.rows.append(rows[i])
             self.seq.append(int(block.seq[i]))
             self.time.append(float(block.time[i]))
             self.t += 1
-            events = self.inner.process(block.slice(i, i + 1)) + self.inner.idle()
-            out += self._advance(events, self.t - self.inner.lookahead + 1)
+            events = self.inner.process(block.slice(i, i + 1))
+            if i < last:
+                events += self.inner.idle()
+            out += self._advance(events, self.t - self.inner.lookahead + (i < last))
+        self._idle_final = self.t - self.inner.lookahead + 1
         return out
+
+    def idle(self) -> list[KeyframeEvent]:
+        """The inner keyframer's deferred work of the last frame, then the gaps it settles."""
+        if self.t < 0:
+            return self.inner.idle()
+        return self._advance(self.inner.idle(), self._idle_final)
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: the inner keyframer's rest, then the gaps up to the last frame."""
