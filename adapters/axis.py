@@ -41,8 +41,8 @@ import numpy as np
 from streamkey.errors import UsageError
 from streamkey.motion import Frame, Skeleton
 
-from .base import MAX_CHANNELS, Address, Source, SourceStats, bind_host, frame_numbers_problem
-from .udp_listen import listen_udp, refresh_kernel_drops
+from .base import MAX_CHANNELS, Address, SourceStats, bind_host, frame_numbers_problem
+from .udp_listen import DatagramSource
 
 __all__ = ["AxisSource", "AxisParser", "AxisLayout", "AxisPacket", "HEADER", "TOKEN1", "TOKEN2",
            "encode_binary", "encode_text"]
@@ -181,7 +181,7 @@ class AxisLayout:
         return values
 
 
-class AxisSource(Source):
+class AxisSource(DatagramSource):
     """Frames from Axis Neuron's BVH broadcast: a TCP client (reconnecting) or UDP listener."""
 
     name = "axis"
@@ -192,8 +192,7 @@ class AxisSource(Source):
             from streamkey.rigs import axis_skeleton
 
             skeleton = axis_skeleton()
-        super().__init__(skeleton, fps or 60.0)
-        self.address = address
+        super().__init__(address, skeleton, fps)
         self.udp = address.scheme == "axis+udp"
         self.host = bind_host(address, listen) if self.udp else address.host
         try:
@@ -205,15 +204,12 @@ class AxisSource(Source):
         self.parser = AxisParser(self.stats)
         self.counter = 0
         self.connections = 0
-        self.task: asyncio.Task[None] | None = None
-        self.transport: asyncio.DatagramTransport | None = None
 
     async def start(self) -> str:
         if self.udp:
-            self.transport, port = await listen_udp(
-                self.address, self.host, lambda data: self.receive(data, end=True))
+            port = await self.listen(self.host, lambda data: self.receive(data, end=True))
             return f"axis+udp {self.host}:{port}"
-        self.task = self.spawn(self._connect_loop())
+        self.spawn(self._connect_loop())
         return f"axis+tcp client of {self.host}:{self.address.port}"
 
     async def _connect_loop(self) -> None:
@@ -263,15 +259,3 @@ class AxisSource(Source):
                 continue
             self.stats.received += 1
             self.frames.put(Frame(seq, seq / self.fps, channels))
-
-    def counters(self) -> SourceStats:
-        """Counters, with the kernel's receive-buffer drops when listening on UDP."""
-        sock = self.transport.get_extra_info("socket") if self.transport is not None else None
-        return refresh_kernel_drops(self.stats, sock)
-
-    async def close(self) -> None:
-        self.counters()
-        if self.task is not None:
-            self.task.cancel()
-        if self.transport is not None:
-            self.transport.close()

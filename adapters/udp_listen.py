@@ -10,10 +10,11 @@ from collections.abc import Callable
 from typing import Any
 
 from streamkey.errors import InputError
+from streamkey.motion import Skeleton
 
-from .base import Address, SourceStats
+from .base import Address, Source, SourceStats
 
-__all__ = ["listen_udp", "proc_udp_drops", "refresh_kernel_drops"]
+__all__ = ["listen_udp", "proc_udp_drops", "refresh_kernel_drops", "DatagramSource"]
 
 
 def proc_udp_drops(sock: socket.socket) -> int | None:
@@ -60,3 +61,29 @@ async def listen_udp(address: Address, host: str, receive: Callable[[bytes], Non
     except OSError:
         pass
     return transport, int(transport.get_extra_info("sockname")[1])
+
+
+class DatagramSource(Source):
+    """Base of the vendor sources that listen on UDP (Axis, VMC): the address, a skeleton
+    (the rig's built-in one unless given), the transport, and kernel drops in the counters."""
+
+    def __init__(self, address: Address, skeleton: Skeleton, fps: float | None) -> None:
+        super().__init__(skeleton, fps or 60.0)
+        self.address = address
+        self.transport: asyncio.DatagramTransport | None = None
+
+    async def listen(self, host: str, receive: Callable[[bytes], None]) -> int:
+        """Bind the listener; returns the bound port."""
+        self.transport, port = await listen_udp(self.address, host, receive)
+        return port
+
+    def counters(self) -> SourceStats:
+        """Counters, with the kernel's receive-buffer drops of the listening socket."""
+        sock = self.transport.get_extra_info("socket") if self.transport is not None else None
+        return refresh_kernel_drops(self.stats, sock)
+
+    async def close(self) -> None:
+        self.counters()
+        await super().close()
+        if self.transport is not None:
+            self.transport.close()

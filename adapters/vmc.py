@@ -29,7 +29,6 @@ non-finite values, is dropped and counted (`parse`, `types`).
 
 from __future__ import annotations
 
-import asyncio
 import math
 import warnings
 from typing import Any
@@ -42,8 +41,8 @@ from scipy.spatial.transform import Rotation
 from streamkey.errors import UsageError
 from streamkey.motion import POSITION_CHANNELS, Frame, Skeleton
 
-from .base import MAX_MESSAGE_BYTES, Address, Source, SourceStats, bind_host
-from .udp_listen import listen_udp, refresh_kernel_drops
+from .base import MAX_MESSAGE_BYTES, Address, bind_host
+from .udp_listen import DatagramSource
 
 __all__ = ["VmcSource", "VmcDecoder", "ROOT_ADDRESS", "BONE_ADDRESS"]
 
@@ -133,7 +132,7 @@ def _transform(message: OscMessage) -> tuple[Any, ...]:
     return tuple(params[:8])
 
 
-class VmcSource(Source):
+class VmcSource(DatagramSource):
     """Frames from a VMC sender: an OSC listener on UDP (127.0.0.1 unless `--listen`)."""
 
     name = "vmc"
@@ -144,8 +143,7 @@ class VmcSource(Source):
             from streamkey.rigs import humanoid_skeleton
 
             skeleton = humanoid_skeleton()
-        super().__init__(skeleton, fps or 60.0)
-        self.address = address
+        super().__init__(address, skeleton, fps)
         self.host = bind_host(address, listen)
         try:
             scale = float(address.options.get("scale", 1.0))
@@ -159,10 +157,9 @@ class VmcSource(Source):
                              f"LeftUpperLeg, ...); joints are: {', '.join(skeleton.names)}")
         self.decoder = VmcDecoder(skeleton, scale)
         self.seq = 0
-        self.transport: asyncio.DatagramTransport | None = None
 
     async def start(self) -> str:
-        self.transport, port = await listen_udp(self.address, self.host, self.receive)
+        port = await self.listen(self.host, self.receive)
         return f"vmc://{self.host}:{port}"
 
     def receive(self, data: bytes) -> None:
@@ -181,13 +178,3 @@ class VmcSource(Source):
         self.stats.received += 1
         self.frames.put(Frame(self.seq, self.seq / self.fps, channels))
         self.seq += 1
-
-    def counters(self) -> SourceStats:
-        """Counters, with the kernel's receive-buffer drops of the listening socket."""
-        sock = self.transport.get_extra_info("socket") if self.transport is not None else None
-        return refresh_kernel_drops(self.stats, sock)
-
-    async def close(self) -> None:
-        self.counters()
-        if self.transport is not None:
-            self.transport.close()
