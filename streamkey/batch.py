@@ -136,16 +136,18 @@ def extract_files(paths: list[Path], methods: list[str],
     """Extract keyframes from every file; a bad file yields its error and the rest go on.
     `roles` is a role mapping for skeletons the built-in tables do not name."""
     def work(path: Path) -> FileResult:
-        motion = load_motion(path)
-        motion.skeleton.roles = roles or motion.skeleton.roles
+        motion = load_motion(path, roles=roles)
         return FileResult(path, motion, extract_motion(motion, methods, params))
 
     return per_file(paths, work, progress)
 
 
-def load_motion(path: str | os.PathLike[str], min_frames: int = 1) -> Motion:
-    """`read_motion`, refusing a file with fewer than `min_frames` captured frames."""
+def load_motion(path: str | os.PathLike[str], min_frames: int = 1,
+                roles: dict[str, str] | None = None) -> Motion:
+    """`read_motion`, refusing a file with fewer than `min_frames` captured frames; `roles`
+    (a `--roles` mapping) replaces the built-in role tables for its skeleton."""
     motion = read_motion(path)
+    motion.skeleton.roles = roles or motion.skeleton.roles
     captured = motion.n_frames - motion.first_frame
     if captured < min_frames:
         raise InputError(f"{path}: expected at least {min_frames} captured frame"

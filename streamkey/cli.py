@@ -74,9 +74,7 @@ def _read(path: str, args: argparse.Namespace) -> Any:
     """A motion file, its skeleton carrying the `--roles` mapping."""
     from .batch import load_motion
 
-    motion = load_motion(path)
-    motion.skeleton.roles = _roles(args) or motion.skeleton.roles
-    return motion
+    return load_motion(path, roles=_roles(args))
 
 
 def _online_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:

@@ -84,8 +84,7 @@ def extract_files_online(paths: list[Path], methods: list[str],
     """`run_online` over files; a bad file yields its error and the rest go on. `roles` is a
     role mapping for skeletons the built-in tables do not name."""
     def work(path: Path) -> FileResult:
-        motion = load_motion(path)
-        motion.skeleton.roles = roles or motion.skeleton.roles
+        motion = load_motion(path, roles=roles)
         return FileResult(path, motion, run_online(motion, methods, params, lookahead))
 
     return per_file(paths, work, progress)
