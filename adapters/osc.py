@@ -1,12 +1,33 @@
 """OSC over UDP: frames in (`/streamkey/frame`), skeletons in (`/streamkey/skeleton`),
-keyframe events out (`/streamkey/keyframe`).
+events out.
 
-Layouts (DESIGN §7; friendly to Pd, SuperCollider, Max):
+Layouts in (DESIGN §7; friendly to Pd, SuperCollider, Max):
 
     /streamkey/frame     i seq, d time, f... channels      (seq may be i/h/f, time d/f,
                                                            channels any mix of f/d/i)
     /streamkey/skeleton  s bvh_header [, d fps]            (BVH text up to MOTION; fps 120)
+
+Events out, `numeric` layout (the default; numbers only, stream and method in the address,
+so Pd routes on the address, TouchDesigner's OSC In CHOP takes every value, SuperCollider's
+OSCdef matches a path); the events of one frame leave as ONE bundle whose time tag is the
+wall-clock arrival of the frame that decided them (`NUMERIC_LAYOUT` lists the messages):
+
+    /streamkey/<stream>/<method>/keyframe     i frame, f time, f strength, i latency_frames
+    /streamkey/<stream>/<method>/provisional  i frame, f time, f strength
+    /streamkey/<stream>/<method>/cancel       i frame
+    /streamkey/<stream>/gap                   i first, i last, i bridged
+    /streamkey/<stream>/status/<status>       i seq
+    /streamkey/<stream>/signal/<name>         f value
+
+`compact` layout (`osc://host:port?layout=compact`, `run --osc-layout compact`; the layout
+before issue 12, one message per keyframe, no bundle, other events not sent):
+
     /streamkey/keyframe  s stream, s method, i frame, f time, f score, i latency_frames
+
+Stream, method, status and signal names become address parts through `osc_name`: every
+character outside `A-Z a-z 0-9 _ -` (the OSC-reserved ` #*,/?[]{}`, dots, non-ASCII, ...)
+becomes `_`, an empty name `_`, and names are cut to 64 characters; so no name can add an
+address level or a pattern character, and TouchDesigner keeps the channel name as sent.
 
 The event time is `f` (float32), not DESIGN's `d`: Pd's `oscparse` (0.53) rejects `d` and
 garbles the rest of the message; `i frame` carries the exact frame. Receivers that want
@@ -25,6 +46,7 @@ import socket
 import struct
 import sys
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -53,7 +75,9 @@ from .udp_listen import refresh_kernel_drops
 
 __all__ = ["FRAME_ADDRESS", "SKELETON_ADDRESS", "KEYFRAME_ADDRESS", "encode_frame",
            "decode_frame", "encode_skeleton", "encode_event", "OscDecodeError", "OscSource",
-           "OscFrameSender", "OscEventSink", "skeleton_header"]
+           "OscFrameSender", "OscEventSink", "skeleton_header", "OSC_LAYOUTS", "NUMERIC_LAYOUT",
+           "osc_name", "event_messages", "encode_message", "encode_bundle", "decode_bundle",
+           "ntp_timetag", "timetag_seconds", "with_layout"]
 
 FRAME_ADDRESS = "/streamkey/frame"
 SKELETON_ADDRESS = "/streamkey/skeleton"
@@ -113,6 +137,131 @@ def encode_event(event: KeyframeEvent | dict[str, Any], time_type: str = "f") ->
     builder.add_arg(float(event["score"]), "f")
     builder.add_arg(int(event["latency_frames"]), "i")
     return builder.build().dgram
+
+
+OSC_LAYOUTS = ("numeric", "compact")
+NUMERIC_LAYOUT = {  # event type -> (address under /streamkey/<stream>/, OSC type tags)
+    "keyframe": ("<method>/keyframe", "ifif"),
+    "provisional": ("<method>/provisional", "iff"),
+    "cancel": ("<method>/cancel", "i"),
+    "gap": ("gap", "iii"),
+    "status": ("status/<status>", "i"),
+    "signal": ("signal/<name>", "f"),
+}
+NAME_LIMIT = 64
+_NAME_OK = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-")
+_NTP_UNIX_OFFSET = 2_208_988_800  # seconds from 1900-01-01 (NTP era 0) to 1970-01-01
+_BUNDLE_ROOM = 8192  # bytes per bundle: well inside one datagram on any path
+
+
+def osc_name(name: object) -> str:
+    """One address part from a stream/method/status/signal name: characters outside
+    `A-Z a-z 0-9 _ -` become `_`, empty becomes `_`, at most 64 characters."""
+    text = str(name)[:NAME_LIMIT]
+    return "".join(c if c in _NAME_OK else "_" for c in text) or "_"
+
+
+def encode_message(address: str, tags: str, args: Sequence[float]) -> bytes:
+    """One OSC message with numeric arguments (`i`, `f`, `d`), fixed layout."""
+    return (_osc_string(address) + _osc_string("," + tags)
+            + struct.pack(">" + tags, *args))
+
+
+def _int32(value: Any, default: int = -1) -> int:
+    """An int for an `i` argument (out of range or not a number: `default`)."""
+    try:
+        number = int(value)
+    except (TypeError, ValueError, OverflowError):
+        return default
+    return number if -(2**31) <= number < 2**31 else default
+
+
+def _float(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError, OverflowError):
+        return float("nan")
+
+
+def event_messages(event: Event | dict[str, Any], time_type: str = "f") -> list[bytes]:
+    """The `numeric` layout messages of one event (none for a type it has no message for).
+
+    Dispatch is on `to_dict()["type"]`, so every event type with a documented dict maps;
+    a keyframe without a `strength` (events before issue 12 §1) sends 1.0."""
+    d = event if isinstance(event, dict) else event.to_dict()
+    kind = d.get("type")
+    root = f"/streamkey/{osc_name(d.get('stream', 'default'))}"
+    method = f"{root}/{osc_name(d.get('method', '_'))}"
+    if kind == "keyframe":
+        strength = d.get("strength")
+        return [encode_message(f"{method}/keyframe", f"i{time_type}fi", (
+            _int32(d.get("frame")), _float(d.get("time")),
+            1.0 if strength is None else _float(strength), _int32(d.get("latency_frames"))))]
+    if kind == "provisional":
+        strength = d.get("strength")
+        return [encode_message(f"{method}/provisional", f"i{time_type}f", (
+            _int32(d.get("frame")), _float(d.get("time")),
+            1.0 if strength is None else _float(strength)))]
+    if kind == "cancel":
+        return [encode_message(f"{method}/cancel", "i", (_int32(d.get("frame")),))]
+    if kind == "gap":
+        return [encode_message(f"{root}/gap", "iii", (
+            _int32(d.get("first")), _int32(d.get("last")), int(bool(d.get("bridged")))))]
+    if kind == "status":
+        detail = d.get("detail") or {}
+        seq = detail.get("seq", -1) if isinstance(detail, dict) else -1
+        return [encode_message(f"{root}/status/{osc_name(d.get('status', '_'))}", "i",
+                               (_int32(seq),))]
+    if kind == "signal":
+        values = d.get("values") or {}
+        return [encode_message(f"{root}/signal/{osc_name(name)}", "f", (_float(value),))
+                for name, value in (values.items() if isinstance(values, dict) else ())]
+    return []
+
+
+def with_layout(targets: Sequence[str], layout: str | None) -> list[str]:
+    """`--osc-layout`: add `layout=LAYOUT` to every `osc://` target that does not set one."""
+    if layout is None:
+        return list(targets)
+    if layout not in OSC_LAYOUTS:
+        raise UsageError(f"--osc-layout must be one of {', '.join(OSC_LAYOUTS)}, got {layout!r}")
+    out = []
+    for target in targets:
+        if target.startswith("osc://") and "layout=" not in target:
+            target += ("&" if "?" in target else "?") + f"layout={layout}"
+        out.append(target)
+    return out
+
+
+def ntp_timetag(unix_seconds: float) -> int:
+    """OSC time tag (NTP 32.32 fixed point) of a Unix time in seconds."""
+    whole = math.floor(unix_seconds)
+    frac = min(int((unix_seconds - whole) * 2**32), 2**32 - 1)
+    return ((whole + _NTP_UNIX_OFFSET) % 2**32) << 32 | frac
+
+
+def timetag_seconds(tag: int) -> float:
+    """Unix time in seconds of an OSC time tag (NTP era 0); 1 ("immediately") gives 0.0."""
+    if tag == 1:
+        return 0.0
+    return (tag >> 32) - _NTP_UNIX_OFFSET + (tag & 0xFFFFFFFF) / 2**32
+
+
+def encode_bundle(messages: Sequence[bytes], timetag: int) -> bytes:
+    """`#bundle`, the time tag, then each message with its size (OSC 1.0 §Bundles)."""
+    parts = [_BUNDLE_HEAD, struct.pack(">Q", timetag)]
+    for message in messages:
+        parts.append(struct.pack(">i", len(message)))
+        parts.append(message)
+    return b"".join(parts)
+
+
+def decode_bundle(data: bytes) -> tuple[int, list[bytes]]:
+    """(time tag, elements) of an OSC bundle; a malformed one is an `OscDecodeError`."""
+    if not data.startswith(_BUNDLE_HEAD):
+        raise OscDecodeError("bundle", "not an OSC bundle: no #bundle header")
+    elements = _bundle_elements(data, 0)
+    return struct.unpack_from(">Q", data, 8)[0], elements
 
 
 _ARG_FORMATS = {ord("i"): "i", ord("h"): "q", ord("f"): "f", ord("d"): "d"}
@@ -363,12 +512,13 @@ class _UdpSender:
             raise InputError(f"{address}: cannot send to {address.host}:{address.port}: "
                              f"{exc.strerror or exc}") from None
 
-    def send(self, data: bytes) -> None:
+    def send(self, data: bytes, events: int = 1) -> None:
+        """Send one datagram carrying `events` events (a bundle: several); counted as such."""
         try:
             self.sock.send(data)
-            self.stats.sent += 1
+            self.stats.sent += events
         except OSError as exc:  # full buffer, absent peer (ICMP refused), unreachable
-            self.stats.dropped += 1
+            self.stats.dropped += events
             self.stats.last_error = str(exc)
 
     def close(self) -> None:
@@ -376,7 +526,8 @@ class _UdpSender:
 
 
 class OscEventSink(Sink):
-    """Keyframe events as `/streamkey/keyframe` messages to one OSC receiver."""
+    """Events to one OSC receiver: the `numeric` layout (default; one bundle per frame, time
+    tag = that frame's arrival) or the `compact` one (`?layout=compact`)."""
 
     name = "osc"
 
@@ -386,19 +537,47 @@ class OscEventSink(Sink):
         self.time_type = address.options.get("time", "f")
         if self.time_type not in ("f", "d"):
             raise UsageError(f"{address}: time must be f or d")
+        self.layout = address.options.get("layout", "numeric")
+        if self.layout not in OSC_LAYOUTS:
+            raise UsageError(f"{address}: layout must be one of {', '.join(OSC_LAYOUTS)}, "
+                             f"got {self.layout!r}")
         self.sender = _UdpSender(address, self.stats, listen)
+        self.pending: list[bytes] = []
+        self.pending_bytes = 0
+        self.pending_events = 0
+        self._clock_offset = time.time_ns() - time.monotonic_ns()
 
     async def start(self) -> str:
         return str(self.address)
 
     def offer(self, event: Event) -> None:
-        match event:
-            case KeyframeEvent():
+        if self.layout == "compact":
+            if isinstance(event, KeyframeEvent):
                 self.sender.send(encode_event(event, self.time_type))
-            case _:
-                pass  # gaps and status have no OSC message
+            return  # gaps, status and the rest have no compact message
+        messages = event_messages(event, self.time_type)
+        size = sum(len(m) + 4 for m in messages)
+        if self.pending and self.pending_bytes + size > _BUNDLE_ROOM:
+            self._send_bundle(time.monotonic_ns())  # a huge frame: split, never truncate
+        if messages:
+            self.pending.extend(messages)
+            self.pending_bytes += size
+            self.pending_events += 1
+
+    def end_batch(self, arrival_ns: int) -> None:
+        """The events offered since the last call belong to the frame that arrived at
+        `arrival_ns` (monotonic): send them as one bundle time-tagged with that arrival."""
+        if self.pending:
+            self._send_bundle(arrival_ns)
+
+    def _send_bundle(self, arrival_ns: int) -> None:
+        tag = ntp_timetag((arrival_ns + self._clock_offset) / 1e9)
+        self.sender.send(encode_bundle(self.pending, tag), self.pending_events)
+        self.pending, self.pending_bytes, self.pending_events = [], 0, 0
 
     async def close(self) -> None:
+        if self.pending:  # offered after the last batch (a caller without end_batch)
+            self._send_bundle(time.monotonic_ns())
         self.sender.close()
 
 

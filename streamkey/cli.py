@@ -201,11 +201,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     import json
 
     from .adapters import make_source, parse_address
+    from .adapters.osc import with_layout
     from .amc import bvh_equivalent, read_motion
     from .live import run_live
     from .methods import parse_methods
     from .streaming import check_online_params
 
+    args.to = with_layout(args.to or [], args.osc_layout) or None
     methods = parse_methods(args.method, online=True)
     # Frames on the wire come from `replay`, which sends AMC clips as their BVH equivalent.
     skeleton_motion = bvh_equivalent(read_motion(args.skeleton)) if args.skeleton else None
@@ -423,6 +425,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", help="let listeners bind to this host instead of 127.0.0.1")
     p.add_argument("--lookahead", type=int, help="lookahead in frames (default: method's)")
     p.add_argument("--stream", default="default", help="stream name carried by every event")
+    p.add_argument("--osc-layout", choices=("numeric", "compact"),
+                   help="osc:// sinks: numeric (default: /streamkey/STREAM/METHOD/keyframe "
+                        "i f f i, one bundle per frame) or compact (/streamkey/keyframe "
+                        "s s i f f i); same as osc://HOST:PORT?layout=...")
     p.add_argument("--summary", help="also write the run summary as JSON to this file")
     p.add_argument("--fast", action="store_true", help="file source: as fast as possible")
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",

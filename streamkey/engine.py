@@ -332,6 +332,13 @@ class Engine:
                     self._sink_failed(sink, exc)
             if self.on_event is not None:
                 self.on_event(event.to_dict())
+        if events:
+            for sink in self.sinks:
+                if not sink.stats.disabled:
+                    try:
+                        sink.end_batch(arrival_ns)
+                    except Exception as exc:  # a sink's fault is that sink's
+                        self._sink_failed(sink, exc)
 
     def _sink_failed(self, sink: Sink, exc: Exception) -> None:
         stats = sink.stats

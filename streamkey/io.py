@@ -229,5 +229,9 @@ class Sink:
         """Hand over one typed event; must not block (may raise: the engine counts it)."""
         raise NotImplementedError
 
+    def end_batch(self, arrival_ns: int) -> None:
+        """The events offered since the last call were decided by the frame that arrived at
+        `arrival_ns` (monotonic ns); a sink that groups them (OSC bundles) sends now."""
+
     async def close(self) -> None:
         """Drain (bounded time) and release the transport."""
