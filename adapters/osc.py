@@ -149,6 +149,7 @@ NUMERIC_LAYOUT = {  # event type -> (address under /streamkey/<stream>/, OSC typ
     "signal": ("signal/<name>", "f"),
 }
 NAME_LIMIT = 64
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 _NAME_OK = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-")
 _NTP_UNIX_OFFSET = 2_208_988_800  # seconds from 1900-01-01 (NTP era 0) to 1970-01-01
 _BUNDLE_ROOM = 8192  # bytes per bundle: well inside one datagram on any path
@@ -162,9 +163,11 @@ def osc_name(name: object) -> str:
 
 
 def encode_message(address: str, tags: str, args: Sequence[float]) -> bytes:
-    """One OSC message with numeric arguments (`i`, `f`, `d`), fixed layout."""
-    return (_osc_string(address) + _osc_string("," + tags)
-            + struct.pack(">" + tags, *args))
+    """One OSC message with numeric arguments (`i`, `f`, `d`), fixed layout; a float
+    beyond float32 range is sent as an infinity of its sign."""
+    values = [math.copysign(math.inf, a) if t == "f" and abs(a) > _FLOAT32_MAX else a
+              for t, a in zip(tags, args, strict=True)]
+    return _osc_string(address) + _osc_string("," + tags) + struct.pack(">" + tags, *values)
 
 
 def _int32(value: Any, default: int = -1) -> int:

@@ -28,18 +28,29 @@ def test_pure_data_patch_receives_and_prints_keyframes(tmp_path):
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         wait_udp_bound(port, "Pure Data")
-        run = streamkey("run", "--from", str(CLIP), "--fast", "--method", "speed",
-                        "--to", f"osc://127.0.0.1:{port}")
+        log = tmp_path / "events.jsonl"
+        run = streamkey("run", "--from", str(CLIP), "--fast", "--method", "speed,simplify",
+                        "--stream", "take 1", "--to", f"osc://127.0.0.1:{port}",
+                        "--to", f"jsonl:{log}")
         _, err = run.communicate(timeout=120 * MS)
         assert run.returncode == 0, err
-        time.sleep(0.5 * MS)
+        keys = [e for e in read_jsonl(log) if e["type"] == "keyframe"]
+        printed = []
+        deadline = time.monotonic() + 20 * MS
+        while len(printed) < len(keys):  # Pd prints each key as it comes: wait for all
+            line = proc.stderr.readline()
+            assert line and time.monotonic() < deadline, printed
+            if line.split(":")[0] in ("speed", "simplify"):
+                printed.append(line)
     finally:
         proc.send_signal(signal.SIGTERM)
         _, pd_err = proc.communicate(timeout=10)
-    lines = [ln for ln in pd_err.splitlines() if ln.startswith("KEYFRAME:")]
-    assert len(lines) >= 3, pd_err
-    parts = lines[0].split()
-    assert parts[1:3] == ["default", "speed"] and float(parts[3]).is_integer()
+    # routed by method: "speed: frame time strength latency_frames"
+    got = sorted((ln.split(":")[0], int(float(ln.split()[1])), int(float(ln.split()[4])))
+                 for ln in printed)
+    assert len(keys) > 10
+    assert got == sorted((e["method"], e["frame"], e["latency_frames"]) for e in keys)
+    assert all(0.0 <= float(ln.split()[3]) <= 1.0 for ln in printed)
     assert "error" not in pd_err.lower()
 
 
