@@ -210,7 +210,8 @@ def _latency_one(transport: str, clip: Path, frames: int) -> dict[str, Any]:
             socks = receiver.osc(copy_port, event_port)
             run = _streamkey("run", "--from", f"osc://127.0.0.1:{run_port}", "--skeleton",
                              str(clip), "--method", "all", "--to",
-                             f"osc://127.0.0.1:{event_port}", "--summary", str(summary_path))
+                             f"osc://127.0.0.1:{event_port}?layout=compact",  # parsed below
+                             "--summary", str(summary_path))
             _wait_line(run, "listening on")
             targets = ["--to", f"osc://127.0.0.1:{run_port}",
                        "--to", f"osc://127.0.0.1:{copy_port}"]

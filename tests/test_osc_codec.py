@@ -3,12 +3,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from cmu import DATA
-from pythonosc.osc_message import OscMessage
-from pythonosc.osc_message_builder import OscMessageBuilder
-
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pythonosc.osc_bundle import OscBundle
+from pythonosc.osc_message import OscMessage
+from pythonosc.osc_message_builder import OscMessageBuilder
 
 from streamkey.adapters.osc import (
     FRAME_ADDRESS,
