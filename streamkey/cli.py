@@ -228,7 +228,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     summary = asyncio.run(run_live(source, methods, args.to or ["-"], _online_params(args),
                                    args.lookahead, args.listen, args.stream,
                                    rate=0.0 if args.fast else None,
-                                   idle_exit=args.idle_exit))
+                                   idle_exit=args.idle_exit,
+                                   reset_on_gap=args.reset_on_gap))
     print(summary.text(), file=sys.stderr)
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
@@ -430,6 +431,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "i f f i, one bundle per frame) or compact (/streamkey/keyframe "
                         "s s i f f i); same as osc://HOST:PORT?layout=...")
     p.add_argument("--summary", help="also write the run summary as JSON to this file")
+    p.add_argument("--reset-on-gap", action="store_true",
+                   help="a gap too long to bridge (or a source restart) forgets the methods' "
+                        "running statistics too (default: only the windows restart)")
     p.add_argument("--fast", action="store_true", help="file source: as fast as possible")
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",
                    help="stop once frames have flowed and then none came for SECONDS "

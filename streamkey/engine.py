@@ -121,7 +121,8 @@ class RunSummary:
 
     def as_dict(self) -> dict[str, Any]:
         """The summary as a JSON-ready dict."""
-        return {"frames_in": self.frames_in, "seconds": round(self.seconds, 3),
+        return {"frames_in": self.frames_in, "frames_lost": self.guard.get("lost", 0),
+                "seconds": round(self.seconds, 3),
                 "guard": self.guard, "source": self.source, "events": dict(self.events),
                 "sinks": self.sinks, "wall_latency_ms": self.latency_percentiles(),
                 "wall_latency_by_method": {m: h.summary()
@@ -137,7 +138,8 @@ class RunSummary:
         kernel = ("not counted (this source is not a UDP socket on Linux)"
                   if a["kernel_drops"] is None else str(a["kernel_drops"]))
         lines = [
-            f"frames in: {self.frames_in} in {self.seconds:.1f} s; dropped: "
+            f"frames in: {self.frames_in} in {self.seconds:.1f} s; "
+            f"lost: {a['never_arrived']} (seq holes in {a['gaps']} gaps); dropped: "
             f"{a['duplicates']} duplicate, {a['out_of_order']} out of order, "
             f"{a['invalid']} invalid, {a['queue_drops']} queue; "
             f"malformed: {sum(a['malformed'].values())}" + (f" ({malformed})" if malformed
@@ -183,8 +185,10 @@ class Engine:
                  on_ready: Callable[[str], None] | None = None,
                  on_event: Callable[[dict[str, Any]], None] | None = None,
                  idle_exit: float | None = None,
-                 on_frame: Callable[[Frame], None] | None = None) -> None:
+                 on_frame: Callable[[Frame], None] | None = None,
+                 reset_on_gap: bool = False) -> None:
         self.source = source
+        self.reset_on_gap = reset_on_gap  # a long gap forgets running statistics too
         self.idle_exit = idle_exit
         self.make_keyframers = make_keyframers
         # The log sinks come first: an event is on disk before any network peer sees it.
@@ -245,7 +249,8 @@ class Engine:
 
     def _make_pipeline(self) -> None:
         try:
-            self.pipeline = Pipeline(self.make_keyframers(self.source), stream=self.stream)
+            self.pipeline = Pipeline(self.make_keyframers(self.source), stream=self.stream,
+                                     reset_on_gap=self.reset_on_gap)
             self._warm_up()
         except Exception as exc:
             self.pipeline = None

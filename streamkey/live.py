@@ -37,7 +37,8 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
                  rate: float | None = None, loop: bool = False,
                  on_event: Callable[[dict[str, Any]], None] | None = None,
                  on_ready: Callable[[str], None] = _ready, idle_exit: float | None = None,
-                 on_frame: Callable[[Frame], None] | None = None) -> Engine:
+                 on_frame: Callable[[Frame], None] | None = None,
+                 reset_on_gap: bool = False) -> Engine:
     """The engine for a source (a Motion is replayed at `rate`, default its fps; 0: unpaced)."""
     if isinstance(source, Motion):
         source = MotionSource(source, rate=rate, loop=loop)
@@ -48,7 +49,7 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
         return make_keyframers(motion, methods, params, lookahead, stream)
 
     return Engine(source, keyframers, sinks, stream, on_ready, on_event, idle_exit,
-                  on_frame=on_frame)
+                  on_frame=on_frame, reset_on_gap=reset_on_gap)
 
 
 async def run_engine(engine: Engine) -> RunSummary:
@@ -74,12 +75,13 @@ async def run_live(source: Source | Motion, methods: list[str], to: list[str],
                    stream: str = "default", rate: float | None = None,
                    on_event: Callable[[dict[str, Any]], None] | None = None,
                    on_ready: Callable[[str], None] = _ready,
-                   idle_exit: float | None = None) -> RunSummary:
+                   idle_exit: float | None = None,
+                   reset_on_gap: bool = False) -> RunSummary:
     """Run the engine from `source` to the sinks at `to`; returns the summary."""
     sinks = [make_sink(parse_address(a), listen) for a in to]
     return await run_engine(build_engine(source, methods, sinks, params, lookahead, stream,
                                          rate, on_event=on_event, on_ready=on_ready,
-                                         idle_exit=idle_exit))
+                                         idle_exit=idle_exit, reset_on_gap=reset_on_gap))
 
 
 def replay(motion: Motion, to: list[str], rate: float | None = None, speed: float = 1.0,

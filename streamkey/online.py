@@ -18,6 +18,12 @@ as invalid); a frame whose `seq` skips ahead by at most
 `max_bridge_frames` missing frames is preceded by linearly interpolated frames (a bridged
 `GapEvent`); a longer gap ends the current window: the keyframers flush what they hold and
 restart, and a `GapEvent` with `bridged=False` is emitted. Nothing in this path raises.
+
+A restart (long gap, source restart) starts new windows but keeps every method's running
+statistics (`OnlineKeyframer.restart(keep_statistics=True)`) and the rotation unwrap state,
+so nothing warms up again; `reset_on_gap=True` (`run --reset-on-gap`) forgets them too.
+A pipeline's skeleton never changes (a different one announced on the wire is refused by
+the source), so statistics are never carried across skeletons.
 """
 
 from __future__ import annotations
@@ -240,6 +246,7 @@ class OnlineKeyframer:
     """
 
     method: ClassVar[str] = "?"
+    reset_on_gap = False  # True: a long gap forgets the running statistics too
 
     def __init__(self, skeleton: Skeleton, fps: float, *, lookahead: int, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
@@ -263,7 +270,8 @@ class OnlineKeyframer:
 
     def push_block(self, frames: Iterable[Frame]) -> list[Event]:
         """Feed many frames; same events as pushing them one by one."""
-        return _drive(self.guard, self.features, [self], frames)
+        return _drive(self.guard, self.features, [self], frames,
+                      reset_on_gap=self.reset_on_gap)
 
     def flush(self) -> list[Event]:
         """End of stream: decide everything still pending, then restart the window."""
@@ -296,9 +304,17 @@ class OnlineKeyframer:
         """Forget the window and running state; keep parameters (subclass hook)."""
         raise NotImplementedError
 
+    def restart(self, keep_statistics: bool = True) -> None:
+        """A new window after a long gap or a source restart, called after `finish()`:
+        forget the window; with `keep_statistics` keep the running statistics (a method's
+        PCA moments, cut-off history, rate controller), so it does not warm up again.
+        Without, or for a method that keeps none, this is `reset()`. (subclass hook)"""
+        self.reset()
+
 
 def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
-           frames: Iterable[Frame], defer_idle: bool = False) -> list[Event]:
+           frames: Iterable[Frame], defer_idle: bool = False,
+           reset_on_gap: bool = False) -> list[Event]:
     events: list[Event] = []
     pending: list[Frame] = []
 
@@ -316,11 +332,12 @@ def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineK
         clean, gaps, restart = guard.accept(frame)
         if gaps:
             run_pending()
-        if restart:
+        if restart:  # a long gap or a source restart: new windows, statistics kept
             for kf in keyframers:
                 events.extend(kf.finish())
-                kf.reset()
-            stage.reset()
+                kf.restart(keep_statistics=not reset_on_gap)
+            if reset_on_gap:  # else the rotations unwrap on across the hole, as the
+                stage.reset()  # statistics kept in their frame of reference need
         events.extend(gaps)
         pending.extend(clean)
     run_pending()
@@ -331,11 +348,13 @@ class Pipeline:
     """Several keyframers on one stream: one guard, one feature stage, features computed once."""
 
     def __init__(self, keyframers: Sequence[OnlineKeyframer], stream: str = "default",
-                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES,
+                 reset_on_gap: bool = False) -> None:
         if not keyframers:
             raise UsageError("a pipeline needs at least one keyframer")
         first = keyframers[0]
         self.keyframers = list(keyframers)
+        self.reset_on_gap = reset_on_gap  # a long gap keeps running statistics unless set
         self.guard = StreamGuard(first.skeleton.n_channels, stream, "*", max_bridge_frames)
         self.features = first.features
         self._idle_due = False
@@ -346,7 +365,8 @@ class Pipeline:
         called, its events come with the next call."""
         events = self.idle()
         before = self.guard.counters.accepted
-        events.extend(_drive(self.guard, self.features, self.keyframers, [frame], True))
+        events.extend(_drive(self.guard, self.features, self.keyframers, [frame], True,
+                             self.reset_on_gap))
         self._idle_due = self.guard.counters.accepted != before
         return events
 
@@ -362,7 +382,8 @@ class Pipeline:
 
     def push_block(self, frames: Iterable[Frame]) -> list[Event]:
         """Feed many frames; same events as pushing them one by one."""
-        return self.idle() + _drive(self.guard, self.features, self.keyframers, frames)
+        return self.idle() + _drive(self.guard, self.features, self.keyframers, frames,
+                                    reset_on_gap=self.reset_on_gap)
 
     def flush(self) -> list[Event]:
         """End of stream for every keyframer."""

@@ -521,6 +521,16 @@ class Online(OnlineKeyframer):
         self.time: list[float] = []
         self.t0 = 0  # stream index of seq[0]
 
+    def restart(self, keep_statistics: bool = True) -> None:
+        """A new window after a long gap or a source restart: the rate controller's cost
+        statistics (hence λ) are kept, so the key rate holds from the new window's first
+        frames. Without them: `reset()`."""
+        log = self.solver.log_sum, self.solver.log_n
+        self.reset()
+        if keep_statistics and self.solver.rate is not None:
+            self.solver.log_sum, self.solver.log_n = log
+            self.solver.lam = self.solver.rate_estimate()
+
     def _events(self, keys: list[int], decided_at: int) -> list[KeyframeEvent]:
         return [self.event(self.seq[k - self.t0], self.time[k - self.t0], 0.0, decided_at)
                 for k in keys]
@@ -597,6 +607,15 @@ class MaxGap(OnlineKeyframer):
     def reset(self) -> None:
         """Forget the stream (the inner keyframer too)."""
         self.inner.reset()
+        self._forget()
+
+    def restart(self, keep_statistics: bool = True) -> None:
+        """A new window: the inner keyframer restarts (keeping its statistics unless told
+        otherwise); the stretch since the last key starts over."""
+        self.inner.restart(keep_statistics)
+        self._forget()
+
+    def _forget(self) -> None:
         self.rows: list[np.ndarray] = []  # curve rows from the last key on
         self.seq: list[int] = []
         self.time: list[float] = []

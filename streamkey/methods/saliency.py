@@ -350,6 +350,27 @@ class Online(OnlineKeyframer):
         # (seq, saliency) of each frame as it is classified, for live views: the weighted
         # mean of S_j(f) / mean(S_j) over the curves (> 1 on a candidate of every curve).
         self.trace: deque[tuple[int, float]] = deque(maxlen=TRACE_FRAMES)
+        self.resume_at = 0  # after a restart with kept statistics: first frame to analyse
+
+    def restart(self, keep_statistics: bool = True) -> None:
+        """A new window after a long gap or a source restart (after `finish()`): the basis,
+        the PCA moments and the map statistics of every frame so far carry over, so the new
+        window's frames are classified with them (no second warm-up); the reference row
+        `x0` too, as the moments are taken about it. Without them: `reset()`."""
+        if not keep_statistics or self.basis is None:
+            self.reset()
+            return
+        a, e = self.out_upto - self.base, self.t - self.base + 1
+        mom = self.out_mom + moments(self.buf["xs"][a:e])
+        kept = self.st, self.basis, self.weights, self.x0, self.trace
+        self.reset()
+        self.out_st, self.basis, self.weights, self.x0, self.trace = kept
+        self.out_mom = mom
+        self._new_basis(mom)  # the same PCA matched to the kept basis: weights, ring arrays
+        self.st = self.out_st
+        # Like a stream start (first analysis at `lookahead`, or once the maps' support is in),
+        # but then every decision uses the carried statistics.
+        self.resume_at = min(self.radius + 1, self.lookahead)
 
     def _alloc_curves(self, kk: int, perm: np.ndarray | None) -> None:
         """(Re)allocate the per-curve ring arrays for `kk` curves, remapping kept columns."""
@@ -394,9 +415,10 @@ class Online(OnlineKeyframer):
         """Advance over clean consecutive frames (called by push / push_block)."""
         if len(block) == 0:
             return []
-        if self.x0 is None:
-            self.x0 = block.rotations[0].copy()
+        if self.t < 0:  # a new window (stream start or restart)
             self.seq0 = int(block.seq[0])
+            if self.x0 is None:
+                self.x0 = block.rotations[0].copy()
         xs = block.rotations - self.x0
         feet = block.foot_heights / self.features.body_height
         events: list[KeyframeEvent] = []
@@ -416,6 +438,8 @@ class Online(OnlineKeyframer):
         if self.basis is None:
             if t >= self.lookahead:
                 self._update(final=False)
+        elif t < self.resume_at:  # restarted with kept statistics: the window fills first
+            return []
         elif t + 1 >= self.next_update:
             self._update(final=False)
         else:

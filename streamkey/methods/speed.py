@@ -586,10 +586,25 @@ class Online(OnlineKeyframer):
         self._v = np.empty(0)
         self._hist_seq: deque[int] = deque()
         self._hist_u: deque[float] = deque()
+        self._resume_after: int | None = None  # last seq before a restart (history kept)
+
+    def restart(self, keep_statistics: bool = True) -> None:
+        """A new window after a long gap or a source restart (after `finish()`): the cut-off
+        history (candidate intensities of the last `cutoff_history` frames) is kept, so the
+        Ward + Mojena cut-off needs no second warm-up. Without it: `reset()`."""
+        kept = self._hist_seq, self._hist_u, self._last_seq
+        self.reset()
+        if keep_statistics:
+            self._hist_seq, self._hist_u, self._resume_after = kept
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Append frames; every `hop` frames re-analyse the window and decide what is due."""
         rows = block.pelvis_positions[:, self._joints].reshape(len(block), -1) / self._height
+        if self._resume_after is not None and len(block):
+            shift = int(block.seq[0]) - 1 - self._resume_after
+            if shift < 0:  # the source started over: the kept history stays in the past
+                self._hist_seq = deque(seq + shift for seq in self._hist_seq)
+            self._resume_after = None
         events: list[KeyframeEvent] = []
         i = 0
         while i < len(block):
@@ -632,6 +647,8 @@ class Online(OnlineKeyframer):
         if not np.any(new):
             return events
         threshold = self._cutoff(u[new], u[seqs > t], t, final=True)
+        self._hist_seq.extend(seqs[new].tolist())  # decided: history for a restart
+        self._hist_u.extend(u[new].tolist())
         return events + [self.event(int(c), self._ring.time(int(c)), float(x), t)
                          for c, x in zip(seqs[new], u[new], strict=True) if x > threshold]
 
