@@ -73,3 +73,14 @@ async def until(predicate, seconds: float = 10.0) -> None:
     while not predicate():
         assert asyncio.get_running_loop().time() < deadline, "condition not reached in time"
         await asyncio.sleep(0.002)
+
+
+def keys_sent_to_osc(clip: Path, port: int, log: Path) -> list[dict]:
+    """`streamkey run` over a clip (speed and simplify, stream "take 1") to an OSC port and a
+    JSON Lines log; the keyframe events it logged."""
+    run = streamkey("run", "--from", str(clip), "--fast", "--method", "speed,simplify",
+                    "--stream", "take 1", "--to", f"osc://127.0.0.1:{port}",
+                    "--to", f"jsonl:{log}")
+    _, err = run.communicate(timeout=120 * MS)
+    assert run.returncode == 0, err
+    return [e for e in read_jsonl(log) if e["type"] == "keyframe"]

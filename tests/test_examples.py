@@ -10,7 +10,15 @@ import time
 from pathlib import Path
 
 from cmu import DATA, ROOT
-from live_helpers import MS, free_port, read_jsonl, streamkey, wait_ready, wait_udp_bound
+from live_helpers import (
+    MS,
+    free_port,
+    keys_sent_to_osc,
+    read_jsonl,
+    streamkey,
+    wait_ready,
+    wait_udp_bound,
+)
 
 from streamkey.methods import ONLINE_METHODS
 
@@ -28,13 +36,7 @@ def test_pure_data_patch_receives_and_prints_keyframes(tmp_path):
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         wait_udp_bound(port, "Pure Data")
-        log = tmp_path / "events.jsonl"
-        run = streamkey("run", "--from", str(CLIP), "--fast", "--method", "speed,simplify",
-                        "--stream", "take 1", "--to", f"osc://127.0.0.1:{port}",
-                        "--to", f"jsonl:{log}")
-        _, err = run.communicate(timeout=120 * MS)
-        assert run.returncode == 0, err
-        keys = [e for e in read_jsonl(log) if e["type"] == "keyframe"]
+        keys = keys_sent_to_osc(CLIP, port, tmp_path / "events.jsonl")
         printed = []
         deadline = time.monotonic() + 20 * MS
         while len(printed) < len(keys):  # Pd prints each key as it comes: wait for all

@@ -13,7 +13,15 @@ import sys
 import time
 
 from cmu import DATA, ROOT
-from live_helpers import MS, free_port, read_jsonl, streamkey, wait_ready, wait_udp_bound
+from live_helpers import (
+    MS,
+    free_port,
+    keys_sent_to_osc,
+    read_jsonl,
+    streamkey,
+    wait_ready,
+    wait_udp_bound,
+)
 
 from streamkey.adapters.osc import skeleton_header
 from streamkey.bvh import read_bvh
@@ -208,12 +216,7 @@ def test_supercollider_oscdef_example_receives_every_keyframe(tmp_path):
         while "streamkey: listening for /streamkey/take_1" not in posted.read_text():
             assert sc.poll() is None and time.monotonic() < deadline, posted.read_text()
             time.sleep(0.05)
-        run = streamkey("run", "--from", str(CLIP), "--fast", "--method", "speed,simplify",
-                        "--stream", "take 1", "--to", f"osc://127.0.0.1:{port}",
-                        "--to", f"jsonl:{log}")
-        _, err = run.communicate(timeout=120 * MS)
-        assert run.returncode == 0, err
-        keys = [e for e in read_jsonl(log) if e["type"] == "keyframe"]
+        keys = keys_sent_to_osc(CLIP, port, log)
         deadline = time.monotonic() + 20 * MS
         while len(sc_keys(posted.read_text())) < len(keys):
             assert time.monotonic() < deadline, posted.read_text()[-2000:]
