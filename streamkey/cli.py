@@ -24,28 +24,118 @@ def _progress(quiet: bool):  # type: ignore[no-untyped-def]
     return report
 
 
-def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
-    saliency: dict[str, Any] = {"contact": not args.no_contact}
-    if args.sigma is not None:
-        saliency["sigma"] = args.sigma
-    if args.k is not None:
-        saliency["k"] = args.k
-    simplify: dict[str, Any] = {"space": args.space}
-    for name in ("tolerance", "ratio", "count"):
-        if getattr(args, name) is not None:
-            simplify[name] = getattr(args, name)
-    counted = {"count": args.count} if args.count is not None else {}
-    isodata: dict[str, Any] = {}
+def _chosen(args: argparse.Namespace, online: bool) -> list[str]:
+    """The method names of `--method` (every online one for commands without it)."""
+    from .methods import ONLINE_METHODS, parse_methods
+
+    text = getattr(args, "method", None)
+    return parse_methods(text, online=online) if text else list(ONLINE_METHODS)
+
+
+def _per_method(args: argparse.Namespace, flag: str, kind: type, methods: list[str],
+                applies: tuple[str, ...]) -> dict[str, Any]:
+    """`--flag VALUE` (every chosen method in `applies`) or `--flag METHOD=VALUE,...`, checked:
+    {method: value}. A bad name or value is one usage error."""
+    from .errors import UsageError
+
+    text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
+    if text is None:
+        return {}
+    unit = "a whole number" if kind is int else "a number"
+    out: dict[str, Any] = {}
+    for item in str(text).split(","):
+        name, sep, value = item.strip().rpartition("=")
+        name = name.strip()
+        if sep and name not in applies:
+            raise UsageError(f"{flag}: {name!r} is not a method that takes it; name one of "
+                             f"{', '.join(applies)}")
+        if sep and name not in methods:
+            raise UsageError(f"{flag}: {name} is not among the chosen methods "
+                             f"({', '.join(methods)}); add it to --method or drop {item.strip()}")
+        try:
+            number = kind(value.strip())
+        except ValueError:
+            raise UsageError(f"{flag}: {value.strip()!r} is not {unit} (give VALUE or "
+                             f"METHOD=VALUE,...)") from None
+        targets = [name] if sep else [m for m in methods if m in applies]
+        if not targets:
+            raise UsageError(f"{flag}: none of the chosen methods ({', '.join(methods)}) takes "
+                             f"it; it applies to {', '.join(applies)}")
+        for m in targets:
+            out[m] = number
+    return out
+
+
+def _max_bridge(text: str | None) -> dict[str, Any]:
+    """`--max-bridge FRAMES` or `SECONDSs` as {"max_bridge_frames" | "max_bridge_seconds": v}."""
+    from .errors import UsageError
+
+    if text is None:
+        return {}
+    t = text.strip().lower()
+    try:
+        if t.endswith("s"):
+            value: float = float(t[:-1])
+            key = "max_bridge_seconds"
+        else:
+            value, key = int(t), "max_bridge_frames"
+    except ValueError:
+        value, key = -1, ""
+    if not key or not 0 <= value <= 1e6:
+        raise UsageError(f"--max-bridge: {text!r} is not FRAMES (a whole number >= 0) or "
+                         "SECONDS with an s suffix (e.g. 0.1s)")
+    return {key: value}
+
+
+def _method_params(args: argparse.Namespace, online: bool = False) -> dict[str, dict[str, Any]]:
+    """Per-method keyword arguments from the method options (only those given, plus the
+    always-set ones); `"*"` holds `max_gap` and the gap bridging for every online keyframer."""
+    from .errors import UsageError
+    from .methods import COUNTED_METHODS, OFFLINE_METHODS, ONLINE_METHODS
+
+    methods = _chosen(args, online)
+
+    def given(*pairs: tuple[str, str]) -> dict[str, Any]:
+        return {key: getattr(args, dest) for key, dest in pairs
+                if getattr(args, dest, None) is not None}
+
+    tol = _per_method(args, "--tolerance", float, methods, ("simplify", "optimal"))
+    if getattr(args, "tolerance", None) is not None and "=" not in args.tolerance and len(tol) > 1:
+        raise UsageError("--tolerance is ambiguous with both simplify (body heights) and "
+                         "optimal (body heights^2) chosen: use --simplify-tolerance and "
+                         "--optimal-tolerance, or --tolerance simplify=V,optimal=W")
+    counts = _per_method(args, "--count", int, methods, COUNTED_METHODS)
+    space = getattr(args, "space", "positions")
+    params: dict[str, dict[str, Any]] = {
+        "saliency": {"contact": not getattr(args, "no_contact", False),
+                     **given(("sigma", "sigma"), ("k", "k"), ("preset", "preset"))},
+        "speed": given(("f_c", "f_c"), ("f_max", "f_max"), ("f_min", "f_min"),
+                       ("r", "scale_ratio"), ("mojena_k", "mojena_k")),
+        "simplify": {"space": space, **given(("tolerance", "simplify_tolerance"),
+                                             ("ratio", "ratio"))},
+        "uniform": {}, "decimate": {"space": space},
+        "isodata": given(("cluster_seconds", "cluster_seconds")),
+        "curvefit": given(("smooth", "smooth"), ("key_cost", "key_cost")),
+        "optimal": given(("rate", "rate"), ("tolerance", "optimal_tolerance"),
+                         ("lam", "lam"), ("max_segment", "max_segment")),
+    }
+    for name, value in tol.items():
+        if name in params and "tolerance" in params[name]:
+            raise UsageError(f"--tolerance and --{name}-tolerance both set the {name} "
+                             "tolerance; give one")
+        params[name]["tolerance"] = value
+    for name, value in counts.items():
+        params[name]["count"] = value
     if getattr(args, "verbose", False):
-        isodata = {"verbose": True, "log": lambda line: print(line, file=sys.stderr)}
-    decimate = {**counted, "space": args.space}
-    optimal: dict[str, Any] = {}
-    for name in ("count", "rate", "tolerance", "max_segment"):
-        if getattr(args, name, None) is not None:
-            optimal[name] = getattr(args, name)
-    return {"saliency": saliency, "simplify": simplify, "uniform": counted, "decimate": decimate,
-            "isodata": isodata, "optimal": optimal,
-            "*": {"max_gap": getattr(args, "max_gap", None)}}  # every online keyframer
+        params["isodata"].update(verbose=True, log=lambda line: print(line, file=sys.stderr))
+    look = _per_method(args, "--lookahead", int, methods,
+                       tuple(ONLINE_METHODS) if online else tuple(OFFLINE_METHODS))
+    if online:
+        for name, value in look.items():
+            params[name]["lookahead"] = value
+    params["*"] = {"max_gap": getattr(args, "max_gap", None),  # every online keyframer
+                   **_max_bridge(getattr(args, "max_bridge", None))}
+    return params
 
 
 def _write(text: str, output: str) -> None:
@@ -81,7 +171,7 @@ def _online_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     """`_method_params` plus the `--roles` mapping for the online keyframers (wire skeletons)."""
     from .methods import ONLINE_METHODS
 
-    params = _method_params(args)
+    params = _method_params(args, online=True)
     roles = _roles(args)
     if roles:
         for name in ONLINE_METHODS:
@@ -99,9 +189,9 @@ def cmd_extract(args: argparse.Namespace) -> int:
         from .streaming import check_online_params, extract_files_online
 
         methods = parse_methods(args.method, online=True)
-        check_online_params(methods, _method_params(args))
-        results = list(extract_files_online(paths, methods, _method_params(args),
-                                            args.lookahead, _progress(args.quiet),
+        params = _method_params(args, online=True)
+        check_online_params(methods, params)
+        results = list(extract_files_online(paths, methods, params, None, _progress(args.quiet),
                                             roles=_roles(args)))
     else:
         methods = parse_methods(args.method)
@@ -143,7 +233,7 @@ def _dashboard(args: argparse.Namespace, source: Any, methods: list[str], to: li
     port = check_port(args.dashboard)
     log = args.log or (None if any(a.startswith("jsonl:") for a in to) else default_log())
     summary, board = asyncio.run(run_dashboard(
-        source, methods, to, _online_params(args), getattr(args, "lookahead", None),
+        source, methods, to, _online_params(args), None,
         args.listen, stream, rate=rate, port=port, log=log, loop=loop,
         idle_exit=getattr(args, "idle_exit", None)))
     print(summary.text(), file=sys.stderr)
@@ -224,7 +314,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return _dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                           stream=args.stream)
     summary = asyncio.run(run_live(source, methods, args.to or ["-"], _online_params(args),
-                                   args.lookahead, args.listen, args.stream,
+                                   None, args.listen, args.stream,
                                    rate=0.0 if args.fast else None,
                                    idle_exit=args.idle_exit))
     print(summary.text(), file=sys.stderr)
@@ -242,7 +332,7 @@ def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace)
     from .streaming import make_keyframers
 
     with naming(args.source):
-        make_keyframers(motion, methods, _method_params(args), args.lookahead)
+        make_keyframers(motion, methods, _online_params(args))
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -313,33 +403,98 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_method_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sigma", type=float, help="saliency: base scale in frames (default: auto)")
-    p.add_argument("--k", type=int, help="saliency: number of PCA curves (default: auto)")
-    p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
-    p.add_argument("--tolerance", type=float, help="simplify: absolute error tolerance")
-    p.add_argument("--ratio", type=float, help="simplify: error / chord length ratio (Önder)")
-    p.add_argument("--count", type=int, help="simplify, uniform, decimate: keyframe count")
-    p.add_argument("--space", choices=("positions", "channels"), default="positions",
-                   help="simplify, decimate: curve of body-frame (root-relative) joint positions "
-                        "in body heights (default) or of channel values (rotations unwrapped)")
-    _add_optimal_options(p, gap=False)
+def _add_method_options(p: argparse.ArgumentParser, online: bool | None) -> None:
+    """The method parameters, one argument group per method, with units and defaults.
+    `online`: True for `run` (online methods), None for `extract` (all; lookahead and gap
+    bridging with --online), False for `sheet` / `plot` (offline only)."""
+    from .methods.curvefit import DEFAULT_KEY_COST, DEFAULT_SMOOTH
+    from .methods.isodata import CLUSTER_SECONDS
+    from .methods.optimal import DEFAULT_MAX_SEGMENT, DEFAULT_RATE
+    from .methods.saliency import AUTO_SECONDS, AUTO_SPEED_THRESHOLD, PRESETS
+    from .methods.simplify import DEFAULT_TOLERANCE
+    from .online import DEFAULT_MAX_BRIDGE_FRAMES
 
+    low, high = PRESETS["low"], PRESETS["high"]
+    g = p.add_argument_group("saliency (multiscale motion saliency, Halit & Capin)")
+    g.add_argument("--preset", choices=("auto", *PRESETS),
+                   help=f"default auto: high (sigma {high[0]:g}, k {high[1]}) if the body moves "
+                        f">= {AUTO_SPEED_THRESHOLD} body heights/s over the first "
+                        f"{AUTO_SECONDS:g} s, else low (sigma {low[0]:g}, k {low[1]}); online "
+                        f"decides after those {AUTO_SECONDS:g} s too")
+    g.add_argument("--sigma", type=float, metavar="FRAMES",
+                   help="base scale in frames (default: the preset's)")
+    g.add_argument("--k", type=int, metavar="N", help="PCA curves (default: the preset's)")
+    g.add_argument("--no-contact", action="store_true",
+                   help="no foot-contact curves (default: the ankle heights replace the "
+                        "last two curves)")
+    g = p.add_argument_group("speed (speed minima, Miura)")
+    g.add_argument("--f-c", type=float, metavar="HZ",
+                   help="low-pass cut-off of the joint speeds (default 10 Hz)")
+    g.add_argument("--f-max", type=float, metavar="HZ", help="finest scale (default 8 Hz)")
+    g.add_argument("--f-min", type=float, metavar="HZ", help="coarsest scale (default 0.2 Hz)")
+    g.add_argument("--scale-ratio", type=float, metavar="R",
+                   help="ratio of successive scales (default 0.95)")
+    g.add_argument("--mojena-k", type=float, metavar="K",
+                   help="Mojena constant of the Ward cut-off, larger: fewer keys (default 2.75)")
+    g = p.add_argument_group("simplify (curve simplification)")
+    g.add_argument("--simplify-tolerance", type=float, metavar="ERR",
+                   help="largest RMS joint error of the straight line between keys: body "
+                        "heights with --space positions (default "
+                        f"{DEFAULT_TOLERANCE['positions']:g}), degrees with channels (default "
+                        f"{DEFAULT_TOLERANCE['channels']:g})")
+    g.add_argument("--ratio", type=float,
+                   help="instead: largest error / chord length (Önder)")
+    g.add_argument("--space", choices=("positions", "channels"), default="positions",
+                   help="simplify and decimate: body-frame joint positions in body heights "
+                        "(default) or channel values (rotations unwrapped)")
+    g = p.add_argument_group("optimal (penalised dynamic programming)")
+    g.add_argument("--rate", type=float, metavar="KEYS_PER_S",
+                   help=f"keys per second (default {DEFAULT_RATE:g})")
+    g.add_argument("--optimal-tolerance", type=float, metavar="ERR",
+                   help="instead: largest mean per-frame error between keys (body heights^2)")
+    g.add_argument("--lam", type=float, metavar="PENALTY",
+                   help="instead: fixed cost per key (frames x body heights^2)")
+    g.add_argument("--max-segment", type=float, metavar="SECONDS",
+                   help=f"longest stretch between keys (default {DEFAULT_MAX_SEGMENT:g} s)")
+    if online is not True:
+        g = p.add_argument_group("isodata (clustering, Zhang et al.)")
+        g.add_argument("--cluster-seconds", type=float, metavar="SECONDS",
+                       help="expected cluster duration, smaller: more keys (default "
+                            f"{CLUSTER_SECONDS:.3g} s)")
+        g = p.add_argument_group("curvefit (per-channel Hermite keys, Önder)")
+        g.add_argument("--smooth", type=float, metavar="S",
+                       help=f"smoothing weight, smaller: more keys (default {DEFAULT_SMOOTH:g})")
+        g.add_argument("--key-cost", type=float, metavar="C",
+                       help=f"cost per key, smaller: more keys (default {DEFAULT_KEY_COST:g})")
+    g = p.add_argument_group(
+        "every method", "VALUE applies to each chosen method it concerns; METHOD=VALUE,... "
+        "sets methods one by one (e.g. --lookahead saliency=60,speed=90)")
+    g.add_argument("--count", metavar="[METHOD=]N",
+                   help="keyframe count for simplify, uniform, decimate, optimal (offline; "
+                        "uniform and decimate default to the saliency count); online "
+                        "methods refuse it")
+    g.add_argument("--tolerance", metavar="[METHOD=]ERR",
+                   help="simplify's or optimal's tolerance (units above); with both chosen, "
+                        "name them")
+    if online is False:
+        return
+    where = "" if online else "with --online: "
+    g.add_argument("--lookahead", metavar="[METHOD=]FRAMES",
+                   help=f"{where}frames a decision may wait (default: the method's, "
+                        "saliency 121 (37 with --preset high), speed 120, simplify 60, "
+                        "optimal 120)")
+    g.add_argument("--max-gap", type=float, metavar="SECONDS",
+                   help="insert a key (best frame by the optimal segment cost) in every "
+                        "stretch longer than SECONDS without one")
+    g.add_argument("--max-bridge", metavar="FRAMES|SECONDSs",
+                   help=f"{where}interpolate over at most this many missing frames (or "
+                        f"seconds: 0.1s); a longer gap restarts the windows (default "
+                        f"{DEFAULT_MAX_BRIDGE_FRAMES} frames)")
 
 def _add_roles_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--roles", metavar="FILE",
                    help="JSON {role: joint name} for skeletons the built-in tables (CMU, "
                         "Mixamo, Axis, Rokoko, Xsens, Unity/VMC) do not name")
-
-
-def _add_optimal_options(p: argparse.ArgumentParser, gap: bool = True) -> None:
-    p.add_argument("--rate", type=float, help="optimal: keys per second (default 6)")
-    p.add_argument("--max-segment", type=float, metavar="SECONDS",
-                   help="optimal: longest stretch between keys (default 2 s)")
-    if gap:
-        p.add_argument("--max-gap", type=float, metavar="SECONDS",
-                       help="any method: insert a key (best frame by the optimal segment "
-                            "cost) in every stretch longer than SECONDS without one")
 
 
 def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
@@ -366,23 +521,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print derived thresholds (isodata) to stderr")
     p.add_argument("--format", choices=("json", "csv"), default="json")
     p.add_argument("-o", "--output", default="-", help="output file (default: stdout)")
-    p.add_argument("--sigma", type=float, help="saliency: base scale in frames (default: auto)")
-    p.add_argument("--k", type=int, help="saliency: number of PCA curves (default: auto)")
-    p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
-    p.add_argument("--tolerance", type=float,
-                   help="simplify: absolute error tolerance; optimal: largest mean per-frame "
-                        "error between keys (body heights^2)")
-    p.add_argument("--ratio", type=float, help="simplify: error / chord length ratio (Önder)")
-    p.add_argument("--count", type=int,
-                   help="simplify, uniform, decimate, optimal: keyframe count (uniform and "
-                        "decimate default to the saliency count)")
-    p.add_argument("--space", choices=("positions", "channels"), default="positions",
-                   help="simplify, decimate: curve of body-frame (root-relative) joint positions "
-                        "in body heights (default) or of channel values (rotations unwrapped)")
-    _add_optimal_options(p)
     p.add_argument("--online", action="store_true",
                    help="run the online keyframers over each file as if streamed")
-    p.add_argument("--lookahead", type=int, help="online: lookahead in frames (default: method's)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.add_argument("--export-bvh", metavar="OUT",
                    help="write the keyposes-only BVH (+ OUT.keys.json with their original "
@@ -391,6 +531,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write the motion interpolated from the keyframes only (BVH); "
                         "pattern as for --export-bvh")
     _add_roles_option(p)
+    _add_method_options(p, online=None)
     p.set_defaults(func=cmd_extract)
 
     p = sub.add_parser("replay", help="send a BVH/AMC file as a paced frame stream")
@@ -421,24 +562,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--to", action="append", metavar="ADDR",
                    help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
     p.add_argument("--listen", help="let listeners bind to this host instead of 127.0.0.1")
-    p.add_argument("--lookahead", type=int, help="lookahead in frames (default: method's)")
     p.add_argument("--stream", default="default", help="stream name carried by every event")
     p.add_argument("--summary", help="also write the run summary as JSON to this file")
     p.add_argument("--fast", action="store_true", help="file source: as fast as possible")
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",
                    help="stop once frames have flowed and then none came for SECONDS "
                         "(default: run until Ctrl-C / SIGTERM)")
-    p.add_argument("--sigma", type=float, help=argparse.SUPPRESS)
-    p.add_argument("--k", type=int, help=argparse.SUPPRESS)
-    p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
-    p.add_argument("--tolerance", type=float, help=argparse.SUPPRESS)
-    p.add_argument("--ratio", type=float, help=argparse.SUPPRESS)
-    p.add_argument("--count", type=int, help=argparse.SUPPRESS)
-    p.add_argument("--space", choices=("positions", "channels"), default="positions",
-                   help=argparse.SUPPRESS)
-    _add_optimal_options(p)
     _add_dashboard_options(p)
     _add_roles_option(p)
+    _add_method_options(p, online=True)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("eval", help="evaluation tables (thesis Table 4.1/4.2) for a folder")
@@ -465,7 +597,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--columns", type=int, default=10, help="figures per row (default: 10)")
     p.add_argument("--view", choices=("front", "three-quarter", "side"),
                    default="three-quarter", help="camera, body-aligned (default: three-quarter)")
-    _add_method_options(p)
+    _add_method_options(p, online=False)
     _add_roles_option(p)
     p.set_defaults(func=cmd_sheet)
 
@@ -474,7 +606,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default="saliency,speed",
                    help="methods to mark, a comma list or all (default: saliency,speed)")
     p.add_argument("-o", "--output", default="plot.png", help="PNG file (default: plot.png)")
-    _add_method_options(p)
+    _add_method_options(p, online=False)
     _add_roles_option(p)
     p.set_defaults(func=cmd_plot)
 

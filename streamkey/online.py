@@ -331,11 +331,13 @@ class Pipeline:
     """Several keyframers on one stream: one guard, one feature stage, features computed once."""
 
     def __init__(self, keyframers: Sequence[OnlineKeyframer], stream: str = "default",
-                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+                 max_bridge_frames: int | None = None) -> None:
         if not keyframers:
             raise UsageError("a pipeline needs at least one keyframer")
         first = keyframers[0]
         self.keyframers = list(keyframers)
+        if max_bridge_frames is None:  # the keyframers' own setting (`--max-bridge`)
+            max_bridge_frames = first.guard.max_bridge_frames
         self.guard = StreamGuard(first.skeleton.n_channels, stream, "*", max_bridge_frames)
         self.features = first.features
         self._idle_due = False
