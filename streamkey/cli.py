@@ -106,19 +106,39 @@ def _method_params(args: argparse.Namespace, online: bool = False) -> dict[str, 
                          "--optimal-tolerance, or --tolerance simplify=V,optimal=W")
     counts = _per_method(args, "--count", int, methods, COUNTED_METHODS)
     space = getattr(args, "space", "positions")
+    flags = {k: True for k in ("variance_rule", "root_translation") if getattr(args, k, False)}
     params: dict[str, dict[str, Any]] = {
         "saliency": {"contact": not getattr(args, "no_contact", False),
-                     **given(("sigma", "sigma"), ("k", "k"), ("preset", "preset"))},
+                     **given(("sigma", "sigma"), ("k", "k"), ("preset", "preset")),
+                     **{k: v for k, v in flags.items() if k == "variance_rule"}},
         "speed": given(("f_c", "f_c"), ("f_max", "f_max"), ("f_min", "f_min"),
                        ("r", "scale_ratio"), ("mojena_k", "mojena_k")),
         "simplify": {"space": space, **given(("tolerance", "simplify_tolerance"),
                                              ("ratio", "ratio"))},
         "uniform": {}, "decimate": {"space": space},
-        "isodata": given(("cluster_seconds", "cluster_seconds")),
-        "curvefit": given(("smooth", "smooth"), ("key_cost", "key_cost")),
-        "optimal": given(("rate", "rate"), ("tolerance", "optimal_tolerance"),
-                         ("lam", "lam"), ("max_segment", "max_segment")),
+        "isodata": given(("cluster_seconds", "cluster_seconds"), ("max_merges", "max_merges"),
+                         ("outlier_fence", "outlier_fence")),
+        "curvefit": given(("smooth", "smooth"), ("key_cost", "key_cost"),
+                          ("tol", "curvefit_tol"), ("max_passes", "max_passes")),
+        "optimal": {**given(("rate", "rate"), ("tolerance", "optimal_tolerance"),
+                            ("lam", "lam"), ("max_segment", "max_segment")),
+                    **{k: v for k, v in flags.items() if k == "root_translation"}},
     }
+    live = {"saliency": given(("update_every", "update_every")),
+            "speed": given(("cutoff_history", "cutoff_history"),
+                           ("warmup_candidates", "warmup_candidates")),
+            "simplify": given(("merge", "merge"), ("max_span", "max_span"))}
+    for flag, applies in (("--history", ("saliency", "speed", "simplify")),
+                          ("--hop", ("speed", "simplify"))):
+        for name, value in _per_method(args, flag, int, methods, applies).items():
+            live[name][flag[2:]] = value
+    if online:
+        for name, extra in live.items():
+            params[name].update(extra)
+    elif any(live.values()):
+        given_flags = sorted({k for extra in live.values() for k in extra})
+        raise UsageError(f"{', '.join('--' + k.replace('_', '-') for k in given_flags)}: "
+                         "online only; add --online")
     for name, value in tol.items():
         if name in params and "tolerance" in params[name]:
             raise UsageError(f"--tolerance and --{name}-tolerance both set the {name} "
@@ -407,8 +427,8 @@ def _add_method_options(p: argparse.ArgumentParser, online: bool | None) -> None
     """The method parameters, one argument group per method, with units and defaults.
     `online`: True for `run` (online methods), None for `extract` (all; lookahead and gap
     bridging with --online), False for `sheet` / `plot` (offline only)."""
-    from .methods.curvefit import DEFAULT_KEY_COST, DEFAULT_SMOOTH
-    from .methods.isodata import CLUSTER_SECONDS
+    from .methods.curvefit import DEFAULT_KEY_COST, DEFAULT_SMOOTH, DEFAULT_TOL
+    from .methods.isodata import CLUSTER_SECONDS, OUTLIER_FENCE
     from .methods.optimal import DEFAULT_MAX_SEGMENT, DEFAULT_RATE
     from .methods.saliency import AUTO_SECONDS, AUTO_SPEED_THRESHOLD, PRESETS
     from .methods.simplify import DEFAULT_TOLERANCE
@@ -427,6 +447,11 @@ def _add_method_options(p: argparse.ArgumentParser, online: bool | None) -> None
     g.add_argument("--no-contact", action="store_true",
                    help="no foot-contact curves (default: the ankle heights replace the "
                         "last two curves)")
+    g.add_argument("--variance-rule", action="store_true",
+                   help="k = at least the curves reaching 90 %% of the variance")
+    if online is not False:
+        g.add_argument("--update-every", type=int, metavar="FRAMES",
+                       help="online: recompute the PCA basis at least this often (default 1200)")
     g = p.add_argument_group("speed (speed minima, Miura)")
     g.add_argument("--f-c", type=float, metavar="HZ",
                    help="low-pass cut-off of the joint speeds (default 10 Hz)")
@@ -436,6 +461,11 @@ def _add_method_options(p: argparse.ArgumentParser, online: bool | None) -> None
                    help="ratio of successive scales (default 0.95)")
     g.add_argument("--mojena-k", type=float, metavar="K",
                    help="Mojena constant of the Ward cut-off, larger: fewer keys (default 2.75)")
+    if online is not False:
+        g.add_argument("--cutoff-history", type=int, metavar="FRAMES",
+                       help="online: frames of candidates feeding the cut-off (default 7200)")
+        g.add_argument("--warmup-candidates", type=int, metavar="N",
+                       help="online: candidates before the cut-off is trusted (default 20)")
     g = p.add_argument_group("simplify (curve simplification)")
     g.add_argument("--simplify-tolerance", type=float, metavar="ERR",
                    help="largest RMS joint error of the straight line between keys: body "
@@ -447,6 +477,12 @@ def _add_method_options(p: argparse.ArgumentParser, online: bool | None) -> None
     g.add_argument("--space", choices=("positions", "channels"), default="positions",
                    help="simplify and decimate: body-frame joint positions in body heights "
                         "(default) or channel values (rotations unwrapped)")
+    if online is not False:
+        g.add_argument("--merge", type=int, metavar="FRAMES",
+                       help="online: a key this close after the last committed one is taken "
+                            "to be it (no near-duplicates; default 8)")
+        g.add_argument("--max-span", type=int, metavar="FRAMES",
+                       help="online: longest open segment (default 8 x lookahead)")
     g = p.add_argument_group("optimal (penalised dynamic programming)")
     g.add_argument("--rate", type=float, metavar="KEYS_PER_S",
                    help=f"keys per second (default {DEFAULT_RATE:g})")
@@ -456,16 +492,28 @@ def _add_method_options(p: argparse.ArgumentParser, online: bool | None) -> None
                    help="instead: fixed cost per key (frames x body heights^2)")
     g.add_argument("--max-segment", type=float, metavar="SECONDS",
                    help=f"longest stretch between keys (default {DEFAULT_MAX_SEGMENT:g} s)")
+    g.add_argument("--root-translation", action="store_true",
+                   help="include the root's path in the error (default: body frame only)")
     if online is not True:
         g = p.add_argument_group("isodata (clustering, Zhang et al.)")
         g.add_argument("--cluster-seconds", type=float, metavar="SECONDS",
                        help="expected cluster duration, smaller: more keys (default "
                             f"{CLUSTER_SECONDS:.3g} s)")
+        g.add_argument("--max-merges", type=int, metavar="N",
+                       help="most class merges per iteration (default: unlimited)")
+        g.add_argument("--outlier-fence", type=float, metavar="IQR",
+                       help="distances beyond Q3 + IQR x this (pose glitches) stay out of the "
+                            f"two-class cut (default {OUTLIER_FENCE:g})")
         g = p.add_argument_group("curvefit (per-channel Hermite keys, Önder)")
         g.add_argument("--smooth", type=float, metavar="S",
                        help=f"smoothing weight, smaller: more keys (default {DEFAULT_SMOOTH:g})")
         g.add_argument("--key-cost", type=float, metavar="C",
                        help=f"cost per key, smaller: more keys (default {DEFAULT_KEY_COST:g})")
+        g.add_argument("--curvefit-tol", type=float, metavar="TOL",
+                       help="a channel stops when a pass lowers its cost by less than this "
+                            f"fraction (default {DEFAULT_TOL:g})")
+        g.add_argument("--max-passes", type=int, metavar="N",
+                       help="most refinement passes (default 100)")
     g = p.add_argument_group(
         "every method", "VALUE applies to each chosen method it concerns; METHOD=VALUE,... "
         "sets methods one by one (e.g. --lookahead saliency=60,speed=90)")
@@ -486,6 +534,12 @@ def _add_method_options(p: argparse.ArgumentParser, online: bool | None) -> None
     g.add_argument("--max-gap", type=float, metavar="SECONDS",
                    help="insert a key (best frame by the optimal segment cost) in every "
                         "stretch longer than SECONDS without one")
+    g.add_argument("--history", metavar="[METHOD=]FRAMES",
+                   help=f"{where}past frames kept: saliency (default 10 s), speed (2400), "
+                        "simplify (2 x lookahead)")
+    g.add_argument("--hop", metavar="[METHOD=]FRAMES",
+                   help=f"{where}frames between re-analyses: speed (default lookahead / 5, at "
+                        "most 24), simplify (8)")
     g.add_argument("--max-bridge", metavar="FRAMES|SECONDSs",
                    help=f"{where}interpolate over at most this many missing frames (or "
                         f"seconds: 0.1s); a longer gap restarts the windows (default "
