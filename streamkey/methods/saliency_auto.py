@@ -14,7 +14,8 @@ then takes the same decision from the same frames and keeps one:
 
 Hence with a lookahead of at least the stream's length (nothing decided before `flush()`) the
 events equal offline `extract` with its default exactly, and `params` (after the decision)
-equal the offline ones. A preset "low" / "high" given explicitly runs that keyframer alone.
+equal the offline ones. A preset "low" / "high" given explicitly, or both `sigma` and `k` (the preset then only
+names them: "low"), runs that keyframer alone.
 A restart forgets the decision (a new stream decides again); `params` keep the last one.
 """
 
@@ -49,6 +50,8 @@ class AutoOnline(OnlineKeyframer):
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
         if preset not in ("auto", *PRESETS):
             raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")
+        if preset == "auto" and sigma is not None and k is not None:
+            preset = "low"  # sigma and k given: the preset changes nothing but its name
         names = list(PRESETS) if preset == "auto" else [preset]
         self.inners = {name: Online(
             skeleton, fps, sigma=sigma, k=k, contact=contact, preset=name,
