@@ -408,9 +408,15 @@ def cmd_sheet(args: argparse.Namespace) -> int:
     keys = results[names[0]]
     if len(keys) == 0:
         raise InputError(f"{args.file}: {names[0]} finds no keypose to draw in this clip")
+    if args.per_page < 0:
+        raise UsageError(f"sheet --per-page must be >= 0 (0: one page), got {args.per_page}")
     sheet = contact_sheet(motion, keys, args.output, columns=args.columns, view=args.view,
-                          title=f"{display_name(motion.name)}: {len(keys)} {names[0]} keyposes")
-    print(f"wrote {sheet.path} ({sheet.figures} keyposes: {sheet.frames})", file=sys.stderr)
+                          title=f"{display_name(motion.name)}: {len(keys)} {names[0]} keyposes",
+                          per_page=args.per_page or None)
+    for page in sheet.pages:
+        print(f"wrote {page}", file=sys.stderr)
+    print(f"{sheet.figures} keyposes on {len(sheet.pages)} page(s): {sheet.frames}",
+          file=sys.stderr)
     return 0
 
 
@@ -649,6 +655,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default="saliency", help="one method (default: saliency)")
     p.add_argument("-o", "--output", default="sheet.png", help="PNG file (default: sheet.png)")
     p.add_argument("--columns", type=int, default=10, help="figures per row (default: 10)")
+    p.add_argument("--per-page", type=int, default=60, metavar="N",
+                   help="keyposes per page; more go to OUT-p1.png, OUT-p2.png, ... (default: "
+                        "60; 0: one page)")
     p.add_argument("--view", choices=("front", "three-quarter", "side"),
                    default="three-quarter", help="camera, body-aligned (default: three-quarter)")
     _add_method_options(p, online=False)

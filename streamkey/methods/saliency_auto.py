@@ -14,8 +14,8 @@ then takes the same decision from the same frames and keeps one:
 
 Hence with a lookahead of at least the stream's length (nothing decided before `flush()`) the
 events equal offline `extract` with its default exactly, and `params` (after the decision)
-equal the offline ones. A preset "low" / "high" given explicitly, or both `sigma` and `k` (the preset then only
-names them: "low"), runs that keyframer alone.
+equal the offline ones. A preset "low" / "high" given explicitly, or both `sigma` and `k`
+(the preset then only names them: "low"), runs that keyframer alone.
 A restart forgets the decision (a new stream decides again); `params` keep the last one.
 """
 
