@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from .kinematics import forward_kinematics
 from .motion import Motion
 from .roles import MIURA_ROLES
 from .signal import hp_filter, hp_lambda
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["contact_sheet", "plot_signals", "keypose_points", "driving_signals", "SheetResult",
            "FIGURE_COLOR", "VIEWS", "require_matplotlib", "page_paths", "METHOD_COLORS"]
@@ -122,7 +125,7 @@ def contact_sheet(motion: Motion, keys: Keyframes | list[int] | np.ndarray,
                   path: str | os.PathLike[str] | None = None, columns: int = 10,
                   view: str = "three-quarter", title: str | None = None,
                   cell_inches: float = 1.3, dpi: int = 100,
-                  per_page: int | None = None) -> Any:
+                  per_page: int | None = None) -> SheetResult | Figure:
     """The keyposes as stick figures in frame order: PNG page(s) at `path` (a `SheetResult`;
     more than `per_page` keyposes go to `name-p1.png`, `name-p2.png`, ...), or without a
     path the matplotlib Figure of all of them."""
@@ -215,7 +218,7 @@ def driving_signals(motion: Motion, features: Features | None = None,
 
 def plot_signals(motion: Motion, results: dict[str, Keyframes],
                  path: str | os.PathLike[str] | None = None,
-                 signals: dict[str, np.ndarray] | None = None, dpi: int = 100) -> Any:
+                 signals: dict[str, np.ndarray] | None = None, dpi: int = 100) -> Path | Figure:
     """The driving signals over time with one keyframe marker row per method: a PNG at `path`
     (its Path), or without a path the matplotlib Figure. Per-channel keys (curvefit: the
     union of every channel's keys, not poses) get their lane but no pose markers."""
