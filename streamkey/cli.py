@@ -87,74 +87,78 @@ def _max_bridge(text: str | None) -> dict[str, Any]:
     return {key: value}
 
 
+# (method, parameter, option dest, online only) of every method option; flag: --dest-with-dashes
+_OPTIONS = [
+    ("saliency", "sigma", "sigma", False), ("saliency", "k", "k", False),
+    ("saliency", "preset", "preset", False), ("saliency", "variance_rule", "variance_rule", False),
+    ("saliency", "update_every", "update_every", True),
+    ("speed", "f_c", "f_c", False), ("speed", "f_max", "f_max", False),
+    ("speed", "f_min", "f_min", False), ("speed", "r", "scale_ratio", False),
+    ("speed", "mojena_k", "mojena_k", False), ("speed", "cutoff_history", "cutoff_history", True),
+    ("speed", "warmup_candidates", "warmup_candidates", True),
+    ("simplify", "tolerance", "simplify_tolerance", False), ("simplify", "ratio", "ratio", False),
+    ("simplify", "merge", "merge", True), ("simplify", "max_span", "max_span", True),
+    ("optimal", "rate", "rate", False), ("optimal", "tolerance", "optimal_tolerance", False),
+    ("optimal", "lam", "lam", False), ("optimal", "max_segment", "max_segment", False),
+    ("optimal", "root_translation", "root_translation", False),
+    ("isodata", "cluster_seconds", "cluster_seconds", False),
+    ("isodata", "max_merges", "max_merges", False),
+    ("isodata", "outlier_fence", "outlier_fence", False),
+    ("curvefit", "smooth", "smooth", False), ("curvefit", "key_cost", "key_cost", False),
+    ("curvefit", "tol", "curvefit_tol", False), ("curvefit", "max_passes", "max_passes", False),
+]
+
+
 def _method_params(args: argparse.Namespace, online: bool = False) -> dict[str, dict[str, Any]]:
     """Per-method keyword arguments from the method options (only those given, plus the
-    always-set ones); `"*"` holds `max_gap` and the gap bridging for every online keyframer."""
+    always-set ones); `"*"` holds `max_gap` and the gap bridging for every online keyframer.
+    An option of a method not chosen, or an online-only one offline, is a usage error."""
     from .errors import UsageError
     from .methods import COUNTED_METHODS, OFFLINE_METHODS, ONLINE_METHODS
 
     methods = _chosen(args, online)
-
-    def given(*pairs: tuple[str, str]) -> dict[str, Any]:
-        return {key: getattr(args, dest) for key, dest in pairs
-                if getattr(args, dest, None) is not None}
-
+    space = getattr(args, "space", "positions")
+    no_contact = getattr(args, "no_contact", False)
+    params: dict[str, dict[str, Any]] = {name: {} for name in OFFLINE_METHODS}
+    params["saliency"]["contact"] = not no_contact
+    params["simplify"]["space"] = params["decimate"]["space"] = space
+    for method, key, dest, live in (*_OPTIONS, ("saliency", "contact", "no_contact", False)):
+        value = getattr(args, dest, None)
+        if value is None or value is False:
+            continue
+        flag = "--" + dest.replace("_", "-")
+        if method not in methods:
+            raise UsageError(f"{flag} is a {method} option, and {method} is not among the "
+                             f"chosen methods ({', '.join(methods)}); add it to --method")
+        if live and not online:
+            raise UsageError(f"{flag}: online only; add --online")
+        params[method][key] = not value if key == "contact" else value
+    for flag, applies in (("--history", ("saliency", "speed", "simplify")),
+                          ("--hop", ("speed", "simplify")),
+                          ("--lookahead", tuple(ONLINE_METHODS))):
+        chosen = _per_method(args, flag, int, methods, applies if online else tuple(methods))
+        if chosen and not online:
+            raise UsageError(f"{flag}: online only; add --online")
+        for name, value in chosen.items():
+            params[name][flag[2:]] = value
     tol = _per_method(args, "--tolerance", float, methods, ("simplify", "optimal"))
     if getattr(args, "tolerance", None) is not None and "=" not in args.tolerance and len(tol) > 1:
         raise UsageError("--tolerance is ambiguous with both simplify (body heights) and "
                          "optimal (body heights^2) chosen: use --simplify-tolerance and "
                          "--optimal-tolerance, or --tolerance simplify=V,optimal=W")
-    counts = _per_method(args, "--count", int, methods, COUNTED_METHODS)
-    space = getattr(args, "space", "positions")
-    flags = {k: True for k in ("variance_rule", "root_translation") if getattr(args, k, False)}
-    params: dict[str, dict[str, Any]] = {
-        "saliency": {"contact": not getattr(args, "no_contact", False),
-                     **given(("sigma", "sigma"), ("k", "k"), ("preset", "preset")),
-                     **{k: v for k, v in flags.items() if k == "variance_rule"}},
-        "speed": given(("f_c", "f_c"), ("f_max", "f_max"), ("f_min", "f_min"),
-                       ("r", "scale_ratio"), ("mojena_k", "mojena_k")),
-        "simplify": {"space": space, **given(("tolerance", "simplify_tolerance"),
-                                             ("ratio", "ratio"))},
-        "uniform": {}, "decimate": {"space": space},
-        "isodata": given(("cluster_seconds", "cluster_seconds"), ("max_merges", "max_merges"),
-                         ("outlier_fence", "outlier_fence")),
-        "curvefit": given(("smooth", "smooth"), ("key_cost", "key_cost"),
-                          ("tol", "curvefit_tol"), ("max_passes", "max_passes")),
-        "optimal": {**given(("rate", "rate"), ("tolerance", "optimal_tolerance"),
-                            ("lam", "lam"), ("max_segment", "max_segment")),
-                    **{k: v for k, v in flags.items() if k == "root_translation"}},
-    }
-    live = {"saliency": given(("update_every", "update_every")),
-            "speed": given(("cutoff_history", "cutoff_history"),
-                           ("warmup_candidates", "warmup_candidates")),
-            "simplify": given(("merge", "merge"), ("max_span", "max_span"))}
-    for flag, applies in (("--history", ("saliency", "speed", "simplify")),
-                          ("--hop", ("speed", "simplify"))):
-        for name, value in _per_method(args, flag, int, methods, applies).items():
-            live[name][flag[2:]] = value
-    if online:
-        for name, extra in live.items():
-            params[name].update(extra)
-    elif any(live.values()):
-        given_flags = sorted({k for extra in live.values() for k in extra})
-        raise UsageError(f"{', '.join('--' + k.replace('_', '-') for k in given_flags)}: "
-                         "online only; add --online")
     for name, value in tol.items():
-        if name in params and "tolerance" in params[name]:
+        if "tolerance" in params[name]:
             raise UsageError(f"--tolerance and --{name}-tolerance both set the {name} "
                              "tolerance; give one")
         params[name]["tolerance"] = value
-    for name, value in counts.items():
+    for name, value in _per_method(args, "--count", int, methods, COUNTED_METHODS).items():
         params[name]["count"] = value
     if getattr(args, "verbose", False):
         params["isodata"].update(verbose=True, log=lambda line: print(line, file=sys.stderr))
-    look = _per_method(args, "--lookahead", int, methods,
-                       tuple(ONLINE_METHODS) if online else tuple(OFFLINE_METHODS))
-    if online:
-        for name, value in look.items():
-            params[name]["lookahead"] = value
-    params["*"] = {"max_gap": getattr(args, "max_gap", None),  # every online keyframer
-                   **_max_bridge(getattr(args, "max_bridge", None))}
+    bridge = _max_bridge(getattr(args, "max_bridge", None))
+    if bridge and not online:
+        raise UsageError("--max-bridge: online only; add --online")
+    params["*"] = {"max_gap": getattr(args, "max_gap", None), **bridge}  # every online keyframer
     return params
 
 

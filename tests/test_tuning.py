@@ -136,12 +136,21 @@ def test_lookahead_per_method_and_for_all(tmp_path):
     (["--method", "saliency", "--count", "10"],
      "error: --count: none of the chosen methods (saliency) takes it"),
     (["--count", "10"], "error: --count: online simplify and optimal cannot aim at a key count"),
+    (["--method", "speed", "--sigma", "3"],
+     "error: --sigma is a saliency option, and saliency is not among the chosen methods"),
 ])
 def test_bad_tuning_options_are_one_clear_line_from_the_real_cli(argv, message):
     run = subprocess.run([*CMD, "run", "--from", CLIP, "--fast", *argv], capture_output=True,
                          text=True, timeout=60 * MS)
     assert run.returncode == 2 and run.stderr.startswith(message), run.stderr
     assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr
+
+
+@pytest.mark.parametrize("option", [["--lookahead", "50"], ["--max-bridge", "30"],
+                                    ["--history", "600"], ["--update-every", "600"]])
+def test_online_only_options_offline_ask_for_online(option, capsys):
+    assert main(["extract", CLIP, *option]) == 2
+    assert capsys.readouterr().err == f"error: {option[0]}: online only; add --online\n"
 
 
 def test_extract_online_simplify_count_is_refused_by_the_real_cli():
