@@ -26,7 +26,7 @@ def check_online_params(methods: list[str], params: dict[str, dict[str, Any]] | 
     if counted:
         raise UsageError(f"--count: online {' and '.join(counted)} cannot aim at a key count "
                          "(it needs the whole take); give a tolerance (simplify) or --rate "
-                         "(optimal) instead, or run without --online")
+                         "(optimal) instead; counts are offline (extract without --online)")
     for name in methods:
         given = [k for k, v in (params or {}).get(name, {}).items() if v is not None]
         accepted = inspect.signature(online_class(name)).parameters
