@@ -24,28 +24,142 @@ def _progress(quiet: bool):  # type: ignore[no-untyped-def]
     return report
 
 
-def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
-    saliency: dict[str, Any] = {"contact": not args.no_contact}
-    if args.sigma is not None:
-        saliency["sigma"] = args.sigma
-    if args.k is not None:
-        saliency["k"] = args.k
-    simplify: dict[str, Any] = {"space": args.space}
-    for name in ("tolerance", "ratio", "count"):
-        if getattr(args, name) is not None:
-            simplify[name] = getattr(args, name)
-    counted = {"count": args.count} if args.count is not None else {}
-    isodata: dict[str, Any] = {}
+def _chosen(args: argparse.Namespace, online: bool) -> list[str]:
+    """The method names of `--method` (every online one for commands without it)."""
+    from .methods import ONLINE_METHODS, parse_methods
+
+    text = getattr(args, "method", None)
+    return parse_methods(text, online=online) if text else list(ONLINE_METHODS)
+
+
+def _per_method(args: argparse.Namespace, flag: str, kind: type, methods: list[str],
+                applies: tuple[str, ...]) -> dict[str, Any]:
+    """`--flag VALUE` (every chosen method in `applies`) or `--flag METHOD=VALUE,...`, checked:
+    {method: value}. A bad name or value is one usage error."""
+    from .errors import UsageError
+
+    text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
+    if text is None:
+        return {}
+    unit = "a whole number" if kind is int else "a number"
+    out: dict[str, Any] = {}
+    for item in str(text).split(","):
+        name, sep, value = item.strip().rpartition("=")
+        name = name.strip()
+        if sep and name not in applies:
+            raise UsageError(f"{flag}: {name!r} is not a method that takes it; name one of "
+                             f"{', '.join(applies)}")
+        if sep and name not in methods:
+            raise UsageError(f"{flag}: {name} is not among the chosen methods "
+                             f"({', '.join(methods)}); add it to --method or drop {item.strip()}")
+        try:
+            number = kind(value.strip())
+        except ValueError:
+            raise UsageError(f"{flag}: {value.strip()!r} is not {unit} (give VALUE or "
+                             f"METHOD=VALUE,...)") from None
+        targets = [name] if sep else [m for m in methods if m in applies]
+        if not targets:
+            raise UsageError(f"{flag}: none of the chosen methods ({', '.join(methods)}) takes "
+                             f"it; it applies to {', '.join(applies)}")
+        for m in targets:
+            out[m] = number
+    return out
+
+
+def _max_bridge(text: str | None) -> dict[str, Any]:
+    """`--max-bridge FRAMES` or `SECONDSs` as {"max_bridge_frames" | "max_bridge_seconds": v}."""
+    from .errors import UsageError
+
+    if text is None:
+        return {}
+    t = text.strip().lower()
+    try:
+        if t.endswith("s"):
+            value: float = float(t[:-1])
+            key = "max_bridge_seconds"
+        else:
+            value, key = int(t), "max_bridge_frames"
+    except ValueError:
+        value, key = -1, ""
+    if not key or not 0 <= value <= 1e6:
+        raise UsageError(f"--max-bridge: {text!r} is not FRAMES (a whole number >= 0) or "
+                         "SECONDS with an s suffix (e.g. 0.1s)")
+    return {key: value}
+
+
+# (method, parameter, option dest, online only) of every method option; flag: --dest-with-dashes
+_OPTIONS = [
+    ("saliency", "sigma", "sigma", False), ("saliency", "k", "k", False),
+    ("saliency", "preset", "preset", False), ("saliency", "variance_rule", "variance_rule", False),
+    ("saliency", "update_every", "update_every", True),
+    ("speed", "f_c", "f_c", False), ("speed", "f_max", "f_max", False),
+    ("speed", "f_min", "f_min", False), ("speed", "r", "scale_ratio", False),
+    ("speed", "mojena_k", "mojena_k", False), ("speed", "cutoff_history", "cutoff_history", True),
+    ("speed", "warmup_candidates", "warmup_candidates", True),
+    ("simplify", "tolerance", "simplify_tolerance", False), ("simplify", "ratio", "ratio", False),
+    ("simplify", "merge", "merge", True), ("simplify", "max_span", "max_span", True),
+    ("optimal", "rate", "rate", False), ("optimal", "tolerance", "optimal_tolerance", False),
+    ("optimal", "lam", "lam", False), ("optimal", "max_segment", "max_segment", False),
+    ("optimal", "root_translation", "root_translation", False),
+    ("isodata", "cluster_seconds", "cluster_seconds", False),
+    ("isodata", "max_merges", "max_merges", False),
+    ("isodata", "outlier_fence", "outlier_fence", False),
+    ("curvefit", "smooth", "smooth", False), ("curvefit", "key_cost", "key_cost", False),
+    ("curvefit", "tol", "curvefit_tol", False), ("curvefit", "max_passes", "max_passes", False),
+]
+
+
+def _method_params(args: argparse.Namespace, online: bool = False) -> dict[str, dict[str, Any]]:
+    """Per-method keyword arguments from the method options (only those given, plus the
+    always-set ones); `"*"` holds `max_gap` and the gap bridging for every online keyframer.
+    An option of a method not chosen, or an online-only one offline, is a usage error."""
+    from .errors import UsageError
+    from .methods import COUNTED_METHODS, OFFLINE_METHODS, ONLINE_METHODS
+
+    methods = _chosen(args, online)
+    space = getattr(args, "space", "positions")
+    no_contact = getattr(args, "no_contact", False)
+    params: dict[str, dict[str, Any]] = {name: {} for name in OFFLINE_METHODS}
+    params["saliency"]["contact"] = not no_contact
+    params["simplify"]["space"] = params["decimate"]["space"] = space
+    for method, key, dest, live in (*_OPTIONS, ("saliency", "contact", "no_contact", False)):
+        value = getattr(args, dest, None)
+        if value is None or value is False:
+            continue
+        flag = "--" + dest.replace("_", "-")
+        if method not in methods:
+            raise UsageError(f"{flag} is a {method} option, and {method} is not among the "
+                             f"chosen methods ({', '.join(methods)}); add it to --method")
+        if live and not online:
+            raise UsageError(f"{flag}: online only; add --online")
+        params[method][key] = not value if key == "contact" else value
+    for flag, applies in (("--history", ("saliency", "speed", "simplify")),
+                          ("--hop", ("speed", "simplify")),
+                          ("--lookahead", tuple(ONLINE_METHODS))):
+        chosen = _per_method(args, flag, int, methods, applies if online else tuple(methods))
+        if chosen and not online:
+            raise UsageError(f"{flag}: online only; add --online")
+        for name, value in chosen.items():
+            params[name][flag[2:]] = value
+    tol = _per_method(args, "--tolerance", float, methods, ("simplify", "optimal"))
+    if getattr(args, "tolerance", None) is not None and "=" not in args.tolerance and len(tol) > 1:
+        raise UsageError("--tolerance is ambiguous with both simplify (body heights) and "
+                         "optimal (body heights^2) chosen: use --simplify-tolerance and "
+                         "--optimal-tolerance, or --tolerance simplify=V,optimal=W")
+    for name, value in tol.items():
+        if "tolerance" in params[name]:
+            raise UsageError(f"--tolerance and --{name}-tolerance both set the {name} "
+                             "tolerance; give one")
+        params[name]["tolerance"] = value
+    for name, value in _per_method(args, "--count", int, methods, COUNTED_METHODS).items():
+        params[name]["count"] = value
     if getattr(args, "verbose", False):
-        isodata = {"verbose": True, "log": lambda line: print(line, file=sys.stderr)}
-    decimate = {**counted, "space": args.space}
-    optimal: dict[str, Any] = {}
-    for name in ("count", "rate", "tolerance", "max_segment"):
-        if getattr(args, name, None) is not None:
-            optimal[name] = getattr(args, name)
-    return {"saliency": saliency, "simplify": simplify, "uniform": counted, "decimate": decimate,
-            "isodata": isodata, "optimal": optimal,
-            "*": {"max_gap": getattr(args, "max_gap", None)}}  # every online keyframer
+        params["isodata"].update(verbose=True, log=lambda line: print(line, file=sys.stderr))
+    bridge = _max_bridge(getattr(args, "max_bridge", None))
+    if bridge and not online:
+        raise UsageError("--max-bridge: online only; add --online")
+    params["*"] = {"max_gap": getattr(args, "max_gap", None), **bridge}  # every online keyframer
+    return params
 
 
 def _write(text: str, output: str) -> None:
@@ -81,7 +195,7 @@ def _online_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     """`_method_params` plus the `--roles` mapping for the online keyframers (wire skeletons)."""
     from .methods import ONLINE_METHODS
 
-    params = _method_params(args)
+    params = _method_params(args, online=True)
     roles = _roles(args)
     if roles:
         for name in ONLINE_METHODS:
@@ -99,9 +213,9 @@ def cmd_extract(args: argparse.Namespace) -> int:
         from .streaming import check_online_params, extract_files_online
 
         methods = parse_methods(args.method, online=True)
-        check_online_params(methods, _method_params(args))
-        results = list(extract_files_online(paths, methods, _method_params(args),
-                                            args.lookahead, _progress(args.quiet),
+        params = _method_params(args, online=True)
+        check_online_params(methods, params)
+        results = list(extract_files_online(paths, methods, params, None, _progress(args.quiet),
                                             roles=_roles(args)))
     else:
         methods = parse_methods(args.method)
@@ -143,7 +257,7 @@ def _dashboard(args: argparse.Namespace, source: Any, methods: list[str], to: li
     port = check_port(args.dashboard)
     log = args.log or (None if any(a.startswith("jsonl:") for a in to) else default_log())
     summary, board = asyncio.run(run_dashboard(
-        source, methods, to, _online_params(args), getattr(args, "lookahead", None),
+        source, methods, to, _online_params(args), None,
         args.listen, stream, rate=rate, port=port, log=log, loop=loop,
         idle_exit=getattr(args, "idle_exit", None)))
     print(summary.text(), file=sys.stderr)
@@ -226,7 +340,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return _dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                           stream=args.stream)
     summary = asyncio.run(run_live(source, methods, args.to or ["-"], _online_params(args),
-                                   args.lookahead, args.listen, args.stream,
+                                   None, args.listen, args.stream,
                                    rate=0.0 if args.fast else None,
                                    idle_exit=args.idle_exit,
                                    reset_on_gap=args.reset_on_gap))
@@ -245,7 +359,7 @@ def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace)
     from .streaming import make_keyframers
 
     with naming(args.source):
-        make_keyframers(motion, methods, _method_params(args), args.lookahead)
+        make_keyframers(motion, methods, _online_params(args))
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -301,9 +415,15 @@ def cmd_sheet(args: argparse.Namespace) -> int:
     keys = results[names[0]]
     if len(keys) == 0:
         raise InputError(f"{args.file}: {names[0]} finds no keypose to draw in this clip")
+    if args.per_page < 0:
+        raise UsageError(f"sheet --per-page must be >= 0 (0: one page), got {args.per_page}")
     sheet = contact_sheet(motion, keys, args.output, columns=args.columns, view=args.view,
-                          title=f"{display_name(motion.name)}: {len(keys)} {names[0]} keyposes")
-    print(f"wrote {sheet.path} ({sheet.figures} keyposes: {sheet.frames})", file=sys.stderr)
+                          title=f"{display_name(motion.name)}: {len(keys)} {names[0]} keyposes",
+                          per_page=args.per_page or None)
+    for page in sheet.pages:
+        print(f"wrote {page}", file=sys.stderr)
+    print(f"{sheet.figures} keyposes on {len(sheet.pages)} page(s): {sheet.frames}",
+          file=sys.stderr)
     return 0
 
 
@@ -316,33 +436,132 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_method_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sigma", type=float, help="saliency: base scale in frames (default: auto)")
-    p.add_argument("--k", type=int, help="saliency: number of PCA curves (default: auto)")
-    p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
-    p.add_argument("--tolerance", type=float, help="simplify: absolute error tolerance")
-    p.add_argument("--ratio", type=float, help="simplify: error / chord length ratio (Önder)")
-    p.add_argument("--count", type=int, help="simplify, uniform, decimate: keyframe count")
-    p.add_argument("--space", choices=("positions", "channels"), default="positions",
-                   help="simplify, decimate: curve of body-frame (root-relative) joint positions "
-                        "in body heights (default) or of channel values (rotations unwrapped)")
-    _add_optimal_options(p, gap=False)
+def _add_method_options(p: argparse.ArgumentParser, online: bool | None) -> None:
+    """The method parameters, one argument group per method, with units and defaults.
+    `online`: True for `run` (online methods), None for `extract` (all; lookahead and gap
+    bridging with --online), False for `sheet` / `plot` (offline only)."""
+    from .methods.curvefit import DEFAULT_KEY_COST, DEFAULT_SMOOTH, DEFAULT_TOL
+    from .methods.isodata import CLUSTER_SECONDS, OUTLIER_FENCE
+    from .methods.optimal import DEFAULT_MAX_SEGMENT, DEFAULT_RATE
+    from .methods.saliency import AUTO_SECONDS, AUTO_SPEED_THRESHOLD, PRESETS
+    from .methods.simplify import DEFAULT_TOLERANCE
+    from .online import DEFAULT_MAX_BRIDGE_FRAMES
 
+    low, high = PRESETS["low"], PRESETS["high"]
+    g = p.add_argument_group("saliency (multiscale motion saliency, Halit & Capin)")
+    g.add_argument("--preset", choices=("auto", *PRESETS),
+                   help=f"default auto: high (sigma {high[0]:g}, k {high[1]}) if the body moves "
+                        f">= {AUTO_SPEED_THRESHOLD} body heights/s over the first "
+                        f"{AUTO_SECONDS:g} s, else low (sigma {low[0]:g}, k {low[1]}); online "
+                        f"decides after those {AUTO_SECONDS:g} s too")
+    g.add_argument("--sigma", type=float, metavar="FRAMES",
+                   help="base scale in frames (default: the preset's)")
+    g.add_argument("--k", type=int, metavar="N", help="PCA curves (default: the preset's)")
+    g.add_argument("--no-contact", action="store_true",
+                   help="no foot-contact curves (default: the ankle heights replace the "
+                        "last two curves)")
+    g.add_argument("--variance-rule", action="store_true",
+                   help="k = at least the curves reaching 90 %% of the variance")
+    if online is not False:
+        g.add_argument("--update-every", type=int, metavar="FRAMES",
+                       help="online: recompute the PCA basis at least this often (default 1200)")
+    g = p.add_argument_group("speed (speed minima, Miura)")
+    g.add_argument("--f-c", type=float, metavar="HZ",
+                   help="low-pass cut-off of the joint speeds (default 10 Hz)")
+    g.add_argument("--f-max", type=float, metavar="HZ", help="finest scale (default 8 Hz)")
+    g.add_argument("--f-min", type=float, metavar="HZ", help="coarsest scale (default 0.2 Hz)")
+    g.add_argument("--scale-ratio", type=float, metavar="R",
+                   help="ratio of successive scales (default 0.95)")
+    g.add_argument("--mojena-k", type=float, metavar="K",
+                   help="Mojena constant of the Ward cut-off, larger: fewer keys (default 2.75)")
+    if online is not False:
+        g.add_argument("--cutoff-history", type=int, metavar="FRAMES",
+                       help="online: frames of candidates feeding the cut-off (default 7200)")
+        g.add_argument("--warmup-candidates", type=int, metavar="N",
+                       help="online: candidates before the cut-off is trusted (default 20)")
+    g = p.add_argument_group("simplify (curve simplification)")
+    g.add_argument("--simplify-tolerance", type=float, metavar="ERR",
+                   help="largest RMS joint error of the straight line between keys: body "
+                        "heights with --space positions (default "
+                        f"{DEFAULT_TOLERANCE['positions']:g}), degrees with channels (default "
+                        f"{DEFAULT_TOLERANCE['channels']:g})")
+    g.add_argument("--ratio", type=float,
+                   help="instead: largest error / chord length (Önder)")
+    g.add_argument("--space", choices=("positions", "channels"), default="positions",
+                   help="simplify and decimate: body-frame joint positions in body heights "
+                        "(default) or channel values (rotations unwrapped)")
+    if online is not False:
+        g.add_argument("--merge", type=int, metavar="FRAMES",
+                       help="online: a key this close after the last committed one is taken "
+                            "to be it (no near-duplicates; default 8)")
+        g.add_argument("--max-span", type=int, metavar="FRAMES",
+                       help="online: longest open segment (default 8 x lookahead)")
+    g = p.add_argument_group("optimal (penalised dynamic programming)")
+    g.add_argument("--rate", type=float, metavar="KEYS_PER_S",
+                   help=f"keys per second (default {DEFAULT_RATE:g})")
+    g.add_argument("--optimal-tolerance", type=float, metavar="ERR",
+                   help="instead: largest mean per-frame error between keys (body heights^2)")
+    g.add_argument("--lam", type=float, metavar="PENALTY",
+                   help="instead: fixed cost per key (frames x body heights^2)")
+    g.add_argument("--max-segment", type=float, metavar="SECONDS",
+                   help=f"longest stretch between keys (default {DEFAULT_MAX_SEGMENT:g} s)")
+    g.add_argument("--root-translation", action="store_true",
+                   help="include the root's path in the error (default: body frame only)")
+    if online is not True:
+        g = p.add_argument_group("isodata (clustering, Zhang et al.)")
+        g.add_argument("--cluster-seconds", type=float, metavar="SECONDS",
+                       help="expected cluster duration, smaller: more keys (default "
+                            f"{CLUSTER_SECONDS:.3g} s)")
+        g.add_argument("--max-merges", type=int, metavar="N",
+                       help="most class merges per iteration (default: unlimited)")
+        g.add_argument("--outlier-fence", type=float, metavar="IQR",
+                       help="distances beyond Q3 + IQR x this (pose glitches) stay out of the "
+                            f"two-class cut (default {OUTLIER_FENCE:g})")
+        g = p.add_argument_group("curvefit (per-channel Hermite keys, Önder)")
+        g.add_argument("--smooth", type=float, metavar="S",
+                       help=f"smoothing weight, smaller: more keys (default {DEFAULT_SMOOTH:g})")
+        g.add_argument("--key-cost", type=float, metavar="C",
+                       help=f"cost per key, smaller: more keys (default {DEFAULT_KEY_COST:g})")
+        g.add_argument("--curvefit-tol", type=float, metavar="TOL",
+                       help="a channel stops when a pass lowers its cost by less than this "
+                            f"fraction (default {DEFAULT_TOL:g})")
+        g.add_argument("--max-passes", type=int, metavar="N",
+                       help="most refinement passes (default 100)")
+    g = p.add_argument_group(
+        "every method", "VALUE applies to each chosen method it concerns; METHOD=VALUE,... "
+        "sets methods one by one (e.g. --lookahead saliency=60,speed=90)")
+    g.add_argument("--count", metavar="[METHOD=]N",
+                   help="keyframe count for simplify, uniform, decimate, optimal (offline; "
+                        "uniform and decimate default to the saliency count); online "
+                        "methods refuse it")
+    g.add_argument("--tolerance", metavar="[METHOD=]ERR",
+                   help="simplify's or optimal's tolerance (units above); with both chosen, "
+                        "name them")
+    if online is False:
+        return
+    where = "" if online else "with --online: "
+    g.add_argument("--lookahead", metavar="[METHOD=]FRAMES",
+                   help=f"{where}frames a decision may wait (default: the method's, "
+                        "saliency 121 (37 with --preset high), speed 120, simplify 60, "
+                        "optimal 120)")
+    g.add_argument("--max-gap", type=float, metavar="SECONDS",
+                   help="insert a key (best frame by the optimal segment cost) in every "
+                        "stretch longer than SECONDS without one")
+    g.add_argument("--history", metavar="[METHOD=]FRAMES",
+                   help=f"{where}past frames kept: saliency (default 10 s), speed (2400), "
+                        "simplify (2 x lookahead)")
+    g.add_argument("--hop", metavar="[METHOD=]FRAMES",
+                   help=f"{where}frames between re-analyses: speed (default lookahead / 5, at "
+                        "most 24), simplify (8)")
+    g.add_argument("--max-bridge", metavar="FRAMES|SECONDSs",
+                   help=f"{where}interpolate over at most this many missing frames (or "
+                        f"seconds: 0.1s); a longer gap restarts the windows (default "
+                        f"{DEFAULT_MAX_BRIDGE_FRAMES} frames)")
 
 def _add_roles_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--roles", metavar="FILE",
                    help="JSON {role: joint name} for skeletons the built-in tables (CMU, "
                         "Mixamo, Axis, Rokoko, Xsens, Unity/VMC) do not name")
-
-
-def _add_optimal_options(p: argparse.ArgumentParser, gap: bool = True) -> None:
-    p.add_argument("--rate", type=float, help="optimal: keys per second (default 6)")
-    p.add_argument("--max-segment", type=float, metavar="SECONDS",
-                   help="optimal: longest stretch between keys (default 2 s)")
-    if gap:
-        p.add_argument("--max-gap", type=float, metavar="SECONDS",
-                       help="any method: insert a key (best frame by the optimal segment "
-                            "cost) in every stretch longer than SECONDS without one")
 
 
 def _add_dashboard_options(p: argparse.ArgumentParser) -> None:
@@ -369,23 +588,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print derived thresholds (isodata) to stderr")
     p.add_argument("--format", choices=("json", "csv"), default="json")
     p.add_argument("-o", "--output", default="-", help="output file (default: stdout)")
-    p.add_argument("--sigma", type=float, help="saliency: base scale in frames (default: auto)")
-    p.add_argument("--k", type=int, help="saliency: number of PCA curves (default: auto)")
-    p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
-    p.add_argument("--tolerance", type=float,
-                   help="simplify: absolute error tolerance; optimal: largest mean per-frame "
-                        "error between keys (body heights^2)")
-    p.add_argument("--ratio", type=float, help="simplify: error / chord length ratio (Önder)")
-    p.add_argument("--count", type=int,
-                   help="simplify, uniform, decimate, optimal: keyframe count (uniform and "
-                        "decimate default to the saliency count)")
-    p.add_argument("--space", choices=("positions", "channels"), default="positions",
-                   help="simplify, decimate: curve of body-frame (root-relative) joint positions "
-                        "in body heights (default) or of channel values (rotations unwrapped)")
-    _add_optimal_options(p)
     p.add_argument("--online", action="store_true",
                    help="run the online keyframers over each file as if streamed")
-    p.add_argument("--lookahead", type=int, help="online: lookahead in frames (default: method's)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.add_argument("--export-bvh", metavar="OUT",
                    help="write the keyposes-only BVH (+ OUT.keys.json with their original "
@@ -394,6 +598,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write the motion interpolated from the keyframes only (BVH); "
                         "pattern as for --export-bvh")
     _add_roles_option(p)
+    _add_method_options(p, online=None)
     p.set_defaults(func=cmd_extract)
 
     p = sub.add_parser("replay", help="send a BVH/AMC file as a paced frame stream")
@@ -424,7 +629,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--to", action="append", metavar="ADDR",
                    help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
     p.add_argument("--listen", help="let listeners bind to this host instead of 127.0.0.1")
-    p.add_argument("--lookahead", type=int, help="lookahead in frames (default: method's)")
     p.add_argument("--stream", default="default", help="stream name carried by every event")
     p.add_argument("--osc-layout", choices=("numeric", "compact"),
                    help="osc:// sinks: numeric (default: /streamkey/STREAM/METHOD/keyframe "
@@ -438,17 +642,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",
                    help="stop once frames have flowed and then none came for SECONDS "
                         "(default: run until Ctrl-C / SIGTERM)")
-    p.add_argument("--sigma", type=float, help=argparse.SUPPRESS)
-    p.add_argument("--k", type=int, help=argparse.SUPPRESS)
-    p.add_argument("--no-contact", action="store_true", help="saliency: no contact handling")
-    p.add_argument("--tolerance", type=float, help=argparse.SUPPRESS)
-    p.add_argument("--ratio", type=float, help=argparse.SUPPRESS)
-    p.add_argument("--count", type=int, help=argparse.SUPPRESS)
-    p.add_argument("--space", choices=("positions", "channels"), default="positions",
-                   help=argparse.SUPPRESS)
-    _add_optimal_options(p)
     _add_dashboard_options(p)
     _add_roles_option(p)
+    _add_method_options(p, online=True)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("eval", help="evaluation tables (thesis Table 4.1/4.2) for a folder")
@@ -473,9 +669,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default="saliency", help="one method (default: saliency)")
     p.add_argument("-o", "--output", default="sheet.png", help="PNG file (default: sheet.png)")
     p.add_argument("--columns", type=int, default=10, help="figures per row (default: 10)")
+    p.add_argument("--per-page", type=int, default=60, metavar="N",
+                   help="keyposes per page; more go to OUT-p1.png, OUT-p2.png, ... (default: "
+                        "60; 0: one page)")
     p.add_argument("--view", choices=("front", "three-quarter", "side"),
                    default="three-quarter", help="camera, body-aligned (default: three-quarter)")
-    _add_method_options(p)
+    _add_method_options(p, online=False)
     _add_roles_option(p)
     p.set_defaults(func=cmd_sheet)
 
@@ -484,7 +683,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default="saliency,speed",
                    help="methods to mark, a comma list or all (default: saliency,speed)")
     p.add_argument("-o", "--output", default="plot.png", help="PNG file (default: plot.png)")
-    _add_method_options(p)
+    _add_method_options(p, online=False)
     _add_roles_option(p)
     p.set_defaults(func=cmd_plot)
 

@@ -348,13 +348,15 @@ class Pipeline:
     """Several keyframers on one stream: one guard, one feature stage, features computed once."""
 
     def __init__(self, keyframers: Sequence[OnlineKeyframer], stream: str = "default",
-                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES,
+                 max_bridge_frames: int | None = None,
                  reset_on_gap: bool = False) -> None:
         if not keyframers:
             raise UsageError("a pipeline needs at least one keyframer")
         first = keyframers[0]
         self.keyframers = list(keyframers)
         self.reset_on_gap = reset_on_gap  # a long gap keeps running statistics unless set
+        if max_bridge_frames is None:  # the keyframers' own setting (`--max-bridge`)
+            max_bridge_frames = first.guard.max_bridge_frames
         self.guard = StreamGuard(first.skeleton.n_channels, stream, "*", max_bridge_frames)
         self.features = first.features
         self._idle_due = False

@@ -1,11 +1,15 @@
 """Pictures of a clip's keyposes: the contact sheet and the driving-signal plot.
 
 `contact_sheet` draws every keypose as a stick figure, in frame order, left to right in rows
-(the thumbnail application of Halit & Capin, §4.5: a clip summarised by its salient poses).
+(the thumbnail application of Halit & Capin, §4.5: a clip summarised by its salient poses),
+`per_page` of them per PNG (`name-p1.png`, `name-p2.png`, ...), each captioned with its frame
+and time under a title kept clear of the captions; without a path it returns the matplotlib
+Figure (for notebooks and custom layouts).
 Each pose is shown in its own body-aligned view (root translation and heading removed), so
 the sheet compares postures, not where the actor stood. `plot_signals` draws the driving
 signals of a clip (the body-frame speed of Miura eq. 2-3 and the saliency candidate weight
-of Halit §3.1.4) with one marker row per method.
+of Halit §3.1.4) with one marker row per method; curvefit's keys are per channel, not poses,
+so they get their row but no pose markers over the signals.
 
 matplotlib is an optional extra (`pip install 'streamkey[plot]'`); without it both functions
 raise a `UsageError` saying so. The projections (`keypose_points`) need numpy only.
@@ -14,9 +18,9 @@ raise a `UsageError` saying so. The projections (`keypose_points`) need numpy on
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,22 +32,30 @@ from .motion import Motion
 from .roles import MIURA_ROLES
 from .signal import hp_filter, hp_lambda
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = ["contact_sheet", "plot_signals", "keypose_points", "driving_signals", "SheetResult",
-           "FIGURE_COLOR", "VIEWS", "require_matplotlib"]
+           "FIGURE_COLOR", "VIEWS", "require_matplotlib", "page_paths", "METHOD_COLORS"]
 
 FIGURE_COLOR = "#1f4e8c"   # every stick figure of a sheet, nothing else, has this colour
 VIEWS = {"front": 0.0, "three-quarter": 45.0, "side": 90.0}   # azimuth from the front, degrees
 METHOD_COLORS = {"saliency": "#d62728", "speed": "#1f77b4", "simplify": "#2ca02c",
-                 "uniform": "#7f7f7f", "decimate": "#ff7f0e", "optimal": "#bcbd22"}
+                 "uniform": "#7f7f7f", "decimate": "#ff7f0e", "optimal": "#bcbd22",
+                 "isodata": "#8c564b", "curvefit": "#9467bd"}
+OTHER_COLOR = "#17becf"
+MISSING = "pictures need matplotlib: install streamkey[plot] (pip install 'streamkey[plot]')"
 
 
 @dataclass
 class SheetResult:
-    """What a picture holds: its path, the frames drawn (file numbering), the figure count."""
+    """What a sheet holds: its (first) path, the frames drawn (file numbering), the figure
+    count, and every page written."""
 
     path: Path
     frames: list[int]
     figures: int
+    pages: list[Path] = field(default_factory=list)  # every file written (the first is path)
 
 
 def require_matplotlib() -> Any:
@@ -51,8 +63,7 @@ def require_matplotlib() -> Any:
     try:
         import matplotlib
     except ImportError:
-        raise UsageError("pictures need matplotlib: install streamkey[plot] "
-                         "(pip install 'streamkey[plot]')") from None
+        raise UsageError(MISSING) from None
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
@@ -90,27 +101,73 @@ def _bones(motion: Motion) -> list[tuple[int, int]]:
     return bones
 
 
+def _new_figure(width: float, height: float) -> Any:
+    """A matplotlib Figure outside pyplot (no global state, the backend left alone; the
+    caller keeps or saves it)."""
+    try:
+        import matplotlib  # noqa: F401  (the package itself: submodules may be cached)
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise UsageError(MISSING) from None
+
+    return Figure(figsize=(width, height))
+
+
+def page_paths(path: str | os.PathLike[str], pages: int) -> list[Path]:
+    """`name.png` for one page, else `name-p1.png`, `name-p2.png`, ... beside it."""
+    out = Path(path)
+    if pages <= 1:
+        return [out]
+    return [out.with_name(f"{out.stem}-p{i}{out.suffix}") for i in range(1, pages + 1)]
+
+
 def contact_sheet(motion: Motion, keys: Keyframes | list[int] | np.ndarray,
-                  path: str | os.PathLike[str], columns: int = 10,
+                  path: str | os.PathLike[str] | None = None, columns: int = 10,
                   view: str = "three-quarter", title: str | None = None,
-                  cell_inches: float = 1.3, dpi: int = 100) -> SheetResult:
-    """Write a PNG of the keyposes as stick figures in frame order; returns what it drew."""
+                  cell_inches: float = 1.3, dpi: int = 100,
+                  per_page: int | None = None) -> SheetResult | Figure:
+    """The keyposes as stick figures in frame order: PNG page(s) at `path` (a `SheetResult`;
+    more than `per_page` keyposes go to `name-p1.png`, `name-p2.png`, ...), or without a
+    path the matplotlib Figure of all of them."""
     frames = np.unique(np.asarray(keys.frames if isinstance(keys, Keyframes) else keys,
                                   dtype=np.int64))
     if len(frames) == 0:
         raise UsageError("contact sheet: no keyframes to draw")
     if columns < 1:
         raise UsageError("contact sheet: columns must be at least 1")
-    plt = require_matplotlib()
+    if per_page is not None and per_page < 1:
+        raise UsageError("contact sheet: per_page must be at least 1")
     pts = keypose_points(motion, frames, view)
+    if path is None:
+        return _sheet_figure(motion, frames, pts, columns, title, cell_inches)
+    size = per_page or len(frames)
+    starts = list(range(0, len(frames), size))
+    paths = page_paths(path, len(starts))
+    for page, (start, out) in enumerate(zip(starts, paths, strict=True), 1):
+        part = slice(start, start + size)
+        label = title
+        if len(starts) > 1:
+            label = f"{title}, page {page}/{len(starts)}" if title else f"page {page}/{len(starts)}"
+        fig = _sheet_figure(motion, frames[part], pts[part], columns, label, cell_inches,
+                            frames_like=min(size, len(frames)))
+        fig.savefig(out, dpi=dpi,
+                    metadata={"Description": f"streamkey keyposes {frames[part].tolist()}"})
+    return SheetResult(paths[0], frames.tolist(), len(frames), paths)
+
+
+def _sheet_figure(motion: Motion, frames: np.ndarray, pts: np.ndarray, columns: int,
+                  title: str | None, cell_inches: float, frames_like: int | None = None) -> Any:
+    """One page: a grid of stick figures with a caption each and the title above them all.
+    `frames_like`: the figure count the grid is sized for (every page of a sheet alike)."""
     from matplotlib.collections import LineCollection
 
     bones = np.array(_bones(motion))
-    cols = min(columns, len(frames))
-    rows = -(-len(frames) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(cols * cell_inches, rows * cell_inches * 1.35
-                                                  + (0.3 if title else 0)),
-                             squeeze=False)
+    cols = min(columns, frames_like or len(frames))
+    rows = -(-(frames_like or len(frames)) // cols)
+    head = 0.4 if title else 0.0  # inches kept free for the title, above the top captions
+    height = rows * cell_inches * 1.35 + head
+    fig = _new_figure(cols * cell_inches, height)
+    axes = fig.subplots(rows, cols, squeeze=False)
     half = max(float(np.abs(pts[..., 0]).max()), 0.3) * 1.05
     lo, hi = float(pts[..., 1].min()), float(pts[..., 1].max())
     for ax in axes.ravel():
@@ -122,14 +179,12 @@ def contact_sheet(motion: Motion, keys: Keyframes | list[int] | np.ndarray,
         ax.set_xlim(-half, half)
         ax.set_ylim(lo - 0.05, hi + 0.05)
         ax.set_aspect("equal")
-        ax.set_title(f"{frame}  {frame / motion.fps:.2f}s", fontsize=7, color="#333", pad=2)
+        ax.set_title(f"{frame} \u00b7 {frame / motion.fps:.2f} s", fontsize=8, color="#222",
+                     pad=3)
+    fig.tight_layout(pad=0.4, w_pad=1.0, h_pad=1.0, rect=(0, 0, 1, 1 - head / height))
     if title:
-        fig.suptitle(title, fontsize=9)
-    fig.tight_layout(pad=0.4, w_pad=1.2, h_pad=0.8)
-    out = Path(path)
-    fig.savefig(out, dpi=dpi, metadata={"Description": f"streamkey keyposes {frames.tolist()}"})
-    plt.close(fig)
-    return SheetResult(out, frames.tolist(), len(frames))
+        fig.suptitle(title, fontsize=10, y=1 - 0.08 / height, va="top")
+    return fig
 
 
 def driving_signals(motion: Motion, features: Features | None = None,
@@ -162,38 +217,43 @@ def driving_signals(motion: Motion, features: Features | None = None,
 
 
 def plot_signals(motion: Motion, results: dict[str, Keyframes],
-                 path: str | os.PathLike[str], signals: dict[str, np.ndarray] | None = None,
-                 dpi: int = 100) -> Path:
-    """Write a PNG: the driving signals over time with one keyframe marker row per method."""
-    plt = require_matplotlib()
+                 path: str | os.PathLike[str] | None = None,
+                 signals: dict[str, np.ndarray] | None = None, dpi: int = 100) -> Path | Figure:
+    """The driving signals over time with one keyframe marker row per method: a PNG at `path`
+    (its Path), or without a path the matplotlib Figure. Per-channel keys (curvefit: the
+    union of every channel's keys, not poses) get their lane but no pose markers."""
     signals = signals if signals is not None else driving_signals(
         motion, saliency=results.get("saliency"))
     t = np.arange(motion.n_frames) / motion.fps
     names = [k for k in ("speed", "saliency") if k in signals]
-    fig, axes = plt.subplots(len(names) + 1, 1, sharex=True, squeeze=False,
-                             figsize=(10, 1.9 * len(names) + 0.4 * len(results) + 0.8),
-                             gridspec_kw={"height_ratios": [3] * len(names)
-                                          + [0.5 * max(len(results), 1)]})
+    fig = _new_figure(10, 1.9 * len(names) + 0.4 * len(results) + 0.8)
+    axes = fig.subplots(len(names) + 1, 1, sharex=True, squeeze=False,
+                        gridspec_kw={"height_ratios": [3] * len(names)
+                                     + [0.5 * max(len(results), 1)]})
     units = {"speed": "speed, 16 joints (heights/s)", "saliency": "saliency (candidate weight)"}
+    poses = {m: k for m, k in results.items() if "per_channel" not in k.info}
     for ax, name in zip(axes[:-1, 0], names, strict=True):
         ax.plot(t, signals[name], color="#333", lw=1)
         ax.set_ylabel(units[name], fontsize=8)
-        for method, keys in results.items():
+        for method, keys in poses.items():
             for f in keys.frames:
-                ax.axvline(f / motion.fps, color=METHOD_COLORS.get(method, "#9467bd"),
+                ax.axvline(f / motion.fps, color=METHOD_COLORS.get(method, OTHER_COLOR),
                            alpha=0.3, lw=0.8)
     lanes = axes[-1, 0]
     for i, (method, keys) in enumerate(results.items()):
-        lanes.scatter(keys.frames / motion.fps, np.full(len(keys), i), marker="|", s=120,
-                      color=METHOD_COLORS.get(method, "#9467bd"))
-    lanes.set_yticks(range(len(results)), [f"{m} ({len(k)})" for m, k in results.items()],
-                     fontsize=8)
+        lanes.scatter(keys.frames / motion.fps, np.full(len(keys), i), marker="|",
+                      s=120 if method in poses else 40,
+                      color=METHOD_COLORS.get(method, OTHER_COLOR))
+    lanes.set_yticks(range(len(results)),
+                     [f"{m} ({len(k)}{'' if m in poses else ', per channel'})"
+                      for m, k in results.items()], fontsize=8)
     lanes.set_ylim(-0.7, len(results) - 0.3)
     lanes.set_xlabel("time (s)")
     axes[0, 0].set_title(f"{motion.name or 'motion'}: driving signals and keyframes",
                          fontsize=9)
     fig.tight_layout()
+    if path is None:
+        return fig
     out = Path(path)
     fig.savefig(out, dpi=dpi)
-    plt.close(fig)
     return out

@@ -22,6 +22,11 @@ __all__ = ["make_keyframers", "run_online", "extract_files_online"]
 def check_online_params(methods: list[str], params: dict[str, dict[str, Any]] | None) -> None:
     """Refuse, before anything runs, a parameter that a chosen online keyframer cannot honour
     (e.g. `--count` for online simplify, which decides by tolerance as frames arrive)."""
+    counted = [m for m in methods if (params or {}).get(m, {}).get("count") is not None]
+    if counted:
+        raise UsageError(f"--count: online {' and '.join(counted)} cannot aim at a key count "
+                         "(it needs the whole take); give a tolerance (simplify) or --rate "
+                         "(optimal) instead; counts are offline (extract without --online)")
     for name in methods:
         given = [k for k, v in (params or {}).get(name, {}).items() if v is not None]
         accepted = inspect.signature(online_class(name)).parameters
@@ -34,20 +39,35 @@ def check_online_params(methods: list[str], params: dict[str, dict[str, Any]] | 
                              f"--method or leave {flags} out")
 
 
+def _bridge_frames(common: dict[str, Any], fps: float) -> int | None:
+    """The gap-bridging limit in frames from `max_bridge_frames` or `max_bridge_seconds`."""
+    if common.get("max_bridge_frames") is not None:
+        return int(common["max_bridge_frames"])
+    if common.get("max_bridge_seconds") is not None:
+        return int(round(float(common["max_bridge_seconds"]) * fps))
+    return None
+
+
 def make_keyframers(motion: Motion, methods: list[str],
                     params: dict[str, dict[str, Any]] | None = None,
                     lookahead: int | None = None, stream: str = "default"
                     ) -> list[OnlineKeyframer]:
-    """One online keyframer per method name, with its parameters and optional lookahead;
-    `params["*"]["max_gap"]` (seconds) wraps each in `optimal.MaxGap`."""
+    """One online keyframer per method name, with its parameters and optional lookahead
+    (`params[name]["lookahead"]` wins); `params["*"]["max_gap"]` (seconds) wraps each in
+    `optimal.MaxGap`, `params["*"]["max_bridge_frames"]` or `["max_bridge_seconds"]` sets the
+    longest interpolated hole of every keyframer (and so of a `Pipeline` of them)."""
     params = params or {}
-    max_gap = params.get("*", {}).get("max_gap")
+    common = params.get("*", {})
+    max_gap = common.get("max_gap")
+    bridge = _bridge_frames(common, motion.fps)
     check_online_params(methods, params)
     out = []
     for name in methods:
         kwargs = {k: v for k, v in params.get(name, {}).items() if v is not None}
         if lookahead is not None:
-            kwargs["lookahead"] = lookahead
+            kwargs.setdefault("lookahead", lookahead)
+        if bridge is not None:
+            kwargs["max_bridge_frames"] = bridge
         kf = online_class(name)(motion.skeleton, motion.fps, stream=stream, **kwargs)
         if max_gap is not None:
             from .methods.optimal import MaxGap

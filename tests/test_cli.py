@@ -105,5 +105,6 @@ def test_count_on_an_online_method_that_cannot_honour_it_is_refused_up_front(cap
                  ["extract", "--online", "--method", "all", "--count", "5", clip, "-q"]):
         assert main(argv) == 2
         err = capsys.readouterr().err
-        assert err.startswith("error: simplify online does not take --count")
+        assert err.startswith("error: --count: online simplify and optimal cannot aim at a "
+                              "key count")
         assert "Traceback" not in err and err.count("\n") == 1

@@ -87,3 +87,63 @@ def test_missing_matplotlib_gives_the_install_hint(walk, tmp_path: Path,
                  "-o", str(tmp_path / "s.png")])
     err = capsys.readouterr().err
     assert code == 2 and "install streamkey[plot]" in err and "Traceback" not in err
+
+
+def _boxes(fig, texts):
+    renderer = fig.canvas.get_renderer()
+    return [t.get_window_extent(renderer) for t in texts if t.get_text()]
+
+
+def test_contact_sheet_without_a_path_is_a_figure_with_the_title_clear_of_the_captions(
+        walk) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    keys = offline_method("saliency")(walk)
+    fig = contact_sheet(walk, keys, title="07_01: saliency keyposes", columns=6)
+    assert isinstance(fig, Figure)
+    FigureCanvasAgg(fig)
+    drawn = [ax for ax in fig.axes if ax.collections]
+    assert len(drawn) == len(keys)
+    captions = [ax.title for ax in drawn]
+    assert [c.get_text().split(" ")[0] for c in captions] == [str(f) for f in keys.frames]
+    assert min(c.get_fontsize() for c in captions) >= 8
+    title, = _boxes(fig, [fig._suptitle])
+    boxes = _boxes(fig, captions)
+    assert all(not title.overlaps(b) and title.y0 > b.y1 for b in boxes)
+    assert all(not a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
+
+
+def test_sheet_per_page_writes_numbered_pages_holding_every_keypose(
+        walk, data_dir: Path, tmp_path: Path, capsys) -> None:
+    keys = offline_method("saliency")(walk)  # 18 keyposes
+    out = tmp_path / "walk.png"
+    assert main(["sheet", str(data_dir / "07_01.bvh"), "--per-page", "8", "--columns", "4",
+                 "-o", str(out)]) == 0
+    pages = [tmp_path / f"walk-p{i}.png" for i in (1, 2, 3)]
+    assert sorted(tmp_path.iterdir()) == sorted(pages)
+    assert [figures_in_png(p) for p in pages] == [8, 8, len(keys) - 16]
+    err = capsys.readouterr().err
+    assert all(f"wrote {p}" in err for p in pages) and f"{len(keys)} keyposes on 3 page" in err
+    result = contact_sheet(walk, keys.frames[:5], out, per_page=8)
+    assert result.pages == [out] and figures_in_png(out) == 5  # one page: no suffix
+    assert main(["sheet", str(data_dir / "07_01.bvh"), "--per-page", "-1", "-o", str(out)]) == 2
+
+
+def test_plot_all_draws_no_pose_markers_for_curvefits_per_channel_keys(walk) -> None:
+    from matplotlib.colors import to_hex
+
+    from streamkey.batch import extract_motion
+    from streamkey.methods import OFFLINE_METHODS
+    from streamkey.sheet import METHOD_COLORS, plot_signals
+
+    results = extract_motion(walk, list(OFFLINE_METHODS))
+    fig = plot_signals(walk, results)
+    signal_axes = fig.axes[:-1]
+    for method, keys in results.items():
+        color = METHOD_COLORS[method]
+        markers = [ln for ax in signal_axes for ln in ax.lines if to_hex(ln.get_color()) == color]
+        want = 0 if method == "curvefit" else len(keys) * len(signal_axes)
+        assert len(markers) == want, method
+    lanes = [t.get_text() for t in fig.axes[-1].get_yticklabels()]
+    assert f"curvefit ({len(results['curvefit'])}, per channel)" in lanes

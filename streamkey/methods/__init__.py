@@ -25,7 +25,7 @@ OFFLINE_METHODS: dict[str, str] = {
     "optimal": "optimal:extract",
 }
 ONLINE_METHODS: dict[str, str] = {
-    "saliency": "saliency:Online",
+    "saliency": "saliency_auto:AutoOnline",
     "speed": "speed:Online",
     "simplify": "simplify:Online",
     "optimal": "optimal:Online",

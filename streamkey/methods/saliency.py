@@ -35,9 +35,12 @@ Offline: `extract(motion)`. Definitions this module settles (DESIGN §4.1 overri
 - Score: the cluster's saliency, sum over its (frame, curve) candidates of
   weight_j * S_j(f) / mean(S_j), divided by the sum of all k weights.
 - Presets (thesis §4.2): "low" sigma = 10, k = 7; "high" sigma = 3, k = 10; "auto" picks "high"
-  when the mean speed of Miura's 16 body parts in the pelvis frame is at least
-  `AUTO_SPEED_THRESHOLD` body heights per second (runs, brisk walks, fast dance in the shared
-  data), else "low". `sigma` and `k` override the preset's values.
+  when the mean speed of Miura's 16 body parts in the pelvis frame over the first
+  `AUTO_SECONDS` (2 s) of the capture is at least `AUTO_SPEED_THRESHOLD` body heights per
+  second (runs, brisk walks, fast dance in the shared data), else "low". The first 2 s make
+  the rule causal, so the online keyframer (`saliency_auto.AutoOnline`) takes the same
+  decision; on all 35 shared clips it equals the whole-clip rule. `sigma` and `k` override
+  the preset's values.
 
 Online: `Online(skeleton, fps, sigma=..., lookahead=...)`. Each global statistic of the
 offline method becomes a running one, chosen so that at `flush()` it equals the global one
@@ -130,24 +133,39 @@ __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FO
            "curvature", "kernel", "widths", "kernel_bank", "gaussian_means", "scale_maps",
            "local_max_mask", "map_stats", "normalisation", "combine", "curves_of", "maps_of",
            "curve_weights", "cluster_keyframes", "pick_keyframe", "match_basis",
-           "choose_preset", "resolve_params", "cluster_size", "support_radius"]
+           "choose_preset", "resolve_params", "cluster_size", "support_radius",
+           "auto_preset", "auto_frames", "AUTO_SECONDS"]
 
 METHOD = "saliency"
 PRESETS: dict[str, tuple[float, int]] = {"low": (10.0, 7), "high": (3.0, 10)}
 AUTO_SPEED_THRESHOLD = 0.85  # body heights per second
+AUTO_SECONDS = 2.0  # "auto" decides on the first 2 s (offline and online alike)
 HISTORY_SECONDS = 10.0  # online: past kept for recomputation when the basis changes
 
 
 # --------------------------------------------------------------------------- parameters
 
-def choose_preset(features: Features, first: int) -> tuple[str, float]:
-    """The "auto" rule: ("high" | "low", mean speed in body heights per second)."""
-    p = features.role_positions(MIURA_ROLES)[first:] / features.body_height
+def auto_frames(fps: float) -> int:
+    """Frames the "auto" rule looks at: the first `AUTO_SECONDS` of the capture."""
+    return max(2, int(round(AUTO_SECONDS * float(fps))))
+
+
+def auto_preset(p: np.ndarray, fps: float) -> tuple[str, float]:
+    """The "auto" rule on Miura-role positions in body heights (pelvis frame), one row per
+    frame of the first `auto_frames(fps)`: ("high" | "low", mean speed in body heights/s)."""
     if len(p) < 2:
         return "low", 0.0
-    fps = features.motion.fps
     speed = float(np.linalg.norm(np.diff(p, axis=0), axis=2).mean() * fps)
     return ("high" if speed >= AUTO_SPEED_THRESHOLD else "low"), speed
+
+
+def choose_preset(features: Features, first: int) -> tuple[str, float]:
+    """The "auto" rule: ("high" | "low", mean speed in body heights per second) over the
+    first `AUTO_SECONDS` captured, as the online keyframer decides it (causal)."""
+    fps = features.motion.fps
+    n = auto_frames(fps)
+    p = features.role_positions(MIURA_ROLES)[first : first + n] / features.body_height
+    return auto_preset(p, fps)
 
 
 def resolve_params(sigma: float | None, k: int | None, preset: str, contact: bool

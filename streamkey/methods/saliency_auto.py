@@ -1,0 +1,156 @@
+"""Online saliency with the offline default preset "auto" (the registry's online saliency).
+
+Offline `saliency.extract` picks its preset from the mean body speed over the first
+`AUTO_SECONDS` (2 s) of the capture (`saliency.choose_preset`). Online, `AutoOnline` runs the
+"low" and the "high" keyframer side by side over those first 2 s (240 frames at 120 Hz),
+then takes the same decision from the same frames and keeps one:
+
+- Before the decision, events come from "low" (its lookahead, 121 frames by default, is the
+  longer one and bounds every latency); the events of "high" are held back.
+- Decision "low": "low" simply goes on. Decision "high": of the held-back "high" events, those
+  after the last one sent and within the lookahead of the decision frame are sent, decided at
+  that frame; from then on "high" goes on, its events after the last one sent passed on.
+- A stream shorter than 2 s is decided at `flush()` from all its frames (as offline).
+
+Hence with a lookahead of at least the stream's length (nothing decided before `flush()`) the
+events equal offline `extract` with its default exactly, and `params` (after the decision)
+equal the offline ones. A preset "low" / "high" given explicitly, or both `sigma` and `k`
+(the preset then only names them: "low"), runs that keyframer alone.
+A restart forgets the decision (a new stream decides again); `params` keep the last one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from ..errors import UsageError
+from ..keyframes import KeyframeEvent
+from ..motion import Skeleton
+from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
+from ..roles import MIURA_ROLES
+from .saliency import AUTO_SECONDS, METHOD, PRESETS, Online, auto_frames, auto_preset
+
+__all__ = ["AutoOnline"]
+
+
+class AutoOnline(OnlineKeyframer):
+    """Online saliency, preset "auto" by default: decided after the first `AUTO_SECONDS`
+    (module docstring); "low" or "high" run a single `saliency.Online`."""
+
+    method = METHOD
+
+    def __init__(self, skeleton: Skeleton, fps: float, *, sigma: float | None = None,
+                 k: int | None = None, contact: bool = True, preset: str = "auto",
+                 variance_rule: bool = False, lookahead: int | None = None,
+                 update_every: int = 1200, history: int | None = None, stream: str = "default",
+                 role_mapping: dict[str, str] | None = None,
+                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+        if preset not in ("auto", *PRESETS):
+            raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")
+        if preset == "auto" and sigma is not None and k is not None:
+            preset = "low"  # sigma and k given: the preset changes nothing but its name
+        names = list(PRESETS) if preset == "auto" else [preset]
+        self.inners = {name: Online(
+            skeleton, fps, sigma=sigma, k=k, contact=contact, preset=name,
+            variance_rule=variance_rule, lookahead=lookahead, update_every=update_every,
+            history=history, stream=stream, role_mapping=role_mapping,
+            max_bridge_frames=max_bridge_frames) for name in names}
+        first = self.inners[names[0]]
+        look = max(kf.lookahead for kf in self.inners.values())
+        params = {**first.params, "preset": preset}
+        params.pop("lookahead", None)
+        super().__init__(skeleton, fps, lookahead=look, stream=stream,
+                         role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
+                         params=params)
+        if preset != "auto":
+            self.params = dict(first.params)
+        self.requested = preset
+        self.horizon = auto_frames(fps)
+        self._joints = [self.features.roles[name] for name in MIURA_ROLES]
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream and the decision (`params` keep the last decision)."""
+        for kf in self.inners.values():
+            kf.reset()
+        self.active: Online | None = (
+            None if self.requested == "auto" else self.inners[self.requested])
+        self.rows: list[np.ndarray] = []  # Miura-role positions of the first frames
+        self.held: list[Any] = []  # "high" events held back until the decision
+        self.last = -1  # seq of the last keyframe sent
+        self.cut = -1  # after a switch: keys at or before this seq were already covered
+
+    @property
+    def trace(self) -> Any:
+        """(seq, saliency) of the classified frames, of the running keyframer ("low" before
+        the decision)."""
+        return (self.active or self.inners["low"]).trace
+
+    # ------------------------------------------------------------------ stream
+    def process(self, block: FeatureBlock) -> list[Any]:
+        """Both presets until the decision frame, then the chosen one."""
+        if self.active is not None:
+            return self._pass(self.active.process(block))
+        need = self.horizon - len(self.rows)
+        head = block if len(block) <= need else block.slice(0, need)
+        stage = block.stage
+        before = stage.full_fk if stage is not None else False
+        p = head.pelvis_positions[:, self._joints] / self.features.body_height
+        if stage is not None:  # read for the decision only: do not make the stream pay FK
+            stage.full_fk = before
+        self.rows.extend(p)
+        out = self._both(self.inners["low"].process(head), self.inners["high"].process(head))
+        if len(self.rows) >= self.horizon:
+            out += self._decide(int(head.seq[-1]))
+            if len(head) < len(block):
+                out += self._pass(self.active.process(block.slice(need, len(block))))  # type: ignore[union-attr]
+        return out
+
+    def idle(self) -> list[Any]:
+        """Deferred work of the running keyframer(s)."""
+        if self.active is not None:
+            return self._pass(self.active.idle())
+        return self._both(self.inners["low"].idle(), self.inners["high"].idle())
+
+    def finish(self) -> list[Any]:
+        """End of stream: decide now if the stream was shorter than the decision window."""
+        out: list[Any] = []
+        if self.active is None:
+            if not self.rows:
+                return []
+            out += self._decide(self.inners["low"].seq0 + self.inners["low"].t)
+        assert self.active is not None
+        return out + self._pass(self.active.finish())
+
+    # ------------------------------------------------------------------ decision
+    def _both(self, low: list[Any], high: list[Any]) -> list[Any]:
+        self.held.extend(high)
+        return self._pass(low)
+
+    def _pass(self, events: list[Any]) -> list[Any]:
+        out = []
+        for e in events:
+            if getattr(e, "frame", self.cut + 1) <= self.cut:
+                continue
+            if isinstance(e, KeyframeEvent):
+                self.last = max(self.last, e.frame)
+            out.append(e)
+        return out
+
+    def _decide(self, seq: int) -> list[Any]:
+        """Choose the preset from the recorded frames; switch to "high" if it is chosen."""
+        name, speed = auto_preset(np.array(self.rows), self.fps)
+        self.active = self.inners[name]
+        self.params = {**self.active.params, "auto_speed": speed, "auto_seconds": AUTO_SECONDS}
+        held, self.held, self.rows = self.held, [], []
+        if name == "low":
+            self.inners["high"].reset()
+            return []
+        self.inners["low"].reset()
+        self.cut = self.last
+        due = [replace(e, decided_at=seq) if isinstance(e, KeyframeEvent) else e
+               for e in held if seq - getattr(e, "frame", seq) <= self.lookahead]
+        return self._pass(due)
