@@ -95,7 +95,18 @@ def cmd_extract(args: argparse.Namespace) -> int:
     from .methods import parse_methods
 
     paths = find_motion_files(args.paths)
-    if args.online:
+    if args.engine != "local" or args.address:  # a cluster engine: same files, same JSON
+        from .cluster.engines import extract_with_engine
+
+        methods = parse_methods(args.method, online=args.online)
+        if args.online:
+            from .streaming import check_online_params
+
+            check_online_params(methods, _method_params(args))
+        results = extract_with_engine(paths, methods, _method_params(args), args.engine,
+                                      args.address, args.workers, _progress(args.quiet),
+                                      _roles(args), args.online, args.lookahead)
+    elif args.online:
         from .streaming import check_online_params, extract_files_online
 
         methods = parse_methods(args.method, online=True)
@@ -107,13 +118,13 @@ def cmd_extract(args: argparse.Namespace) -> int:
         methods = parse_methods(args.method)
         results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet),
                                      roles=_roles(args)))
-        if args.max_gap is not None:
-            from .methods.optimal import max_gap
+    if args.max_gap is not None and not args.online:
+        from .methods.optimal import max_gap
 
-            for r in results:
-                if r.motion is not None:
-                    r.results = {m: max_gap(r.motion, k, args.max_gap)
-                                 for m, k in r.results.items()}
+        for r in results:
+            if r.motion is not None:
+                r.results = {m: max_gap(r.motion, k, args.max_gap)
+                             for m, k in r.results.items()}
     _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
     _export(results, args)
     failed = [r for r in results if r.error]
@@ -391,6 +402,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write the motion interpolated from the keyframes only (BVH); "
                         "pattern as for --export-bvh")
     _add_roles_option(p)
+    p.add_argument("--engine", choices=("local", "ray", "dask"), default="local",
+                   help="run the files on a Ray or Dask cluster (default: this process); "
+                        "needs streamkey[cluster]")
+    p.add_argument("--address", help="ray/dask: an existing cluster (default: a new local one)")
+    p.add_argument("--workers", type=int, help="ray/dask local cluster: worker processes "
+                   "(default: one per core)")
     p.set_defaults(func=cmd_extract)
 
     p = sub.add_parser("replay", help="send a BVH/AMC file as a paced frame stream")
