@@ -247,6 +247,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_cluster(args: argparse.Namespace) -> int:
+    """`streamkey cluster run`: many streams on Ray shard actors (streamkey/cluster/)."""
+    from .cluster.command import cmd_cluster_run
+
+    return cmd_cluster_run(args, _online_params(args), _roles(args))
+
+
 def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace) -> None:
     """The keyframers can be built on this file's skeleton (roles, parameters), or its error."""
     from .batch import naming
@@ -278,6 +285,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     kinds = [k for k in ("offline", "online", "agreement", "perf") if getattr(args, k)]
     kinds += [k for k in ("memory", "latency", "ws_clients") if getattr(args, k)]
+    if getattr(args, "engines", False):  # extract on local / Ray / Dask (issue 14 §6)
+        from .cluster.bench import bench_engines
+
+        for path in bench_engines(Path(args.data or "../shared/data/cmu"), Path(args.output)):
+            print(f"wrote {path}")
+        if not kinds:
+            return 0
     kinds = kinds or ["offline", "online"]
     for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data,
                           quick=args.quick):
@@ -495,6 +509,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_roles_option(p)
     p.set_defaults(func=cmd_plot)
 
+    from .cluster.command import add_cluster_parser  # cluster run (issue 14 §5)
+
+    p = add_cluster_parser(sub)
+    _add_roles_option(p)
+    p.set_defaults(func=cmd_cluster, sigma=None, k=None, no_contact=False, tolerance=None,
+                   ratio=None, count=None, space="positions", rate=None, max_segment=None,
+                   max_gap=None)
+
     p = sub.add_parser("bench", help="benchmark speed and memory; results written to files")
     p.add_argument("--offline", action="store_true")
     p.add_argument("--online", action="store_true")
@@ -507,6 +529,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ws-clients", dest="ws_clients", action="store_true",
                    help="live: event latency with 0, 100 and 300 WebSocket clients")
     p.add_argument("--quick", action="store_true", help="live benches: shorter runs")
+    p.add_argument("--engines", action="store_true", help="extract DIR on local, Ray and "
+                   "Dask: wall and CPU (needs streamkey[cluster])")
     p.add_argument("--perf", action="store_true",
                    help="per-frame CPU time on a long stream and offline growth exponents")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")
