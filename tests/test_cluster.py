@@ -116,10 +116,13 @@ def test_malformed_messages_are_counted_never_raised(redis_server, publisher):
     worker = ShardWorker(cfg, 0)
     topic = clip.stream.encode()
     worker.handle([topic, *clip.skeleton])
+    logger = FrameLogger(cfg)  # the driver's input boundary: the same messages
+    pipe = logger.redis.pipeline(transaction=False)
     rng = random.Random(7)
     sent_bad = 0
     for i, parts in enumerate(clip.frames[:200]):
         worker.handle([topic, *parts])
+        logger.log([topic, *parts], pipe)
         bad = [topic, *parts]
         k = rng.randrange(5)
         if k == 0:
@@ -134,14 +137,19 @@ def test_malformed_messages_are_counted_never_raised(redis_server, publisher):
             bad[0] = bytes([0xff, 0xfe])
         before = sum(worker.rejects.values())
         worker.handle(bad)
+        logger.log(bad, pipe)
         if len(bad) >= 2 and bad[0] == topic and bad[1:] == [*parts]:
             continue  # the mutation happened to leave it valid
         sent_bad += 1
         assert sum(worker.rejects.values()) == before + 1, (i, k)
     for parts in ([], [b""], [b"x" * 300, b"frame"], [topic, b"skeleton", b"{}"]):
         worker.handle(parts)
+        logger.log(parts, pipe)
         sent_bad += 1
+    pipe.execute()
     assert sum(worker.rejects.values()) == sent_bad
+    assert sum(logger.rejects.values()) == sent_bad and logger.logged == 200
+    assert redis_server.client().xlen("streamkey:fuzz:log:fuzzed") == 200
     assert worker.status()["streams"][clip.stream]["frames"] == 200
     with pytest.raises(ValueError):
         split_topic([b"only-a-topic"])

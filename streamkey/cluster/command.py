@@ -91,6 +91,8 @@ def cmd_cluster_run(args: argparse.Namespace, params: dict[str, dict[str, Any]],
         for line in run.start():
             print(line, file=sys.stderr, flush=True)
         while not stop.wait(0.2):
+            if run.logger.error:
+                break
             idle = run.idle_for()
             if args.idle_exit is not None and idle is not None and idle >= args.idle_exit:
                 break
@@ -106,6 +108,9 @@ def cmd_cluster_run(args: argparse.Namespace, params: dict[str, dict[str, Any]],
           f"({total['replayed']} replayed from the log), {total['events']} events "
           f"({total['duplicates_dropped']} duplicates dropped), {total['snapshots']} snapshots, "
           f"{restarts} actor restart(s), {run.logger.logged} frames logged", file=sys.stderr)
+    if run.logger.error:  # without the log a worker's restart would lose frames: fail
+        print(f"error: {run.logger.error}", file=sys.stderr)
+        return 2
     if args.summary:
         Path(args.summary).write_text(json.dumps({"shards": shards, "total": total,
                                                   "logged": run.logger.logged}, indent=1) + "\n")

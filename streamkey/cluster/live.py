@@ -513,6 +513,7 @@ class FrameLogger:
         self.logged = 0
         self.rejects: Counter[str] = Counter()
         self.last_frame_at: float | None = None
+        self.error: str | None = None  # why the logger stopped, if it failed
         self.subscribed = threading.Event()
         self._fps: dict[str, float] = {}
         self._stop = threading.Event()
@@ -556,6 +557,8 @@ class FrameLogger:
                         break
                     self.log(parts, pipe)
                 pipe.execute()
+        except Exception as exc:  # Redis gone: the driver sees `error` and stops the run
+            self.error = f"frame log: {type(exc).__name__}: {exc}"
         finally:
             sock.close(linger=0)
 

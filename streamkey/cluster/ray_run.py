@@ -18,6 +18,7 @@ from typing import Any
 
 import ray
 
+from ..errors import StreamkeyError
 from ..threads import single_thread_defaults
 from .live import ClusterConfig, FrameLogger, RedisKeys, ShardWorker
 
@@ -74,7 +75,7 @@ class ClusterRun:
         """The Ray name of a shard's actor (namespace `streamkey`)."""
         return f"{self.cfg.run}/shard-{shard}"
 
-    def start(self) -> list[str]:
+    def start(self, ready_timeout: float = 180.0) -> list[str]:
         """Connect to (or start) Ray, start logging frames and the actors; returns the
         ready lines once every actor has restored its streams and subscribed."""
         env = single_thread_defaults()
@@ -93,7 +94,14 @@ class ClusterRun:
                                num_cpus=self.actor_cpus, scheduling_strategy="SPREAD"
                                ).remote(self.cfg, i)
             for i in range(self.cfg.shards)]
-        ray.get([a.ready.remote() for a in self.actors])
+        try:
+            ray.get([a.ready.remote() for a in self.actors], timeout=ready_timeout)
+        except ray.exceptions.GetTimeoutError:
+            self.stop()
+            raise StreamkeyError(
+                f"the {self.cfg.shards} shard actors were not all running after "
+                f"{ready_timeout:g} s: the Ray cluster needs {self.cfg.shards} x "
+                f"{self.actor_cpus:g} free CPUs (--actor-cpus)") from None
         return [f"logging frames of {self.cfg.endpoint} to {self.cfg.redis_url}",
                 f"{self.cfg.shards} shard actor(s) ready on Ray "
                 f"({'cluster ' + self.address if self.address else 'local'}), events to "
