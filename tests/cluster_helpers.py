@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
 
+import pytest
 import zmq
 from cmu import DATA
 from live_helpers import MS, free_port
@@ -175,3 +176,19 @@ def wait_for(condition, what: str, timeout: float = 120.0, every: float = 0.05):
             return value
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
         time.sleep(every)
+
+
+@pytest.fixture(scope="module")
+def redis_server(tmp_path_factory):  # type: ignore[no-untyped-def]
+    """A redis-server of this test module's own."""
+    server = RedisServer(tmp_path_factory.mktemp("redis"))
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def publisher():  # type: ignore[no-untyped-def]
+    """A frame publisher of this test's own."""
+    pub = Publisher()
+    yield pub
+    pub.close()

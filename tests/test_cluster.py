@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import random
 
+import cluster_helpers
 import pytest
 from cluster_helpers import (
     CLIPS,
@@ -20,21 +21,8 @@ from streamkey.cluster.live import ClusterConfig, FrameLogger, ShardWorker, spli
 from streamkey.methods import ONLINE_METHODS
 
 pytestmark = pytest.mark.cluster
+redis_server, publisher = cluster_helpers.redis_server, cluster_helpers.publisher
 METHODS = list(ONLINE_METHODS)
-
-
-@pytest.fixture(scope="module")
-def redis_server(tmp_path_factory):
-    server = RedisServer(tmp_path_factory.mktemp("redis"))
-    yield server
-    server.stop()
-
-
-@pytest.fixture
-def publisher():
-    pub = Publisher()
-    yield pub
-    pub.close()
 
 
 def _config(pub: Publisher, redis_server: RedisServer, run: str, shards: int = 2,

@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 
+import cluster_helpers
 import pytest
 import ray
 from cluster_helpers import (
@@ -32,15 +33,9 @@ from streamkey.cluster.ray_run import ClusterRun
 from streamkey.methods import ONLINE_METHODS
 
 pytestmark = pytest.mark.cluster
+redis_server, publisher = cluster_helpers.redis_server, cluster_helpers.publisher
 METHODS = list(ONLINE_METHODS)
 NODE = {"num_cpus": 1, "object_store_memory": 80 * 1024 * 1024}
-
-
-@pytest.fixture(scope="module")
-def redis_server(tmp_path_factory):
-    server = RedisServer(tmp_path_factory.mktemp("redis"))
-    yield server
-    server.stop()
 
 
 @pytest.fixture(scope="module")
@@ -54,13 +49,6 @@ def cluster():
     yield c, nodes
     ray.shutdown()
     c.shutdown()
-
-
-@pytest.fixture
-def publisher():
-    pub = Publisher()
-    yield pub
-    pub.close()
 
 
 def _clips(pub: Publisher) -> list[Clip]:

@@ -32,9 +32,7 @@ from typing import Any
 
 import zmq
 
-from ..adapters.zmq import decode_frame_parts
-from ..bvh import parse_bvh
-from ..io import fps_problem
+from ..adapters.zmq import decode_frame_parts, decode_skeleton_parts
 from ..keyframes import Event
 from ..motion import Frame, Skeleton
 from ..online import Pipeline
@@ -182,21 +180,13 @@ def _redis(url: str) -> Any:
 
 
 def parse_skeleton_message(body: list[bytes]) -> tuple[Skeleton, float, str]:
-    """(skeleton, fps, BVH text) of a `[b"skeleton", JSON]` body; raises ValueError."""
-    if len(body) != 2:
-        raise ValueError(f"skeleton message has {len(body)} parts, expected 2")
-    info = json.loads(body[1])
-    if not isinstance(info, dict) or not isinstance(info.get("bvh"), str):
-        raise ValueError("skeleton message needs a JSON object with a 'bvh' string")
-    fps = info.get("fps", 120.0)
-    problem = fps_problem(fps)
-    if problem is not None:
-        raise ValueError(problem)
+    """(skeleton, fps, BVH text) of a `[b"skeleton", JSON]` body; raises ValueError only."""
     try:
-        skeleton = parse_bvh(info["bvh"], source="zmq skeleton").skeleton
+        return decode_skeleton_parts(body)
+    except ValueError:
+        raise
     except Exception as exc:  # any failure of a hostile skeleton is the message's fault
         raise ValueError(f"{type(exc).__name__}: {exc}") from None
-    return skeleton, float(fps), info["bvh"]
 
 
 @dataclass
