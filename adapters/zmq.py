@@ -42,7 +42,7 @@ from .base import (
 )
 
 __all__ = ["ZmqSource", "ZmqEventSink", "ZmqFrameSender", "encode_frame_parts",
-           "decode_frame_parts"]
+           "decode_frame_parts", "decode_skeleton_parts"]
 
 _DTYPES = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
 
@@ -79,6 +79,20 @@ def decode_frame_parts(parts: list[bytes]) -> Frame:
     if problem is not None:
         raise ValueError(f"frame header: {problem}")
     return Frame(int(seq), float(time_s), np.frombuffer(parts[2], dtype).astype(np.float64))
+
+
+def decode_skeleton_parts(parts: list[bytes]) -> tuple[Skeleton, float, str]:
+    """(skeleton, fps, BVH text) of a `[b"skeleton", JSON]` message; raises on bad input."""
+    if len(parts) != 2:
+        raise ValueError(f"skeleton message has {len(parts)} parts, expected 2")
+    info = json.loads(parts[1])
+    if not isinstance(info, dict) or not isinstance(info.get("bvh"), str):
+        raise ValueError("skeleton message needs a JSON object with a 'bvh' string")
+    fps = info.get("fps", 120.0)
+    problem = fps_problem(fps)
+    if problem is not None:
+        raise ValueError(problem)
+    return parse_bvh(info["bvh"], source="zmq skeleton").skeleton, float(fps), info["bvh"]
 
 
 class ZmqSource(Source):
@@ -189,16 +203,7 @@ class ZmqSource(Source):
 
     def _skeleton(self, parts: list[bytes]) -> None:
         try:
-            if len(parts) != 2:
-                raise ValueError(f"skeleton message has {len(parts)} parts, expected 2")
-            info = json.loads(parts[1])
-            if not isinstance(info, dict) or not isinstance(info.get("bvh"), str):
-                raise ValueError("skeleton message needs a JSON object with a 'bvh' string")
-            fps = info.get("fps", 120.0)
-            problem = fps_problem(fps)
-            if problem is not None:
-                raise ValueError(problem)
-            skeleton = parse_bvh(info["bvh"], source="zmq skeleton").skeleton
+            skeleton, fps, _ = decode_skeleton_parts(parts)
         except Exception as exc:  # any failure of a hostile skeleton: counted, ignored
             self.stats.reject("skeleton", f"zmq skeleton ignored: {type(exc).__name__}: "
                               f"{str(exc)[:200]}")

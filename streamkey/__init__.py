@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+from .threads import single_thread_defaults
+
+single_thread_defaults()  # before numpy loads its BLAS (see threads.py)
+
+# ruff: noqa: E402 - the thread defaults above must come before numpy is imported
 from .bvh import parse_bvh, read_bvh, write_bvh
 from .errors import AMCError, BVHError, InputError, RoleError, StreamkeyError, UsageError
 from .keyframes import GapEvent, KeyframeEvent, Keyframes, StatusEvent

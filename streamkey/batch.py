@@ -23,7 +23,7 @@ from .motion import Motion
 
 __all__ = ["MOTION_SUFFIXES", "find_motion_files", "extract_motion", "FileResult",
            "extract_files", "results_json", "results_csv", "file_error", "per_file",
-           "load_motion", "naming"]
+           "load_motion", "naming", "extract_one", "merge_results"]
 
 MOTION_SUFFIXES = (".bvh", ".amc")
 
@@ -81,12 +81,16 @@ def per_file(paths: list[Path], work: Callable[[Path], FileResult],
     for i, path in enumerate(paths):
         if progress:
             progress(i, len(paths), path)
-        try:
-            yield work(path)
-        except (KeyboardInterrupt, MemoryError):
-            raise
-        except Exception as exc:  # noqa: BLE001 - one file must not lose the batch
-            yield FileResult(path, None, {}, file_error(path, exc))
+        yield _guarded(work, path)
+
+
+def _guarded(work: Callable[[Path], FileResult], path: Path) -> FileResult:
+    try:
+        return work(path)
+    except (KeyboardInterrupt, MemoryError):
+        raise
+    except Exception as exc:  # noqa: BLE001 - one file must not lose the batch
+        return FileResult(path, None, {}, file_error(path, exc))
 
 
 def extract_motion(motion: Motion, methods: list[str],
@@ -140,6 +144,35 @@ def extract_files(paths: list[Path], methods: list[str],
         return FileResult(path, motion, extract_motion(motion, methods, params))
 
     return per_file(paths, work, progress)
+
+
+def extract_one(path: Path, methods: list[str], params: dict[str, dict[str, Any]] | None = None,
+                roles: dict[str, str] | None = None, online: bool = False,
+                lookahead: int | None = None) -> FileResult:
+    """One file of a batch, engine-neutral (a local loop, a Ray task or a Dask future run
+    exactly this): its keyframes, or its named error. `online` runs the online keyframers
+    as if streamed (`extract --online`)."""
+    def work(p: Path) -> FileResult:
+        motion = load_motion(p, roles=roles)
+        if online:
+            from .streaming import run_online
+
+            return FileResult(p, motion, run_online(motion, methods, params, lookahead))
+        return FileResult(p, motion, extract_motion(motion, methods, params))
+
+    return _guarded(work, Path(path))
+
+
+def merge_results(paths: list[Path], done: Iterable[tuple[int, FileResult]]) -> list[FileResult]:
+    """The merge step of a distributed batch: (input index, result) pairs in completion order
+    back to input order, each file exactly once."""
+    out: list[FileResult | None] = [None] * len(paths)
+    for i, result in done:
+        out[i] = result
+    missing = [str(paths[i]) for i, r in enumerate(out) if r is None]
+    if missing:
+        raise StreamkeyError(f"batch lost {len(missing)} file(s): {', '.join(missing[:5])}")
+    return [r for r in out if r is not None]
 
 
 def load_motion(path: str | os.PathLike[str], min_frames: int = 1,

@@ -209,7 +209,18 @@ def cmd_extract(args: argparse.Namespace) -> int:
     from .methods import parse_methods
 
     paths = find_motion_files(args.paths)
-    if args.online:
+    if args.engine != "local" or args.address:  # a cluster engine: same files, same JSON
+        from .cluster.engines import extract_with_engine
+
+        methods = parse_methods(args.method, online=args.online)
+        if args.online:
+            from .streaming import check_online_params
+
+            check_online_params(methods, _method_params(args))
+        results = extract_with_engine(paths, methods, _method_params(args), args.engine,
+                                      args.address, args.workers, _progress(args.quiet),
+                                      _roles(args), args.online, args.lookahead)
+    elif args.online:
         from .streaming import check_online_params, extract_files_online
 
         methods = parse_methods(args.method, online=True)
@@ -221,13 +232,13 @@ def cmd_extract(args: argparse.Namespace) -> int:
         methods = parse_methods(args.method)
         results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet),
                                      roles=_roles(args)))
-        if args.max_gap is not None:
-            from .methods.optimal import max_gap
+    if args.max_gap is not None and not args.online:
+        from .methods.optimal import max_gap
 
-            for r in results:
-                if r.motion is not None:
-                    r.results = {m: max_gap(r.motion, k, args.max_gap)
-                                 for m, k in r.results.items()}
+        for r in results:
+            if r.motion is not None:
+                r.results = {m: max_gap(r.motion, k, args.max_gap)
+                             for m, k in r.results.items()}
     _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
     _export(results, args)
     failed = [r for r in results if r.error]
@@ -353,6 +364,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_cluster(args: argparse.Namespace) -> int:
+    """`streamkey cluster run`: many streams on Ray shard actors (streamkey/cluster/)."""
+    from .cluster.command import cmd_cluster_run
+
+    return cmd_cluster_run(args, _online_params(args), _roles(args))
+
+
 def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace) -> None:
     """The keyframers can be built on this file's skeleton (roles, parameters), or its error."""
     from .batch import naming
@@ -384,6 +402,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     kinds = [k for k in ("offline", "online", "agreement", "perf") if getattr(args, k)]
     kinds += [k for k in ("memory", "latency", "ws_clients") if getattr(args, k)]
+    if getattr(args, "engines", False):  # extract on local / Ray / Dask (issue 14 §6)
+        from .cluster.bench import bench_engines
+
+        for path in bench_engines(Path(args.data or "../shared/data/cmu"), Path(args.output)):
+            print(f"wrote {path}")
+        if not kinds:
+            return 0
     kinds = kinds or ["offline", "online"]
     for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data,
                           quick=args.quick):
@@ -599,6 +624,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "pattern as for --export-bvh")
     _add_roles_option(p)
     _add_method_options(p, online=None)
+    p.add_argument("--engine", choices=("local", "ray", "dask"), default="local",
+                   help="run the files on a Ray or Dask cluster (default: this process); "
+                        "needs streamkey[cluster]")
+    p.add_argument("--address", help="ray/dask: an existing cluster (default: a new local one)")
+    p.add_argument("--workers", type=int, help="ray/dask local cluster: worker processes "
+                   "(default: one per core)")
     p.set_defaults(func=cmd_extract)
 
     p = sub.add_parser("replay", help="send a BVH/AMC file as a paced frame stream")
@@ -687,6 +718,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_roles_option(p)
     p.set_defaults(func=cmd_plot)
 
+    from .cluster.command import add_cluster_parser  # cluster run (issue 14 §5)
+
+    p = add_cluster_parser(sub)
+    _add_roles_option(p)
+    p.set_defaults(func=cmd_cluster, sigma=None, k=None, no_contact=False, tolerance=None,
+                   ratio=None, count=None, space="positions", rate=None, max_segment=None,
+                   max_gap=None)
+
     p = sub.add_parser("bench", help="benchmark speed and memory; results written to files")
     p.add_argument("--offline", action="store_true")
     p.add_argument("--online", action="store_true")
@@ -699,6 +738,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ws-clients", dest="ws_clients", action="store_true",
                    help="live: event latency with 0, 100 and 300 WebSocket clients")
     p.add_argument("--quick", action="store_true", help="live benches: shorter runs")
+    p.add_argument("--engines", action="store_true", help="extract DIR on local, Ray and "
+                   "Dask: wall and CPU (needs streamkey[cluster])")
     p.add_argument("--perf", action="store_true",
                    help="per-frame CPU time on a long stream and offline growth exponents")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")

@@ -1,0 +1,575 @@
+"""Live streams on many workers, the parts that do not need Ray: sharding, the Redis frame
+log and snapshot store, event ids and the de-duplicating event sink, the per-shard worker.
+
+Data path (Ray is never on it)::
+
+    capture -> ZeroMQ PUB, topic = stream id -> ShardWorker (owns the ids that hash to it)
+                       |                              | Pipeline per stream (online.py)
+                       v                              v
+               FrameLogger -> Redis Stream per     events -> Redis Stream `events`
+               (the driver)   stream (trimmed)     (de-duplicated by event id)
+                                   ^
+               snapshots every N frames, log replay after a restart
+
+A worker that starts (first time, restarted by Ray, or re-created on another node) restores
+each of its streams from its last snapshot and replays the logged frames after it; a hole in
+the live stream (frames the worker did not receive) is filled from the log the same way. The
+events this replays again carry the ids they had the first time, and the sink drops them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pickle
+import threading
+import time
+import zlib
+from collections import Counter
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Any
+
+import zmq
+
+from ..adapters.zmq import decode_frame_parts, decode_skeleton_parts
+from ..keyframes import Event
+from ..motion import Frame, Skeleton
+from ..online import Pipeline
+from ..streaming import make_keyframers
+
+__all__ = ["ClusterConfig", "ShardWorker", "FrameLogger", "shard_of", "split_topic",
+           "stream_topic", "event_id", "snapshot_pipeline", "restore_pipeline", "RedisKeys"]
+
+MAX_STREAM_ID = 200  # bytes; a longer topic is refused (it becomes a Redis key)
+_LOG_BATCH = 512  # log entries per Redis round trip when replaying
+
+
+@dataclass
+class ClusterConfig:
+    """Everything a shard worker and the frame logger need (pickled to the Ray actors)."""
+
+    endpoint: str  # tcp://HOST:PORT of the frame publisher
+    redis_url: str
+    shards: int
+    methods: list[str]
+    params: dict[str, dict[str, Any]] = field(default_factory=dict)
+    lookahead: int | None = None
+    run: str = "default"
+    snapshot_every: int = 600
+    failover_seconds: float = 30.0
+    stream_idle: float = 10.0
+    streams: list[str] | None = None  # subscribe to these topics only (else all, filtered)
+    skeleton: Skeleton | None = None  # --skeleton FILE: one skeleton for every stream
+    skeleton_fps: float = 120.0
+
+
+def shard_of(stream: str, shards: int) -> int:
+    """The shard that owns `stream` (stable across processes and machines)."""
+    return zlib.crc32(stream.encode("utf-8", "surrogateescape")) % shards
+
+
+def split_topic(parts: list[bytes]) -> tuple[str, list[bytes]]:
+    """(stream id, the message without its topic). The wire format of w14streams puts the
+    stream id as the first part (the topic); an untopped `[b"frame", ...]` is stream
+    `default`. Raises ValueError saying what is wrong."""
+    if parts and parts[0] in (b"frame", b"skeleton"):
+        return "default", parts
+    if len(parts) < 2:
+        raise ValueError(f"message has {len(parts)} part(s), expected a topic and a body")
+    if not 0 < len(parts[0]) <= MAX_STREAM_ID:
+        raise ValueError(f"stream id of {len(parts[0])} bytes, expected 1..{MAX_STREAM_ID}")
+    try:
+        stream = parts[0].decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError("stream id is not UTF-8") from None
+    return stream, parts[1:]
+
+
+def stream_topic(stream: str, parts: list[bytes]) -> list[bytes]:
+    """The multipart message `parts` (a frame or skeleton) on the topic of `stream`."""
+    return [stream.encode("utf-8"), *parts]
+
+
+def event_id(event: Event) -> str:
+    """The idempotent id of an event (schema v2: `stream/method/frame/params-digest` for
+    keyframes, `stream/gap/<first seq>`, `stream/status/<name>/<seq>`). Until the v2 events
+    carry `.id` themselves it is computed here, in this one place."""
+    own = getattr(event, "id", None)
+    if isinstance(own, str):
+        return own
+    d = event.to_dict()
+    kind, stream = d.get("type"), d.get("stream")
+    if kind == "keyframe":
+        return f"{stream}/{d['method']}/{d['frame']}/{d['params']}"
+    if kind == "gap":
+        return f"{stream}/gap/{d['first']}"
+    if kind == "status":
+        seq = d.get("detail", {}).get("seq", "")
+        return f"{stream}/status/{d['status']}/{seq}"
+    where = d.get("frame", d.get("seq", ""))
+    return f"{stream}/{kind}/{d.get('method', '')}/{where}/{d.get('pid', '')}"
+
+
+def snapshot_pipeline(pipeline: Pipeline) -> bytes:
+    """The pipeline's state as bytes: `Pipeline.snapshot()` where it exists (w14streams),
+    else a pickle. The one place to switch at merge time."""
+    own = getattr(pipeline, "snapshot", None)
+    if callable(own):
+        return bytes(own())
+    return pickle.dumps(pipeline, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def restore_pipeline(data: bytes) -> Pipeline:
+    """The pipeline of `snapshot_pipeline(...)` bytes (our own Redis data only)."""
+    own = getattr(Pipeline, "restore", None)
+    if callable(own):
+        return own(data)
+    pipeline = pickle.loads(data)  # noqa: S301 - written by our own workers to our Redis
+    if not isinstance(pipeline, Pipeline):
+        raise ValueError("snapshot is not a streamkey Pipeline")
+    return pipeline
+
+
+class RedisKeys:
+    """Key names of one cluster run (`--run NAME` keeps several runs apart in one Redis)."""
+
+    def __init__(self, run: str) -> None:
+        self.prefix = f"streamkey:{run}"
+        self.events = f"{self.prefix}:events"
+        self.event_ids = f"{self.prefix}:event-ids"
+
+    def log(self, stream: str) -> str:
+        """Redis Stream of the stream's frames."""
+        return f"{self.prefix}:log:{stream}"
+
+    def snapshot(self, stream: str) -> str:
+        """Hash {data, seq} of the stream's last snapshot."""
+        return f"{self.prefix}:snap:{stream}"
+
+    def skeleton(self, stream: str) -> str:
+        """Hash {bvh, fps} of the stream's skeleton."""
+        return f"{self.prefix}:skel:{stream}"
+
+    def shard(self, shard: int) -> str:
+        """Set of the stream ids of one shard."""
+        return f"{self.prefix}:shard:{shard}"
+
+    def starts(self, shard: int) -> str:
+        """How often the shard's worker started (1 + restarts)."""
+        return f"{self.prefix}:starts:{shard}"
+
+
+# Atomic "append unless seen": a worker killed between the two steps loses nothing.
+_EMIT = """
+local added = 0
+for i = 1, #ARGV, 2 do
+  if redis.call('SADD', KEYS[2], ARGV[i]) == 1 then
+    redis.call('XADD', KEYS[1], '*', 'id', ARGV[i], 'event', ARGV[i + 1])
+    added = added + 1
+  end
+end
+return added
+"""
+
+
+def _redis(url: str) -> Any:
+    import redis
+
+    return redis.Redis.from_url(url, socket_timeout=10, socket_connect_timeout=10)
+
+
+def parse_skeleton_message(body: list[bytes]) -> tuple[Skeleton, float, str]:
+    """(skeleton, fps, BVH text) of a `[b"skeleton", JSON]` body; raises ValueError only."""
+    try:
+        return decode_skeleton_parts(body)
+    except ValueError:
+        raise
+    except Exception as exc:  # any failure of a hostile skeleton is the message's fault
+        raise ValueError(f"{type(exc).__name__}: {exc}") from None
+
+
+@dataclass
+class _Stream:
+    pipeline: Pipeline
+    last_live: float
+    since_snapshot: int = 0
+    frames: int = 0
+    replayed_to: int | None = None  # live frames up to this seq came from the log already
+
+
+class ShardWorker:
+    """One shard: the streams whose id hashes to `shard`, one `Pipeline` each, fed from the
+    ZeroMQ publisher directly, snapshotted to Redis, events to the Redis sink.
+
+    `handle(parts)` takes one ZeroMQ message and never raises (every message that does not
+    become a frame is counted by kind); `start()` runs the receive loop on a thread."""
+
+    def __init__(self, config: ClusterConfig, shard: int) -> None:
+        self.cfg = config
+        self.shard = shard
+        self.keys = RedisKeys(config.run)
+        self.redis = _redis(config.redis_url)
+        self._emit = self.redis.register_script(_EMIT)
+        self.starts = int(self.redis.incr(self.keys.starts(shard)))
+        self.streams: dict[str, _Stream] = {}
+        self.counters: Counter[str] = Counter()
+        self.rejects: Counter[str] = Counter()
+        self.retired: list[str] = []
+        self.errors: list[str] = []
+        self.lock = threading.Lock()
+        self.ready = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._adopt_tried: dict[str, float] = {}
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def start(self) -> None:
+        """Subscribe, restore this shard's streams from Redis, then serve on a thread."""
+        self._thread = threading.Thread(target=self._serve, name=f"streamkey-shard-{self.shard}",
+                                        daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        ctx = zmq.Context.instance()
+        sock = ctx.socket(zmq.SUB)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.RCVHWM, 100_000)  # frames wait here while the log is replayed
+        wanted = [s for s in self.cfg.streams or [] if shard_of(s, self.cfg.shards) == self.shard]
+        for topic in wanted if self.cfg.streams else [""]:
+            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        sock.connect(self.cfg.endpoint)
+        try:
+            with self.lock:
+                self.restore_all()
+            self.ready.set()
+            poller = zmq.Poller()
+            poller.register(sock, zmq.POLLIN)
+            while not self._stop.is_set():
+                if poller.poll(100):
+                    with self.lock:
+                        for _ in range(256):
+                            try:
+                                parts = sock.recv_multipart(zmq.NOBLOCK)
+                            except zmq.Again:
+                                break
+                            self.handle(parts)
+                with self.lock:
+                    self.retire_idle()
+        except Exception as exc:  # Redis gone, socket failed: Ray restarts the actor
+            self.errors.append(f"{type(exc).__name__}: {exc}")
+            raise
+        finally:
+            sock.close(linger=0)
+
+    def stop(self) -> dict[str, Any]:
+        """End the run: stop receiving, decide everything pending (flush), return status."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(10.0)
+        with self.lock:
+            for stream in list(self.streams):
+                self.retire(stream)
+        return self.status()
+
+    def status(self) -> dict[str, Any]:
+        """Counters, streams and restarts of this shard (plain data)."""
+        with self.lock:
+            streams = {s: {"frames": st.frames, "last_seq": _last_seq(st.pipeline)}
+                       for s, st in self.streams.items()}
+            return {"shard": self.shard, "starts": self.starts, "streams": streams,
+                    "retired": list(self.retired), "counters": dict(self.counters),
+                    "rejects": dict(self.rejects), "errors": list(self.errors)}
+
+    # -- messages --------------------------------------------------------------------------
+    def handle(self, parts: list[bytes]) -> None:
+        """One ZeroMQ message; never raises, counts every message that is not a frame."""
+        self.counters["messages"] += 1
+        try:
+            stream, body = split_topic(parts)
+            if shard_of(stream, self.cfg.shards) != self.shard:
+                self.counters["other_shards"] += 1  # subscribed to all topics: not ours
+                return
+            if body[0] == b"skeleton":
+                skeleton, fps, _ = parse_skeleton_message(body)
+                if stream not in self.streams:
+                    self._create(stream, skeleton, fps)
+                return
+            if body[0] != b"frame":
+                raise LookupError(f"unknown message kind {body[0][:32]!r}")
+            frame = decode_frame_parts(body)
+        except LookupError as exc:
+            self._reject("topic", exc)
+            return
+        except (ValueError, TypeError, IndexError, RecursionError) as exc:
+            self._reject("malformed", exc)
+            return
+        st = self.streams.get(stream) or self._adopt(stream)
+        if st is None:
+            # No skeleton yet: the logger keeps the frame, replayed when the skeleton comes.
+            self.counters["before_skeleton"] += 1
+            return
+        if st.replayed_to is not None:
+            if frame.seq <= st.replayed_to:  # queued while the log was replayed: done already
+                self.counters["live_already_replayed"] += 1
+                return
+            st.replayed_to = None
+        last = _last_seq(st.pipeline)
+        if last is not None and last + 1 < frame.seq:
+            self.counters["holes"] += 1
+            self.catch_up(stream, frame.seq)
+        st.last_live = time.monotonic()
+        self._push(stream, st, frame)
+
+    def _reject(self, kind: str, exc: BaseException) -> None:
+        self.rejects[kind] += 1
+        if len(self.errors) < 20:
+            self.errors.append(f"{kind}: {type(exc).__name__}: {str(exc)[:200]}")
+
+    # -- streams ---------------------------------------------------------------------------
+    def _new_pipeline(self, stream: str, skeleton: Skeleton, fps: float) -> Pipeline:
+        source = SimpleNamespace(skeleton=skeleton, fps=fps)
+        keyframers = make_keyframers(source, self.cfg.methods, self.cfg.params,  # type: ignore[arg-type]
+                                     self.cfg.lookahead, stream=stream)
+        return Pipeline(keyframers, stream=stream)
+
+    def _create(self, stream: str, skeleton: Skeleton, fps: float) -> _Stream | None:
+        """A new stream: its pipeline, a first snapshot, and every frame logged before it."""
+        try:
+            pipeline = self._new_pipeline(stream, skeleton, fps)
+        except Exception as exc:  # a skeleton the keyframers cannot use: counted, ignored
+            self._reject("skeleton", exc)
+            return None
+        st = self.streams[stream] = _Stream(pipeline, time.monotonic())
+        self.redis.sadd(self.keys.shard(self.shard), stream)
+        self._snapshot(stream, st)
+        self.catch_up(stream, None)
+        self.counters["streams"] += 1
+        return st
+
+    def _adopt(self, stream: str) -> _Stream | None:
+        """A frame of a stream whose skeleton this worker missed: the logger's copy (or
+        `--skeleton`), looked up at most twice a second per stream."""
+        now = time.monotonic()
+        if now - self._adopt_tried.get(stream, -1.0) < 0.5:
+            return None
+        self._adopt_tried[stream] = now
+        found = self._skeleton(stream)
+        return self._create(stream, *found) if found else None
+
+    def _skeleton(self, stream: str) -> tuple[Skeleton, float] | None:
+        if self.cfg.skeleton is not None:
+            return self.cfg.skeleton, self.cfg.skeleton_fps
+        stored = self.redis.hgetall(self.keys.skeleton(stream))
+        if not stored:
+            return None
+        try:
+            skeleton, fps, _ = parse_skeleton_message(
+                [b"skeleton", json.dumps({"bvh": stored[b"bvh"].decode(),
+                                          "fps": float(stored[b"fps"])}).encode()])
+        except (ValueError, KeyError) as exc:
+            self._reject("skeleton", exc)
+            return None
+        return skeleton, fps
+
+    def restore_all(self) -> None:
+        """(Re)start: every stream of this shard from its snapshot, then the log after it."""
+        for raw in sorted(self.redis.smembers(self.keys.shard(self.shard))):
+            stream = raw.decode("utf-8")
+            snap = self.redis.hget(self.keys.snapshot(stream), "data")
+            try:
+                if snap:
+                    pipeline = restore_pipeline(snap)
+                else:
+                    found = self._skeleton(stream)
+                    if found is None:
+                        continue
+                    pipeline = self._new_pipeline(stream, *found)
+            except Exception as exc:  # a snapshot this version cannot read: start over
+                self._reject("snapshot", exc)
+                continue
+            self.streams[stream] = _Stream(pipeline, time.monotonic())
+            self.counters["restored"] += 1
+            self.catch_up(stream, None)
+
+    def catch_up(self, stream: str, upto: int | None) -> None:
+        """Push the logged frames after the stream's last one (and before seq `upto`)."""
+        st = self.streams[stream]
+        for frame in self._logged_after(stream, _last_seq(st.pipeline), upto):
+            self.counters["replayed"] += 1
+            self._push(stream, st, frame)
+            st.replayed_to = frame.seq
+
+    def _logged_after(self, stream: str, last: int | None, upto: int | None) -> list[Frame]:
+        key = self.keys.log(stream)
+        if upto is not None:  # the logger may be a moment behind this worker: wait briefly
+            deadline = time.monotonic() + 0.5
+            while time.monotonic() < deadline:
+                newest = self.redis.xrevrange(key, count=1)
+                if newest and int(newest[0][1][b"seq"]) >= upto - 1:
+                    break
+                time.sleep(0.005)
+        out: list[Frame] = []
+        high = "+"
+        while True:
+            batch = self.redis.xrevrange(key, max=high, count=_LOG_BATCH)
+            done = not batch
+            for entry_id, fields in batch:
+                seq = int(fields[b"seq"])
+                if last is not None and seq <= last:
+                    done = True
+                    break
+                if upto is None or seq < upto:
+                    try:
+                        out.append(decode_frame_parts([b"frame", fields[b"h"], fields[b"p"]]))
+                    except (ValueError, KeyError) as exc:
+                        self._reject("log", exc)
+                high = "(" + entry_id.decode()
+            if done or len(batch) < _LOG_BATCH:
+                break
+        out.reverse()
+        return out
+
+    def _push(self, stream: str, st: _Stream, frame: Frame) -> None:
+        try:
+            events = st.pipeline.push(frame)
+            events.extend(st.pipeline.idle())
+        except Exception as exc:  # a keyframer bug: counted, the stream goes on
+            self._reject("keyframer", exc)
+            return
+        st.frames += 1
+        self.counters["frames"] += 1
+        self.emit(events)
+        st.since_snapshot += 1
+        if st.since_snapshot >= self.cfg.snapshot_every:
+            self._snapshot(stream, st)
+
+    def _snapshot(self, stream: str, st: _Stream) -> None:
+        data = snapshot_pipeline(st.pipeline)
+        last = _last_seq(st.pipeline)
+        self.redis.hset(self.keys.snapshot(stream),
+                        mapping={"data": data, "seq": "" if last is None else str(last)})
+        st.since_snapshot = 0
+        self.counters["snapshots"] += 1
+        self.counters["snapshot_bytes"] = len(data)
+
+    def emit(self, events: list[Event]) -> None:
+        """Append events to the Redis sink unless their id is already there."""
+        if not events:
+            return
+        args: list[str] = []
+        for e in events:
+            d = e.to_dict()
+            d.setdefault("id", event_id(e))
+            args += [d["id"], json.dumps(d)]
+        added = int(self._emit(keys=[self.keys.events, self.keys.event_ids], args=args))
+        self.counters["events"] += added
+        self.counters["duplicates_dropped"] += len(events) - added
+
+    def retire_idle(self) -> None:
+        """Flush and forget the streams that sent nothing for `stream_idle` seconds."""
+        now = time.monotonic()
+        for stream, st in list(self.streams.items()):
+            if now - st.last_live >= self.cfg.stream_idle:
+                self.retire(stream)
+
+    def retire(self, stream: str) -> None:
+        """End of a stream: the logged frames it missed, its final events, its Redis keys."""
+        st = self.streams[stream]
+        self.catch_up(stream, None)
+        self.emit(st.pipeline.flush())
+        self.redis.delete(self.keys.snapshot(stream), self.keys.log(stream),
+                          self.keys.skeleton(stream))
+        self.redis.srem(self.keys.shard(self.shard), stream)
+        del self.streams[stream]
+        self.retired.append(stream)
+
+
+def _last_seq(pipeline: Pipeline) -> int | None:
+    last = pipeline.guard.last
+    return None if last is None else int(last.seq)
+
+
+class FrameLogger:
+    """The retained frame log: subscribes to every topic and appends each valid frame to its
+    stream's Redis Stream, trimmed to the snapshot interval plus `failover_seconds` at the
+    stream's rate; keeps each stream's skeleton and registers the stream with its shard.
+    Runs in the driver process (it must outlive the workers it covers for)."""
+
+    def __init__(self, config: ClusterConfig) -> None:
+        self.cfg = config
+        self.keys = RedisKeys(config.run)
+        self.redis = _redis(config.redis_url)
+        self.logged = 0
+        self.rejects: Counter[str] = Counter()
+        self.last_frame_at: float | None = None
+        self.error: str | None = None  # why the logger stopped, if it failed
+        self.subscribed = threading.Event()
+        self._fps: dict[str, float] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, name="streamkey-frame-log",
+                                        daemon=True)
+
+    def retain(self, stream: str) -> int:
+        """Frames kept in the stream's log."""
+        fps = self._fps.get(stream, self.cfg.skeleton_fps)
+        return self.cfg.snapshot_every + math.ceil(self.cfg.failover_seconds * fps)
+
+    def start(self) -> None:
+        """Start logging on a thread."""
+        self._thread.start()
+        self.subscribed.wait(10.0)
+
+    def stop(self) -> None:
+        """Stop logging."""
+        self._stop.set()
+        self._thread.join(10.0)
+
+    def _serve(self) -> None:
+        sock = zmq.Context.instance().socket(zmq.SUB)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.RCVHWM, 100_000)
+        for topic in self.cfg.streams or [""]:
+            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        sock.connect(self.cfg.endpoint)
+        self.subscribed.set()
+        poller = zmq.Poller()
+        poller.register(sock, zmq.POLLIN)
+        try:
+            while not self._stop.is_set():
+                if not poller.poll(100):
+                    continue
+                pipe = self.redis.pipeline(transaction=False)
+                for _ in range(512):
+                    try:
+                        parts = sock.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    self.log(parts, pipe)
+                pipe.execute()
+        except Exception as exc:  # Redis gone: the driver sees `error` and stops the run
+            self.error = f"frame log: {type(exc).__name__}: {exc}"
+        finally:
+            sock.close(linger=0)
+
+    def log(self, parts: list[bytes], pipe: Any) -> None:
+        """Queue one message's Redis writes on `pipe`; never raises (rejects counted)."""
+        try:
+            stream, body = split_topic(parts)
+            if body[0] == b"skeleton":
+                _, fps, bvh = parse_skeleton_message(body)
+                self._fps[stream] = fps
+                pipe.hset(self.keys.skeleton(stream), mapping={"bvh": bvh, "fps": repr(fps)})
+                pipe.sadd(self.keys.shard(shard_of(stream, self.cfg.shards)), stream)
+                return
+            if body[0] != b"frame":
+                self.rejects["topic"] += 1
+                return
+            frame = decode_frame_parts(body)
+        except (ValueError, TypeError, IndexError, RecursionError):
+            self.rejects["malformed"] += 1
+            return
+        pipe.xadd(self.keys.log(stream), {"seq": frame.seq, "h": body[1], "p": body[2]},
+                  maxlen=self.retain(stream), approximate=True)
+        self.logged += 1
+        self.last_frame_at = time.monotonic()

@@ -1,0 +1,143 @@
+"""Cluster mode (issue 14 §5, §7): shard workers fed by ZeroMQ topics, the Redis frame log
+and snapshots, de-duplicated events; restarts by Ray (worker SIGKILL, node loss)."""
+
+from __future__ import annotations
+
+import random
+
+import cluster_helpers
+import pytest
+from cluster_helpers import (
+    CLIPS,
+    Clip,
+    Publisher,
+    RedisServer,
+    play,
+    redis_events,
+    wait_for,
+)
+
+from streamkey.cluster.live import ClusterConfig, FrameLogger, ShardWorker, split_topic
+from streamkey.methods import ONLINE_METHODS
+
+pytestmark = pytest.mark.cluster
+redis_server, publisher = cluster_helpers.redis_server, cluster_helpers.publisher
+METHODS = list(ONLINE_METHODS)
+
+
+def _config(pub: Publisher, redis_server: RedisServer, run: str, shards: int = 2,
+            **kw) -> ClusterConfig:
+    return ClusterConfig(pub.endpoint, redis_server.url, shards, METHODS, {}, run=run,
+                         **{"snapshot_every": 120, "stream_idle": 2.0, **kw})
+
+
+def test_a_worker_that_dies_mid_stream_resumes_from_snapshot_and_log(redis_server, publisher):
+    """No Ray: worker A takes the first 300 frames and dies without a word (thread stopped,
+    nothing flushed); frames 300..500 arrive with no worker at all (only the logger has
+    them); worker B starts, restores the snapshot, replays the log, takes the rest. The
+    de-duplicated events equal the uninterrupted run's."""
+    cfg = _config(publisher, redis_server, "solo", shards=1)
+    clip = Clip(CLIPS[0], "solo-stream", publisher)
+    logger = FrameLogger(cfg)
+    logger.start()
+    a = ShardWorker(cfg, 0)
+    a.start()
+    assert a.ready.wait(30)
+    publisher.wait_subscribers(2)
+    publisher.send(clip.stream, clip.skeleton)
+    play(publisher, [clip], 0, 300, period=0.001)
+    wait_for(lambda: a.status()["streams"].get(clip.stream, {}).get("last_seq") == 300,
+             "worker A at frame 300")
+    a._stop.set()  # dies: no flush, no goodbye
+    a._thread.join(10)
+    play(publisher, [clip], 300, 500, period=0.001)
+    wait_for(lambda: logger.logged >= 500, "the logger to have every frame")
+    b = ShardWorker(cfg, 0)
+    b.start()
+    assert b.ready.wait(30)
+    assert b.starts == 2 and b.counters["restored"] == 1 and b.counters["replayed"] >= 200
+    publisher.wait_subscribers(3)
+    play(publisher, [clip], 500, None, period=0.001)
+    wait_for(lambda: logger.logged >= len(clip.frames), "every frame logged")
+    status = b.stop()
+    logger.stop()
+    assert status["retired"] == [clip.stream]
+    got = {e["id"]: e for e in redis_events(redis_server.client(), "solo")}
+    want = clip.reference(METHODS)
+    diff = {k: (got[k], want[k]) for k in got if k in want and got[k] != want[k]}
+    assert not diff, "\n".join(f"{a}\n{b}" for a, b in list(diff.values())[:3])
+    assert got == want
+    assert sum(e["type"] == "keyframe" for e in got.values()) > 20
+    assert status["counters"]["snapshot_bytes"] <= 16_000_000
+
+
+def test_holes_in_the_live_stream_are_filled_from_the_log(redis_server, publisher):
+    """Frames the worker never saw (dropped before it, seen by the logger) are taken from the
+    log when the next live frame shows the hole: same events, no gap event."""
+    cfg = _config(publisher, redis_server, "holes", shards=1)
+    clip = Clip(CLIPS[1], "holey", publisher)
+    logger = FrameLogger(cfg)
+    logger.start()
+    worker = ShardWorker(cfg, 0)  # not started: messages are handed over by hand
+    worker.restore_all()
+    publisher.wait_subscribers(1)
+    publisher.send(clip.stream, clip.skeleton)
+    worker.handle([clip.stream.encode(), *clip.skeleton])
+    rng = random.Random(14)
+    play(publisher, [clip], 0, None, period=0.0005)  # the logger gets everything
+    wait_for(lambda: logger.logged >= len(clip.frames), "every frame logged")
+    for i, parts in enumerate(clip.frames):
+        if i < 5 or rng.random() > 0.1:  # the worker misses a tenth of them
+            worker.handle([clip.stream.encode(), *parts])
+    worker.retire(clip.stream)
+    logger.stop()
+    assert worker.counters["holes"] > 20
+    got = {e["id"]: e for e in redis_events(redis_server.client(), "holes")}
+    assert got == clip.reference(METHODS)
+
+
+def test_malformed_messages_are_counted_never_raised(redis_server, publisher):
+    """The worker's input boundary: random and truncated multipart messages are rejected by
+    kind, the stream goes on, no exception escapes."""
+    cfg = _config(publisher, redis_server, "fuzz", shards=1)
+    clip = Clip(CLIPS[1], "fuzzed", publisher)
+    worker = ShardWorker(cfg, 0)
+    topic = clip.stream.encode()
+    worker.handle([topic, *clip.skeleton])
+    logger = FrameLogger(cfg)  # the driver's input boundary: the same messages
+    pipe = logger.redis.pipeline(transaction=False)
+    rng = random.Random(7)
+    sent_bad = 0
+    for i, parts in enumerate(clip.frames[:200]):
+        worker.handle([topic, *parts])
+        logger.log([topic, *parts], pipe)
+        bad = [topic, *parts]
+        k = rng.randrange(5)
+        if k == 0:
+            bad = bad[:rng.randrange(1, 3)]
+        elif k == 1:
+            bad[2] = bytes(rng.randrange(256) for _ in range(rng.randrange(40)))
+        elif k == 2:
+            bad[3] = bad[3][: rng.randrange(len(bad[3]))]
+        elif k == 3:
+            bad[1] = b"nonsense"
+        else:
+            bad[0] = bytes([0xff, 0xfe])
+        before = sum(worker.rejects.values())
+        worker.handle(bad)
+        logger.log(bad, pipe)
+        if len(bad) >= 2 and bad[0] == topic and bad[1:] == [*parts]:
+            continue  # the mutation happened to leave it valid
+        sent_bad += 1
+        assert sum(worker.rejects.values()) == before + 1, (i, k)
+    for parts in ([], [b""], [b"x" * 300, b"frame"], [topic, b"skeleton", b"{}"]):
+        worker.handle(parts)
+        logger.log(parts, pipe)
+        sent_bad += 1
+    pipe.execute()
+    assert sum(worker.rejects.values()) == sent_bad
+    assert sum(logger.rejects.values()) == sent_bad and logger.logged == 200
+    assert redis_server.client().xlen("streamkey:fuzz:log:fuzzed") == 200
+    assert worker.status()["streams"][clip.stream]["frames"] == 200
+    with pytest.raises(ValueError):
+        split_topic([b"only-a-topic"])
