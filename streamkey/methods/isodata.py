@@ -59,6 +59,7 @@ I) and the prose are followed, and this module settles the rest:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -69,7 +70,6 @@ from scipy.spatial.transform import Rotation
 from ..errors import UsageError
 from ..features import Features
 from ..keyframes import Keyframes
-from ..kinematics import local_rotations
 from ..motion import Motion, Skeleton
 
 __all__ = ["extract", "pose_vectors", "joint_weights", "min_dispersion_split",
@@ -89,18 +89,66 @@ def joint_weights(skeleton: Skeleton) -> np.ndarray:
     return 1.0 / (1.0 + depth)
 
 
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions (4, ...) stored component-first (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz])
+
+
+def _turn(q: np.ndarray, axis: int, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """q * (s e_axis + c) for q component-first (4, ...)."""
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    out = np.empty_like(q)
+    out[axis] = q[axis] * c + q[3] * s
+    out[i] = q[i] * c + q[j] * s
+    out[j] = q[j] * c - q[i] * s
+    out[3] = q[3] * c - q[axis] * s
+    return out
+
+
+def local_quaternions(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+    """Local joint rotations as unit quaternions (n, joints, 4), (x, y, z, w), straight from
+    the Euler channels: the product of one half-angle quaternion per channel in the joint's
+    order (the matrices' intrinsic product), conjugated by the ASF axis where there is one."""
+    assert skeleton.rotation_order is not None and skeleton.pre_rotations is not None
+    n, joints = len(channels), skeleton.n_joints
+    q = np.zeros((4, joints, n))  # component-first, frames last: joint rows are contiguous
+    q[3] = 1.0
+    for k in range(3):
+        for axis, name in enumerate(("Xrotation", "Yrotation", "Zrotation")):
+            idx = [j for j, order in enumerate(skeleton.rotation_order)
+                   if len(order) > k and order[k] == name]
+            if not idx:
+                continue
+            cols = [skeleton.channel_index(j, name) for j in idx]
+            half = np.radians(channels[:, cols].T)
+            half *= 0.5
+            c, s = np.cos(half), np.sin(half)
+            if k == 0:  # identity * (s e_axis + c)
+                q[axis, idx], q[3, idx] = s, c
+            else:
+                q[:, idx] = _turn(q[:, idx], axis, c, s)
+    pre = [i for i, r in enumerate(skeleton.pre_rotations) if r is not None]
+    if pre:
+        p = Rotation.from_matrix(np.array([skeleton.pre_rotations[i] for i in pre])).as_quat()
+        p = p.T[:, :, None]  # (4, len(pre), 1), component-first
+        p_conj = p * np.array([-1.0, -1.0, -1.0, 1.0])[:, None, None]
+        q[:, pre] = _quat_mul(_quat_mul(p, q[:, pre]), p_conj)
+    return q.transpose(2, 1, 0).copy()
+
+
 def pose_vectors(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
     """Per-joint sign-continuous quaternions x 360/pi, (n, joints, 4) (module docstring)."""
-    n, joints = len(channels), skeleton.n_joints
-    q = np.empty((n, joints, 4))
-    for lo in range(0, n, 4096):  # bounded temporaries keep this linear in frames
-        rot = local_rotations(skeleton, channels[lo : lo + 4096])
-        q[lo : lo + 4096] = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat().reshape(
-            len(rot), joints, 4)
+    q = local_quaternions(skeleton, channels)
     q[0] *= np.where(q[0, :, 3:] < 0, -1.0, 1.0)
     flip = np.where(np.einsum("fjk,fjk->fj", q[1:], q[:-1]) < 0, -1.0, 1.0)
     q[1:] *= np.cumprod(flip, axis=0)[..., None]
-    return q * (360.0 / np.pi)
+    q *= 360.0 / np.pi
+    return q
 
 
 def min_dispersion_split(d: np.ndarray, fence: float | None = None) -> tuple[int, float]:
@@ -136,11 +184,11 @@ def _fence(d: np.ndarray, k: float | None) -> float:
 def initial_classes(y: np.ndarray, adjacent: np.ndarray, d_t: float) -> np.ndarray:
     """Start rows of the initial classes (the paper's two rules, frames in order)."""
     starts = [0]
+    far_from_previous = (adjacent >= d_t).tolist()
     total, count = y[0].copy(), 1
     for f in range(1, len(y)):
-        centre = total / count
-        diff = y[f] - centre
-        if adjacent[f - 1] >= d_t or float(np.sqrt(diff @ diff)) >= d_t:
+        diff = y[f] - total / count
+        if far_from_previous[f - 1] or math.sqrt(diff @ diff) >= d_t:
             starts.append(f)
             total, count = y[f].copy(), 1
         else:
