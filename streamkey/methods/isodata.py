@@ -110,12 +110,15 @@ def _turn(q: np.ndarray, axis: int, c: np.ndarray, s: np.ndarray) -> np.ndarray:
     return out
 
 
-def local_quaternions(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+def local_quaternions(skeleton: Skeleton, channels: np.ndarray,
+                      rotations_only: bool = False) -> np.ndarray:
     """Local joint rotations as unit quaternions (n, joints, 4), (x, y, z, w), straight from
     the Euler channels: the product of one half-angle quaternion per channel in the joint's
-    order (the matrices' intrinsic product), conjugated by the ASF axis where there is one."""
+    order (the matrices' intrinsic product), conjugated by the ASF axis where there is one.
+    With `rotations_only`, `channels` holds the columns `skeleton.rotation_columns()` only."""
     assert skeleton.rotation_order is not None and skeleton.pre_rotations is not None
     n, joints = len(channels), skeleton.n_joints
+    where = {int(c): i for i, c in enumerate(skeleton.rotation_columns())}
     q = np.zeros((4, joints, n))  # component-first, frames last: joint rows are contiguous
     q[3] = 1.0
     for k in range(3):
@@ -125,6 +128,8 @@ def local_quaternions(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
             if not idx:
                 continue
             cols = [skeleton.channel_index(j, name) for j in idx]
+            if rotations_only:
+                cols = [where[int(c)] for c in cols]
             half = np.radians(channels[:, cols].T)
             half *= 0.5
             c, s = np.cos(half), np.sin(half)
@@ -141,14 +146,26 @@ def local_quaternions(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
     return q.transpose(2, 1, 0).copy()
 
 
-def pose_vectors(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
-    """Per-joint sign-continuous quaternions x 360/pi, (n, joints, 4) (module docstring)."""
-    q = local_quaternions(skeleton, channels)
-    q[0] *= np.where(q[0, :, 3:] < 0, -1.0, 1.0)
-    flip = np.where(np.einsum("fjk,fjk->fj", q[1:], q[:-1]) < 0, -1.0, 1.0)
-    q[1:] *= np.cumprod(flip, axis=0)[..., None]
-    q *= 360.0 / np.pi
-    return q
+def pose_vectors(skeleton: Skeleton, channels: np.ndarray, chunk: int = 8192,
+                 rotations_only: bool = False) -> np.ndarray:
+    """Per-joint sign-continuous quaternions x 360/pi, (n, joints, 4) (module docstring).
+
+    Computed `chunk` frames at a time (cache-sized temporaries); the sign of each chunk's
+    first frame follows the previous chunk's last, so the split changes nothing.
+    `rotations_only`: `channels` holds the rotation columns only (as `Features.rotations`)."""
+    out = np.empty((len(channels), skeleton.n_joints, 4))
+    previous = None
+    for lo in range(0, len(channels), chunk):
+        q = local_quaternions(skeleton, channels[lo : lo + chunk], rotations_only)
+        if previous is None:
+            q[0] *= np.where(q[0, :, 3:] < 0, -1.0, 1.0)
+        else:
+            q[0] *= np.where(np.einsum("jk,jk->j", q[0], previous) < 0, -1.0, 1.0)[:, None]
+        flip = np.where(np.einsum("fjk,fjk->fj", q[1:], q[:-1]) < 0, -1.0, 1.0)
+        q[1:] *= np.cumprod(flip, axis=0)[..., None]
+        previous = q[-1].copy()
+        np.multiply(q, 360.0 / np.pi, out=out[lo : lo + chunk])
+    return out
 
 
 def min_dispersion_split(d: np.ndarray, fence: float | None = None) -> tuple[int, float]:
@@ -224,29 +241,31 @@ def _centres(cs: np.ndarray, starts: np.ndarray, n: int) -> np.ndarray:
 
 
 class _Stats:
-    """Prefix sums of the weighted (y) and plain (x) pose vectors for O(1) run statistics."""
+    """Prefix sums of the weighted pose vectors (y) for O(1) run statistics; statistics of
+    the plain ones (x) on demand, for the few classes that need them."""
 
     def __init__(self, y: np.ndarray, x: np.ndarray) -> None:
         self.y, self.x = y, x
-        self.cy, self.cx, self.cxx = (np.empty((len(y) + 1, y.shape[1])) for _ in range(3))
-        self.cy[0] = self.cx[0] = self.cxx[0] = 0.0
+        self.cy = np.empty((len(y) + 1, y.shape[1]))
+        self.cy[0] = 0.0
         np.cumsum(y, axis=0, out=self.cy[1:])  # written in place: no full-size temporaries
         self.cyy = np.concatenate([[0.0], np.cumsum(np.einsum("ij,ij->i", y, y))])
-        np.cumsum(x, axis=0, out=self.cx[1:])
-        np.multiply(x, x, out=self.cxx[1:])
-        np.cumsum(self.cxx[1:], axis=0, out=self.cxx[1:])
 
     def sse(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Weighted squared deviations of rows [a, b) about their mean."""
         s = self.cy[b] - self.cy[a]
         return self.cyy[b] - self.cyy[a] - np.einsum("ij,ij->i", s, s) / (b - a)
 
-    def max_std(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    def x_mean(self, a: int, b: int) -> np.ndarray:
+        """Mean of the plain pose vectors of rows [a, b)."""
+        return self.x[a:b].sum(axis=0) / (b - a)
+
+    def max_std(self, a: int, b: int) -> float:
         """Largest per-coordinate standard deviation of rows [a, b) (unweighted)."""
-        m = (b - a)[:, None]
-        mean = (self.cx[b] - self.cx[a]) / m
-        var = (self.cxx[b] - self.cxx[a]) / m - mean**2
-        return np.sqrt(np.maximum(var, 0.0)).max(axis=1)
+        block = self.x[a:b]
+        mean = block.sum(axis=0) / (b - a)
+        var = (block * block).sum(axis=0) / (b - a) - mean**2
+        return float(np.sqrt(np.maximum(var, 0.0)).max())
 
 
 def _dispersion(st: _Stats, cl: _Classes) -> np.ndarray:
@@ -279,8 +298,9 @@ def _split(st: _Stats, cl: _Classes, o_s: float, o_n: int) -> _Classes:
     a, b = cl.starts, cl.starts + sizes
     disp = _dispersion(st, cl)
     mean_disp = float(np.sum(disp * sizes) / cl.n)
-    ok = (disp > mean_disp) & (st.max_std(a, b) > o_s) & (sizes >= 2 * o_n)
-    cuts = [_best_cut(st, int(a[i]), int(b[i]), o_n) for i in np.flatnonzero(ok)]
+    wide = np.flatnonzero((disp > mean_disp) & (sizes >= 2 * o_n))
+    ok = [i for i in wide if st.max_std(int(a[i]), int(b[i])) > o_s]
+    cuts = [_best_cut(st, int(a[i]), int(b[i]), o_n) for i in ok]
     return _Classes(np.sort(np.concatenate([cl.starts, np.array(cuts, dtype=np.int64)])), cl.n)
 
 
@@ -309,9 +329,10 @@ def _thresholds(st: _Stats, cl: _Classes, o_c: float, o_s: float,
     if len(cl.starts) < 3:
         return o_c, o_s
     cy = _centres(st.cy, cl.starts, cl.n)
-    cx = _centres(st.cx, cl.starts, cl.n)
     i, d_t = min_dispersion_split(np.linalg.norm(np.diff(cy, axis=0), axis=1), fence)
-    return d_t, float(np.abs(cx[i + 1] - cx[i]).sum())
+    ends = np.append(cl.starts[1:], cl.n)
+    pair = [st.x_mean(int(cl.starts[k]), int(ends[k])) for k in (i, i + 1)]
+    return d_t, float(np.abs(pair[1] - pair[0]).sum())
 
 
 def _iterate(st: _Stats, cl: _Classes, p: dict[str, Any],
@@ -357,16 +378,6 @@ def _check(cluster_seconds: float, max_merges: int | None, fence: float | None) 
         raise UsageError(f"isodata: max_merges must be a positive integer, got {max_merges!r}")
 
 
-def _captured_channels(motion: Motion, features: Features | None) -> np.ndarray:
-    """Captured frames' channels; with `features`, their unwrapped rotations (same poses)."""
-    channels = motion.channels[motion.first_frame :]
-    if features is None:
-        return channels
-    channels = channels.copy()
-    channels[:, motion.skeleton.rotation_columns()] = features.rotations[motion.first_frame :]
-    return channels
-
-
 def extract(motion: Motion, *, features: Features | None = None,
             cluster_seconds: float = CLUSTER_SECONDS, max_merges: int | None = None,
             outlier_fence: float | None = OUTLIER_FENCE, verbose: bool = False,
@@ -378,14 +389,15 @@ def extract(motion: Motion, *, features: Features | None = None,
     """
     _check(cluster_seconds, max_merges, outlier_fence)
     first = motion.first_frame
-    channels = _captured_channels(motion, features)
-    n = len(channels)
+    # Unwrapped rotations when the features are there: the same poses (module docstring).
+    values = motion.channels[first:] if features is None else features.rotations[first:]
+    n = len(values)
     params: dict[str, Any] = {"cluster_seconds": cluster_seconds, "max_merges": max_merges,
                               "outlier_fence": outlier_fence}
     if n < 3:
         return Keyframes(METHOD, np.arange(n) + first, np.ones(n), params, motion.n_frames, {})
     say = log if verbose else None
-    q = pose_vectors(motion.skeleton, channels)
+    q = pose_vectors(motion.skeleton, values, rotations_only=features is not None)
     w = joint_weights(motion.skeleton)
     x = q.reshape(n, -1)
     y = (q * np.sqrt(w)[None, :, None]).reshape(n, -1)
