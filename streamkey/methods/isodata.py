@@ -78,6 +78,7 @@ __all__ = ["extract", "pose_vectors", "joint_weights", "min_dispersion_split",
 METHOD = "isodata"
 CLUSTER_SECONDS = 25.0 / 120.0  # O_N = 25 frames at the paper's 120 Hz
 OUTLIER_FENCE = 10.0  # far beyond Tukey's far-out fence (Q3 + 3 IQR): pose glitches only
+CHUNK = 4096  # rows per block of full-length work: temporaries stay cache-sized
 
 
 def joint_weights(skeleton: Skeleton) -> np.ndarray:
@@ -198,19 +199,27 @@ def _fence(d: np.ndarray, k: float | None) -> float:
     return float(q3 + k * (q3 - q1))
 
 
-def initial_classes(y: np.ndarray, adjacent: np.ndarray, d_t: float) -> np.ndarray:
-    """Start rows of the initial classes (the paper's two rules, frames in order)."""
+def initial_classes(y: np.ndarray, adjacent: np.ndarray, d_t: float,
+                    scale: np.ndarray | None = None) -> np.ndarray:
+    """Start rows of the initial classes (the paper's two rules, frames in order).
+
+    With `scale`, the pose vectors are the rows of `y` times `scale` (made block by block)."""
     starts = [0]
     far_from_previous = (adjacent >= d_t).tolist()
-    total, count = y[0].copy(), 1
-    for f in range(1, len(y)):
-        diff = y[f] - total / count
-        if far_from_previous[f - 1] or math.sqrt(diff @ diff) >= d_t:
-            starts.append(f)
-            total, count = y[f].copy(), 1
-        else:
-            total += y[f]
-            count += 1
+    total, count = None, 0
+    for lo in range(0, len(y), CHUNK):
+        block = y[lo : lo + CHUNK] if scale is None else y[lo : lo + CHUNK] * scale
+        for f, row in enumerate(block, lo):
+            if total is None:
+                total, count = row.copy(), 1
+                continue
+            diff = row - total / count
+            if far_from_previous[f - 1] or math.sqrt(diff @ diff) >= d_t:
+                starts.append(f)
+                total, count = row.copy(), 1
+            else:
+                total += row
+                count += 1
     return np.array(starts, dtype=np.int64)
 
 
@@ -241,15 +250,38 @@ def _centres(cs: np.ndarray, starts: np.ndarray, n: int) -> np.ndarray:
 
 
 class _Stats:
-    """Prefix sums of the weighted pose vectors (y) for O(1) run statistics; statistics of
-    the plain ones (x) on demand, for the few classes that need them."""
+    """Prefix sums of the weighted pose vectors y = x * scale for O(1) run statistics (y made
+    block by block, never whole); statistics of the plain ones (x) for the few classes that
+    need them."""
 
-    def __init__(self, y: np.ndarray, x: np.ndarray) -> None:
-        self.y, self.x = y, x
-        self.cy = np.empty((len(y) + 1, y.shape[1]))
-        self.cy[0] = 0.0
-        np.cumsum(y, axis=0, out=self.cy[1:])  # written in place: no full-size temporaries
-        self.cyy = np.concatenate([[0.0], np.cumsum(np.einsum("ij,ij->i", y, y))])
+    def __init__(self, x: np.ndarray, scale: np.ndarray) -> None:
+        self.x, self.scale = x, scale
+        n = len(x)
+        self.cy = np.empty((n + 1, x.shape[1]))
+        self.cyy = np.empty(n + 1)
+        self.cy[0], self.cyy[0] = 0.0, 0.0
+        for lo in range(0, n, CHUNK):
+            hi = min(n, lo + CHUNK)
+            y = self.y_rows(lo, hi)
+            yy = np.einsum("ij,ij->i", y, y)
+            # the running total enters the first row: the same additions as one cumsum
+            y[0] += self.cy[lo]
+            np.cumsum(y, axis=0, out=self.cy[lo + 1 : hi + 1])
+            yy[0] += self.cyy[lo]
+            np.cumsum(yy, out=self.cyy[lo + 1 : hi + 1])
+
+    def y_rows(self, lo: int, hi: int) -> np.ndarray:
+        """Weighted pose vectors of rows [lo, hi) (a new array)."""
+        return self.x[lo:hi] * self.scale
+
+    def adjacent(self) -> np.ndarray:
+        """Weighted distance of each frame to the next (n - 1,)."""
+        n = len(self.x)
+        out = np.empty(max(0, n - 1))
+        for lo in range(0, n - 1, CHUNK):
+            hi = min(n - 1, lo + CHUNK)
+            out[lo:hi] = np.linalg.norm(np.diff(self.y_rows(lo, hi + 1), axis=0), axis=1)
+        return out
 
     def sse(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Weighted squared deviations of rows [a, b) about their mean."""
@@ -279,9 +311,9 @@ def _centre_distances(st: _Stats, cl: _Classes, lab: np.ndarray) -> np.ndarray:
     """Distance of every frame to its class centre, in row chunks (cache-sized temporaries)."""
     centres = _centres(st.cy, cl.starts, cl.n)
     dist = np.empty(cl.n)
-    for lo in range(0, cl.n, 4096):
-        dist[lo : lo + 4096] = np.linalg.norm(
-            st.y[lo : lo + 4096] - centres[lab[lo : lo + 4096]], axis=1)
+    for lo in range(0, cl.n, CHUNK):
+        hi = min(cl.n, lo + CHUNK)
+        dist[lo:hi] = np.linalg.norm(st.y_rows(lo, hi) - centres[lab[lo:hi]], axis=1)
     return dist
 
 
@@ -400,14 +432,13 @@ def extract(motion: Motion, *, features: Features | None = None,
     q = pose_vectors(motion.skeleton, values, rotations_only=features is not None)
     w = joint_weights(motion.skeleton)
     x = q.reshape(n, -1)
-    y = (q * np.sqrt(w)[None, :, None]).reshape(n, -1)
-    adjacent = np.linalg.norm(np.diff(y, axis=0), axis=1)
+    st = _Stats(x, np.repeat(np.sqrt(w), 4))
+    adjacent = st.adjacent()
     pair, d_t = min_dispersion_split(adjacent, outlier_fence)
     p: dict[str, Any] = derived_parameters(n, motion.fps, cluster_seconds)
     p.update(fence=outlier_fence, D_T=d_t, O_c=d_t, O_s=float(np.abs(x[pair + 1] - x[pair]).sum()),
              L=max_merges, threshold_pair=(pair + first, pair + 1 + first))  # eq. 4-5
-    st = _Stats(y, x)
-    cl = _Classes(initial_classes(y, adjacent, d_t), n)
+    cl = _Classes(initial_classes(x, adjacent, d_t, st.scale), n)
     p["initial_classes"] = len(cl.starts)
     if say is not None:
         say(f"isodata: N={n} K={p['K']} O_N={p['O_N']} I={p['I']} L={max_merges} "
