@@ -285,8 +285,8 @@ def _bench_agreement(data: Path | None, output: Path) -> list[Path]:
     if data is None:
         raise UsageError("bench --agreement needs the CMU clips (--data DIR)")
     motions = [read_motion(p) for p in sorted(data.iterdir()) if p.suffix in (".bvh", ".amc")]
-    # Saliency at the thesis' low-dynamic preset on both sides: the offline "auto" preset
-    # looks at the whole clip, which an online keyframer cannot.
+    # Saliency at the thesis' low-dynamic preset on both sides, so the table measures the
+    # lookahead alone (the `auto` preset adds its own 2 s decision).
     rows = lookahead_table(motions, LOOKAHEADS, {"saliency": {"sigma": 10.0, "k": 7}},
                            progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     md, js = output / "agreement_lookahead.md", output / "agreement_lookahead.json"
