@@ -22,7 +22,24 @@ import numpy as np
 from .bvh import read_bvh
 from .motion import Motion
 
-__all__ = ["run_bench", "long_motion", "default_data_dir"]
+__all__ = ["run_bench", "long_motion", "default_data_dir", "BenchInterrupted", "QUICK"]
+
+Say = Callable[[str], None]
+
+# --quick: every benchmark shortened so that the default run stays under two minutes.
+QUICK = {"frames": 20_000, "stream_frames": 24_000}
+
+
+class BenchInterrupted(Exception):
+    """Ctrl-C during a benchmark; `written` lists the files with the results so far."""
+
+    def __init__(self, written: list[Path]) -> None:
+        super().__init__("interrupted")
+        self.written = written
+
+
+def _quiet(message: str) -> None:
+    """Default progress sink: say nothing."""
 
 
 def default_data_dir() -> Path | None:
@@ -71,14 +88,17 @@ def _measure(fn: Callable[[], Any]) -> tuple[float, float, Any]:
     return seconds, peak / 2**20, result
 
 
-def bench_offline(frames: int, data: Path | None) -> dict[str, Any]:
-    """Time and peak memory of every offline method on one long motion."""
+def bench_offline(frames: int, data: Path | None, rows: list[dict[str, Any]] | None = None,
+                  say: Say = _quiet) -> dict[str, Any]:
+    """Time and peak memory of every offline method on one long motion (rows appended to
+    `rows` as they finish, each reported to `say`)."""
     from .features import compute_features
     from .methods import offline_method
 
     motion, source = long_motion(frames, data)
+    rows = _Rows(rows, say, "offline", "seconds")
     seconds, peak, feats = _measure(lambda: compute_features(motion))
-    rows = [{"method": "features (FK, once)", "seconds": seconds, "peak_mb": peak}]
+    rows.append({"method": "features (FK, once)", "seconds": seconds, "peak_mb": peak})
     count = None
     for name in ("saliency", "speed", "simplify", "uniform", "decimate"):
         fn = offline_method(name)
@@ -106,7 +126,24 @@ def bench_offline(frames: int, data: Path | None) -> dict[str, Any]:
         seconds, peak, keys = _measure(lambda fn=fn: fn(short, features=short_feats))
         rows.append({"method": f"{name} (10,000 frames)", "seconds": seconds, "peak_mb": peak,
                      "keyframes": len(keys)})
-    return {"frames": motion.n_frames, "source": source, "rows": rows}
+    return {"frames": motion.n_frames, "source": source, "rows": rows.rows}
+
+
+class _Rows:
+    """Result rows kept in the caller's list (so Ctrl-C still finds them), each one reported
+    to `say` as it lands."""
+
+    def __init__(self, rows: list[dict[str, Any]] | None, say: Say, kind: str,
+                 value: str) -> None:
+        self.rows = [] if rows is None else rows
+        self.say, self.kind, self.value = say, kind, value
+
+    def append(self, row: dict[str, Any]) -> None:
+        self.rows.append(row)
+        name = row.get("method", row.get("target", "?"))
+        value = row.get(self.value)
+        shown = f"{value:.4g}" if isinstance(value, float) else str(value)
+        self.say(f"bench {self.kind}: {name}: {self.value} {shown}")
 
 
 def _push_costs(make: Callable[[], Any], frames: list[Any]) -> dict[str, float]:
@@ -125,7 +162,8 @@ def _push_costs(make: Callable[[], Any], frames: list[Any]) -> dict[str, float]:
 
 
 def bench_online(data: Path | None, stream_frames: int = 432_000,
-                 frames_long: int = 100_000) -> dict[str, Any]:
+                 frames_long: int = 100_000, rows: list[dict[str, Any]] | None = None,
+                 say: Say = _quiet) -> dict[str, Any]:
     """Per-frame push cost of each online keyframer and memory over a long looped stream."""
     from .methods import ONLINE_METHODS, online_class
     from .online import Pipeline
@@ -138,7 +176,7 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
 
         motion, source = demo_motion(), "embedded demo motion"
     frames = motion.frames()
-    rows = []
+    rows = _Rows(rows, say, "online", "mean_us")
     for name in ONLINE_METHODS:
         cls = online_class(name)
         row = _push_costs(lambda cls=cls: cls(motion.skeleton, motion.fps), frames)
@@ -158,9 +196,13 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
                         lambda: _FeaturesOnly(long.skeleton, long.fps, positions=True))):
         rows.append({"method": f"{name} ({len(long_frames):,} frames)",
                      **_push_costs(make, long_frames)})
+    say(f"bench online: memory over a {stream_frames:,}-frame looped stream ...")
     memory = _stream_memory(pipeline, motion, stream_frames)
-    return {"clip": source, "frames": len(frames), "rows": rows, "memory": memory,
-            "engine_live": _engine_latency(motion)}
+    say(f"bench online: growth after warm-up {memory['growth_after_warmup_mb']:.3g} MB; "
+        "engine latency at 120 Hz ...")
+    seconds = 60.0 if stream_frames >= 100_000 else 15.0
+    return {"clip": source, "frames": len(frames), "rows": rows.rows, "memory": memory,
+            "engine_live": _engine_latency(motion, seconds)}
 
 
 class _FeaturesOnly:
@@ -243,8 +285,8 @@ def _bench_agreement(data: Path | None, output: Path) -> list[Path]:
     if data is None:
         raise UsageError("bench --agreement needs the CMU clips (--data DIR)")
     motions = [read_motion(p) for p in sorted(data.iterdir()) if p.suffix in (".bvh", ".amc")]
-    # Saliency at the thesis' low-dynamic preset on both sides: the offline "auto" preset
-    # looks at the whole clip, which an online keyframer cannot.
+    # Saliency at the thesis' low-dynamic preset on both sides, so the table measures the
+    # lookahead alone (the `auto` preset adds its own 2 s decision).
     rows = lookahead_table(motions, LOOKAHEADS, {"saliency": {"sigma": 10.0, "k": 7}},
                            progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     md, js = output / "agreement_lookahead.md", output / "agreement_lookahead.json"
@@ -272,32 +314,52 @@ def _markdown(kind: str, result: dict[str, Any]) -> str:
 
 def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
               data: str | None = None, stream_frames: int = 432_000,
-              quick: bool = False) -> list[Path]:
-    """Run the chosen benchmarks; write `bench_<kind>.json` and `.md` into `output`."""
+              quick: bool = False, say: Say = _quiet) -> list[Path]:
+    """Run the chosen benchmarks; write `bench_<kind>.json` and `.md` into `output`.
+
+    `quick` shortens every benchmark (`QUICK`). Progress goes to `say`. On Ctrl-C the rows
+    measured so far are written (marked `"partial": true`) and `BenchInterrupted` is raised."""
     from .bench_live import LIVE_KINDS, run_live_bench
 
+    if quick:
+        frames, stream_frames = min(frames, QUICK["frames"]), min(stream_frames,
+                                                                  QUICK["stream_frames"])
     data_dir = Path(data) if data else default_data_dir()
     output.mkdir(parents=True, exist_ok=True)
-    written = []
+    written: list[Path] = []
     for kind in kinds:
-        if kind == "agreement":
-            written += _bench_agreement(data_dir, output)
-            continue
-        if kind in LIVE_KINDS:  # live engine benches (memory, latency, ws_clients)
-            result = run_live_bench(kind, data_dir, quick)
-        elif kind == "offline":
-            result = bench_offline(frames, data_dir)
-        elif kind == "perf":
-            result = bench_perf(frames, data_dir)
-        else:
-            result = bench_online(data_dir, stream_frames, frames)
-        result["date"] = time.strftime("%Y-%m-%d %H:%M:%S")
-        for suffix, text in (("json", json.dumps(result, indent=1)),
-                             ("md", _markdown(kind, result))):
-            path = output / f"bench_{kind}.{suffix}"
-            path.write_text(text + "\n", encoding="utf-8")
-            written.append(path)
+        say(f"bench {kind}: started ({time.strftime('%H:%M:%S')})")
+        rows: list[dict[str, Any]] = []
+        try:
+            if kind == "agreement":
+                written += _bench_agreement(data_dir, output)
+                continue
+            if kind in LIVE_KINDS:  # live engine benches (memory, latency, ws_clients)
+                result = run_live_bench(kind, data_dir, quick)
+            elif kind == "offline":
+                result = bench_offline(frames, data_dir, rows, say)
+            elif kind == "perf":
+                result = bench_perf(frames, data_dir, rows, say)
+            else:
+                result = bench_online(data_dir, stream_frames, frames, rows, say)
+        except KeyboardInterrupt:
+            if rows:
+                written += _write_result(output, kind, {"rows": rows, "partial": True})
+            raise BenchInterrupted(written) from None
+        written += _write_result(output, kind, result)
+        say(f"bench {kind}: done")
     return written
+
+
+def _write_result(output: Path, kind: str, result: dict[str, Any]) -> list[Path]:
+    result["date"] = time.strftime("%Y-%m-%d %H:%M:%S")
+    paths = []
+    for suffix, text in (("json", json.dumps(result, indent=1)),
+                         ("md", _markdown(kind, result))):
+        path = output / f"bench_{kind}.{suffix}"
+        path.write_text(text + "\n", encoding="utf-8")
+        paths.append(path)
+    return paths
 
 
 # --- bench --perf: the issue-13 targets (CPU time, long stream, growth exponents) ----------
@@ -326,7 +388,8 @@ def _cpu_push_costs(make: Callable[[], Any], frames: list[Any], push: str = "pus
             "p99_us": float(np.percentile(us, 99)), "max_us": float(us.max())}
 
 
-def bench_perf_online(frames: int, data: Path | None, methods: list[str] | None = None
+def bench_perf_online(frames: int, data: Path | None, methods: list[str] | None = None,
+                      rows: list[dict[str, Any]] | None = None, say: Say = _quiet
                       ) -> dict[str, Any]:
     """One frame per push on a long stream of the shared clips concatenated (CPU time)."""
     from .methods import ONLINE_METHODS, online_class
@@ -340,25 +403,31 @@ def bench_perf_online(frames: int, data: Path | None, methods: list[str] | None 
         st = FeatureStage(motion.skeleton, motion.fps)
         return lambda f: st.compute([f]).materialise()
 
-    rows = [{"target": "feature stage", **_cpu_push_costs(stage, stream, "__call__")}]
+    out = _Rows(rows, say, f"perf online ({len(stream):,} frames)", "mean_us")
+
+    def add(target: str, costs: dict[str, float]) -> None:
+        mean_goal, p99_goal = PERF_ONLINE_GOALS[target]
+        out.append({"target": target, **costs, "goal": f"mean <= {mean_goal:g}, p99 <= "
+                    f"{p99_goal:g}", "met": costs["mean_us"] <= mean_goal
+                    and costs["p99_us"] <= p99_goal})
+
+    add("feature stage", _cpu_push_costs(stage, stream, "__call__"))
     for name in names:
         cls = online_class(name)
-        rows.append({"target": name, **_cpu_push_costs(
-            lambda cls=cls: cls(motion.skeleton, motion.fps), stream)})
+        add(name, _cpu_push_costs(lambda cls=cls: cls(motion.skeleton, motion.fps), stream))
     if methods is None:
-        rows.append({"target": "all (one pipeline)", **_cpu_push_costs(
+        add("all (one pipeline)", _cpu_push_costs(
             lambda: Pipeline([online_class(m)(motion.skeleton, motion.fps)
-                              for m in ONLINE_METHODS]), stream)})
-    for row in rows:
-        mean_goal, p99_goal = PERF_ONLINE_GOALS[row["target"]]
-        row["goal"] = f"mean <= {mean_goal:g}, p99 <= {p99_goal:g}"
-        row["met"] = row["mean_us"] <= mean_goal and row["p99_us"] <= p99_goal
-    return {"frames": len(stream), "source": source, "rows": rows}
+                              for m in ONLINE_METHODS]), stream))
+    return {"frames": len(stream), "source": source, "rows": out.rows}
 
 
 def bench_perf_offline(sizes: list[int], data: Path | None,
-                       methods: list[str] | None = None) -> dict[str, Any]:
-    """CPU seconds of every offline method at each size; exponent of the growth fitted."""
+                       methods: list[str] | None = None,
+                       rows: list[dict[str, Any]] | None = None, say: Say = _quiet
+                       ) -> dict[str, Any]:
+    """CPU seconds of every offline method at each size; exponent of the growth fitted.
+    Rows land in `rows` once every size is done; each timing is reported to `say`."""
     from .features import compute_features
     from .methods import offline_method
 
@@ -371,6 +440,7 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
         t0 = time.process_time()
         feats = compute_features(part)
         times["features"].append(time.process_time() - t0)
+        say(f"bench perf offline: features at {n:,} frames: {times['features'][-1]:.3g} s")
         count = len(offline_method("saliency")(part, features=feats))
         for name in names:
             fn = offline_method(name)
@@ -380,7 +450,8 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
             t0 = time.process_time()
             fn(part, **kwargs)
             times[name].append(time.process_time() - t0)
-    rows = []
+            say(f"bench perf offline: {name} at {n:,} frames: {times[name][-1]:.3g} s")
+    rows = [] if rows is None else rows
     for name, secs in times.items():
         slope = float(np.polyfit(np.log(sizes), np.log(secs), 1)[0]) if len(sizes) > 1 else 0.0
         goal = PERF_OFFLINE_GOALS.get(name, float("inf"))
@@ -390,25 +461,28 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
     return {"sizes": sizes, "source": source, "rows": rows}
 
 
-def bench_perf(frames: int, data: Path | None) -> dict[str, Any]:
+def bench_perf(frames: int, data: Path | None, rows: list[dict[str, Any]] | None = None,
+               say: Say = _quiet) -> dict[str, Any]:
     """The issue-13 targets: online per-frame CPU time, offline growth from frames/10."""
-    online = bench_perf_online(frames, data)
-    memory = bench_perf_memory(data)
+    rows = [] if rows is None else rows
+    online = bench_perf_online(frames, data, rows=rows, say=say)
+    memory = bench_perf_memory(data, frames=min(36_000, frames), rows=rows, say=say)
     sizes = [frames // 10, frames // 10 * 3, frames]
-    offline = bench_perf_offline(sizes, data)
-    return {"rows": online["rows"] + memory["rows"] + offline["rows"],
-            "source": online["source"], "stream_frames": online["frames"],
+    bench_perf_offline(sizes, data, rows=rows, say=say)
+    return {"rows": rows, "source": online["source"], "stream_frames": online["frames"],
             "memory_frames": memory["frames"], "offline_sizes": sizes}
 
 
-def bench_perf_memory(data: Path | None, frames: int = 36_000) -> dict[str, Any]:
+def bench_perf_memory(data: Path | None, frames: int = 36_000,
+                      rows: list[dict[str, Any]] | None = None, say: Say = _quiet
+                      ) -> dict[str, Any]:
     """Traced memory (MB) held by each online keyframer after `frames` frames (every window
     and history full) and its peak growth over the last half (flat: near zero)."""
     from .methods import ONLINE_METHODS, online_class
 
     motion, _ = long_motion(frames, data)
     stream = motion.frames()
-    rows = []
+    out = _Rows(rows, say, f"perf memory ({frames:,} frames)", "state_mb")
     for name in ONLINE_METHODS:
         online_class(name)(motion.skeleton, motion.fps).push(stream[0])  # imports, plans
         gc.collect()
@@ -422,7 +496,7 @@ def bench_perf_memory(data: Path | None, frames: int = 36_000) -> dict[str, Any]
             kf.push(frame)
         now, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
-        rows.append({"target": f"memory {name}", "state_mb": now / 2**20,
-                     "growth_mb": (now - half) / 2**20, "peak_mb": peak / 2**20,
-                     "goal": "state <= 20 MB", "met": now / 2**20 <= 20.0})
-    return {"frames": frames, "rows": rows}
+        out.append({"target": f"memory {name}", "state_mb": now / 2**20,
+                    "growth_mb": (now - half) / 2**20, "peak_mb": peak / 2**20,
+                    "goal": "state <= 20 MB", "met": now / 2**20 <= 20.0})
+    return {"frames": frames, "rows": out.rows}

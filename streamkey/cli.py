@@ -398,7 +398,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     """`streamkey bench`: time and memory of the offline and/or online methods, to files."""
-    from .bench import run_bench
+    from .bench import BenchInterrupted, run_bench
 
     kinds = [k for k in ("offline", "online", "agreement", "perf") if getattr(args, k)]
     kinds += [k for k in ("memory", "latency", "ws_clients") if getattr(args, k)]
@@ -410,8 +410,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if not kinds:
             return 0
     kinds = kinds or ["offline", "online"]
-    for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data,
-                          quick=args.quick):
+    try:
+        written = run_bench(kinds, Path(args.output), frames=args.frames, data=args.data,
+                            quick=args.quick, say=lambda line: print(line, file=sys.stderr,
+                                                                     flush=True))
+    except BenchInterrupted as stop:
+        for path in stop.written:
+            print(f"wrote {path}")
+        print("interrupted: the results above are what was measured before Ctrl-C "
+              "(partial ones are marked \"partial\": true)", file=sys.stderr)
+        return 130
+    for path in written:
         print(f"wrote {path}")
     return 0
 
@@ -737,7 +746,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "an external receiver, OSC and ZeroMQ at 120 Hz, all methods")
     p.add_argument("--ws-clients", dest="ws_clients", action="store_true",
                    help="live: event latency with 0, 100 and 300 WebSocket clients")
-    p.add_argument("--quick", action="store_true", help="live benches: shorter runs")
+    p.add_argument("--quick", action="store_true",
+                   help="shorter runs: 20,000-frame motion and stream (default benches under "
+                        "2 minutes), shorter live benches")
     p.add_argument("--engines", action="store_true", help="extract DIR on local, Ray and "
                    "Dask: wall and CPU (needs streamkey[cluster])")
     p.add_argument("--perf", action="store_true",

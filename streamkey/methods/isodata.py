@@ -59,6 +59,7 @@ I) and the prose are followed, and this module settles the rest:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -69,7 +70,6 @@ from scipy.spatial.transform import Rotation
 from ..errors import UsageError
 from ..features import Features
 from ..keyframes import Keyframes
-from ..kinematics import local_rotations
 from ..motion import Motion, Skeleton
 
 __all__ = ["extract", "pose_vectors", "joint_weights", "min_dispersion_split",
@@ -78,6 +78,7 @@ __all__ = ["extract", "pose_vectors", "joint_weights", "min_dispersion_split",
 METHOD = "isodata"
 CLUSTER_SECONDS = 25.0 / 120.0  # O_N = 25 frames at the paper's 120 Hz
 OUTLIER_FENCE = 10.0  # far beyond Tukey's far-out fence (Q3 + 3 IQR): pose glitches only
+CHUNK = 4096  # rows per block of full-length work: temporaries stay cache-sized
 
 
 def joint_weights(skeleton: Skeleton) -> np.ndarray:
@@ -89,18 +90,83 @@ def joint_weights(skeleton: Skeleton) -> np.ndarray:
     return 1.0 / (1.0 + depth)
 
 
-def pose_vectors(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
-    """Per-joint sign-continuous quaternions x 360/pi, (n, joints, 4) (module docstring)."""
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions (4, ...) stored component-first (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz])
+
+
+def _turn(q: np.ndarray, axis: int, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """q * (s e_axis + c) for q component-first (4, ...)."""
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    out = np.empty_like(q)
+    out[axis] = q[axis] * c + q[3] * s
+    out[i] = q[i] * c + q[j] * s
+    out[j] = q[j] * c - q[i] * s
+    out[3] = q[3] * c - q[axis] * s
+    return out
+
+
+def local_quaternions(skeleton: Skeleton, channels: np.ndarray,
+                      rotations_only: bool = False) -> np.ndarray:
+    """Local joint rotations as unit quaternions (n, joints, 4), (x, y, z, w), straight from
+    the Euler channels: the product of one half-angle quaternion per channel in the joint's
+    order (the matrices' intrinsic product), conjugated by the ASF axis where there is one.
+    With `rotations_only`, `channels` holds the columns `skeleton.rotation_columns()` only."""
+    assert skeleton.rotation_order is not None and skeleton.pre_rotations is not None
     n, joints = len(channels), skeleton.n_joints
-    q = np.empty((n, joints, 4))
-    for lo in range(0, n, 4096):  # bounded temporaries keep this linear in frames
-        rot = local_rotations(skeleton, channels[lo : lo + 4096])
-        q[lo : lo + 4096] = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat().reshape(
-            len(rot), joints, 4)
-    q[0] *= np.where(q[0, :, 3:] < 0, -1.0, 1.0)
-    flip = np.where(np.einsum("fjk,fjk->fj", q[1:], q[:-1]) < 0, -1.0, 1.0)
-    q[1:] *= np.cumprod(flip, axis=0)[..., None]
-    return q * (360.0 / np.pi)
+    where = {int(c): i for i, c in enumerate(skeleton.rotation_columns())}
+    q = np.zeros((4, joints, n))  # component-first, frames last: joint rows are contiguous
+    q[3] = 1.0
+    for k in range(3):
+        for axis, name in enumerate(("Xrotation", "Yrotation", "Zrotation")):
+            idx = [j for j, order in enumerate(skeleton.rotation_order)
+                   if len(order) > k and order[k] == name]
+            if not idx:
+                continue
+            cols = [skeleton.channel_index(j, name) for j in idx]
+            if rotations_only:
+                cols = [where[int(c)] for c in cols]
+            half = np.radians(channels[:, cols].T)
+            half *= 0.5
+            c, s = np.cos(half), np.sin(half)
+            if k == 0:  # identity * (s e_axis + c)
+                q[axis, idx], q[3, idx] = s, c
+            else:
+                q[:, idx] = _turn(q[:, idx], axis, c, s)
+    pre = [i for i, r in enumerate(skeleton.pre_rotations) if r is not None]
+    if pre:
+        p = Rotation.from_matrix(np.array([skeleton.pre_rotations[i] for i in pre])).as_quat()
+        p = p.T[:, :, None]  # (4, len(pre), 1), component-first
+        p_conj = p * np.array([-1.0, -1.0, -1.0, 1.0])[:, None, None]
+        q[:, pre] = _quat_mul(_quat_mul(p, q[:, pre]), p_conj)
+    return q.transpose(2, 1, 0).copy()
+
+
+def pose_vectors(skeleton: Skeleton, channels: np.ndarray, chunk: int = 8192,
+                 rotations_only: bool = False) -> np.ndarray:
+    """Per-joint sign-continuous quaternions x 360/pi, (n, joints, 4) (module docstring).
+
+    Computed `chunk` frames at a time (cache-sized temporaries); the sign of each chunk's
+    first frame follows the previous chunk's last, so the split changes nothing.
+    `rotations_only`: `channels` holds the rotation columns only (as `Features.rotations`)."""
+    out = np.empty((len(channels), skeleton.n_joints, 4))
+    previous = None
+    for lo in range(0, len(channels), chunk):
+        q = local_quaternions(skeleton, channels[lo : lo + chunk], rotations_only)
+        if previous is None:
+            q[0] *= np.where(q[0, :, 3:] < 0, -1.0, 1.0)
+        else:
+            q[0] *= np.where(np.einsum("jk,jk->j", q[0], previous) < 0, -1.0, 1.0)[:, None]
+        flip = np.where(np.einsum("fjk,fjk->fj", q[1:], q[:-1]) < 0, -1.0, 1.0)
+        q[1:] *= np.cumprod(flip, axis=0)[..., None]
+        previous = q[-1].copy()
+        np.multiply(q, 360.0 / np.pi, out=out[lo : lo + chunk])
+    return out
 
 
 def min_dispersion_split(d: np.ndarray, fence: float | None = None) -> tuple[int, float]:
@@ -133,19 +199,27 @@ def _fence(d: np.ndarray, k: float | None) -> float:
     return float(q3 + k * (q3 - q1))
 
 
-def initial_classes(y: np.ndarray, adjacent: np.ndarray, d_t: float) -> np.ndarray:
-    """Start rows of the initial classes (the paper's two rules, frames in order)."""
+def initial_classes(y: np.ndarray, adjacent: np.ndarray, d_t: float,
+                    scale: np.ndarray | None = None) -> np.ndarray:
+    """Start rows of the initial classes (the paper's two rules, frames in order).
+
+    With `scale`, the pose vectors are the rows of `y` times `scale` (made block by block)."""
     starts = [0]
-    total, count = y[0].copy(), 1
-    for f in range(1, len(y)):
-        centre = total / count
-        diff = y[f] - centre
-        if adjacent[f - 1] >= d_t or float(np.sqrt(diff @ diff)) >= d_t:
-            starts.append(f)
-            total, count = y[f].copy(), 1
-        else:
-            total += y[f]
-            count += 1
+    far_from_previous = (adjacent >= d_t).tolist()
+    total, count = None, 0
+    for lo in range(0, len(y), CHUNK):
+        block = y[lo : lo + CHUNK] if scale is None else y[lo : lo + CHUNK] * scale
+        for f, row in enumerate(block, lo):
+            if total is None:
+                total, count = row.copy(), 1
+                continue
+            diff = row - total / count
+            if far_from_previous[f - 1] or math.sqrt(diff @ diff) >= d_t:
+                starts.append(f)
+                total, count = row.copy(), 1
+            else:
+                total += row
+                count += 1
     return np.array(starts, dtype=np.int64)
 
 
@@ -176,29 +250,54 @@ def _centres(cs: np.ndarray, starts: np.ndarray, n: int) -> np.ndarray:
 
 
 class _Stats:
-    """Prefix sums of the weighted (y) and plain (x) pose vectors for O(1) run statistics."""
+    """Prefix sums of the weighted pose vectors y = x * scale for O(1) run statistics (y made
+    block by block, never whole); statistics of the plain ones (x) for the few classes that
+    need them."""
 
-    def __init__(self, y: np.ndarray, x: np.ndarray) -> None:
-        self.y, self.x = y, x
-        self.cy, self.cx, self.cxx = (np.empty((len(y) + 1, y.shape[1])) for _ in range(3))
-        self.cy[0] = self.cx[0] = self.cxx[0] = 0.0
-        np.cumsum(y, axis=0, out=self.cy[1:])  # written in place: no full-size temporaries
-        self.cyy = np.concatenate([[0.0], np.cumsum(np.einsum("ij,ij->i", y, y))])
-        np.cumsum(x, axis=0, out=self.cx[1:])
-        np.multiply(x, x, out=self.cxx[1:])
-        np.cumsum(self.cxx[1:], axis=0, out=self.cxx[1:])
+    def __init__(self, x: np.ndarray, scale: np.ndarray) -> None:
+        self.x, self.scale = x, scale
+        n = len(x)
+        self.cy = np.empty((n + 1, x.shape[1]))
+        self.cyy = np.empty(n + 1)
+        self.cy[0], self.cyy[0] = 0.0, 0.0
+        for lo in range(0, n, CHUNK):
+            hi = min(n, lo + CHUNK)
+            y = self.y_rows(lo, hi)
+            yy = np.einsum("ij,ij->i", y, y)
+            # the running total enters the first row: the same additions as one cumsum
+            y[0] += self.cy[lo]
+            np.cumsum(y, axis=0, out=self.cy[lo + 1 : hi + 1])
+            yy[0] += self.cyy[lo]
+            np.cumsum(yy, out=self.cyy[lo + 1 : hi + 1])
+
+    def y_rows(self, lo: int, hi: int) -> np.ndarray:
+        """Weighted pose vectors of rows [lo, hi) (a new array)."""
+        return self.x[lo:hi] * self.scale
+
+    def adjacent(self) -> np.ndarray:
+        """Weighted distance of each frame to the next (n - 1,)."""
+        n = len(self.x)
+        out = np.empty(max(0, n - 1))
+        for lo in range(0, n - 1, CHUNK):
+            hi = min(n - 1, lo + CHUNK)
+            out[lo:hi] = np.linalg.norm(np.diff(self.y_rows(lo, hi + 1), axis=0), axis=1)
+        return out
 
     def sse(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Weighted squared deviations of rows [a, b) about their mean."""
         s = self.cy[b] - self.cy[a]
         return self.cyy[b] - self.cyy[a] - np.einsum("ij,ij->i", s, s) / (b - a)
 
-    def max_std(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    def x_mean(self, a: int, b: int) -> np.ndarray:
+        """Mean of the plain pose vectors of rows [a, b)."""
+        return self.x[a:b].sum(axis=0) / (b - a)
+
+    def max_std(self, a: int, b: int) -> float:
         """Largest per-coordinate standard deviation of rows [a, b) (unweighted)."""
-        m = (b - a)[:, None]
-        mean = (self.cx[b] - self.cx[a]) / m
-        var = (self.cxx[b] - self.cxx[a]) / m - mean**2
-        return np.sqrt(np.maximum(var, 0.0)).max(axis=1)
+        block = self.x[a:b]
+        mean = block.sum(axis=0) / (b - a)
+        var = (block * block).sum(axis=0) / (b - a) - mean**2
+        return float(np.sqrt(np.maximum(var, 0.0)).max())
 
 
 def _dispersion(st: _Stats, cl: _Classes) -> np.ndarray:
@@ -212,9 +311,9 @@ def _centre_distances(st: _Stats, cl: _Classes, lab: np.ndarray) -> np.ndarray:
     """Distance of every frame to its class centre, in row chunks (cache-sized temporaries)."""
     centres = _centres(st.cy, cl.starts, cl.n)
     dist = np.empty(cl.n)
-    for lo in range(0, cl.n, 4096):
-        dist[lo : lo + 4096] = np.linalg.norm(
-            st.y[lo : lo + 4096] - centres[lab[lo : lo + 4096]], axis=1)
+    for lo in range(0, cl.n, CHUNK):
+        hi = min(cl.n, lo + CHUNK)
+        dist[lo:hi] = np.linalg.norm(st.y_rows(lo, hi) - centres[lab[lo:hi]], axis=1)
     return dist
 
 
@@ -231,8 +330,9 @@ def _split(st: _Stats, cl: _Classes, o_s: float, o_n: int) -> _Classes:
     a, b = cl.starts, cl.starts + sizes
     disp = _dispersion(st, cl)
     mean_disp = float(np.sum(disp * sizes) / cl.n)
-    ok = (disp > mean_disp) & (st.max_std(a, b) > o_s) & (sizes >= 2 * o_n)
-    cuts = [_best_cut(st, int(a[i]), int(b[i]), o_n) for i in np.flatnonzero(ok)]
+    wide = np.flatnonzero((disp > mean_disp) & (sizes >= 2 * o_n))
+    ok = [i for i in wide if st.max_std(int(a[i]), int(b[i])) > o_s]
+    cuts = [_best_cut(st, int(a[i]), int(b[i]), o_n) for i in ok]
     return _Classes(np.sort(np.concatenate([cl.starts, np.array(cuts, dtype=np.int64)])), cl.n)
 
 
@@ -261,9 +361,10 @@ def _thresholds(st: _Stats, cl: _Classes, o_c: float, o_s: float,
     if len(cl.starts) < 3:
         return o_c, o_s
     cy = _centres(st.cy, cl.starts, cl.n)
-    cx = _centres(st.cx, cl.starts, cl.n)
     i, d_t = min_dispersion_split(np.linalg.norm(np.diff(cy, axis=0), axis=1), fence)
-    return d_t, float(np.abs(cx[i + 1] - cx[i]).sum())
+    ends = np.append(cl.starts[1:], cl.n)
+    pair = [st.x_mean(int(cl.starts[k]), int(ends[k])) for k in (i, i + 1)]
+    return d_t, float(np.abs(pair[1] - pair[0]).sum())
 
 
 def _iterate(st: _Stats, cl: _Classes, p: dict[str, Any],
@@ -309,16 +410,6 @@ def _check(cluster_seconds: float, max_merges: int | None, fence: float | None) 
         raise UsageError(f"isodata: max_merges must be a positive integer, got {max_merges!r}")
 
 
-def _captured_channels(motion: Motion, features: Features | None) -> np.ndarray:
-    """Captured frames' channels; with `features`, their unwrapped rotations (same poses)."""
-    channels = motion.channels[motion.first_frame :]
-    if features is None:
-        return channels
-    channels = channels.copy()
-    channels[:, motion.skeleton.rotation_columns()] = features.rotations[motion.first_frame :]
-    return channels
-
-
 def extract(motion: Motion, *, features: Features | None = None,
             cluster_seconds: float = CLUSTER_SECONDS, max_merges: int | None = None,
             outlier_fence: float | None = OUTLIER_FENCE, verbose: bool = False,
@@ -330,24 +421,24 @@ def extract(motion: Motion, *, features: Features | None = None,
     """
     _check(cluster_seconds, max_merges, outlier_fence)
     first = motion.first_frame
-    channels = _captured_channels(motion, features)
-    n = len(channels)
+    # Unwrapped rotations when the features are there: the same poses (module docstring).
+    values = motion.channels[first:] if features is None else features.rotations[first:]
+    n = len(values)
     params: dict[str, Any] = {"cluster_seconds": cluster_seconds, "max_merges": max_merges,
                               "outlier_fence": outlier_fence}
     if n < 3:
         return Keyframes(METHOD, np.arange(n) + first, np.ones(n), params, motion.n_frames, {})
     say = log if verbose else None
-    q = pose_vectors(motion.skeleton, channels)
+    q = pose_vectors(motion.skeleton, values, rotations_only=features is not None)
     w = joint_weights(motion.skeleton)
     x = q.reshape(n, -1)
-    y = (q * np.sqrt(w)[None, :, None]).reshape(n, -1)
-    adjacent = np.linalg.norm(np.diff(y, axis=0), axis=1)
+    st = _Stats(x, np.repeat(np.sqrt(w), 4))
+    adjacent = st.adjacent()
     pair, d_t = min_dispersion_split(adjacent, outlier_fence)
     p: dict[str, Any] = derived_parameters(n, motion.fps, cluster_seconds)
     p.update(fence=outlier_fence, D_T=d_t, O_c=d_t, O_s=float(np.abs(x[pair + 1] - x[pair]).sum()),
              L=max_merges, threshold_pair=(pair + first, pair + 1 + first))  # eq. 4-5
-    st = _Stats(y, x)
-    cl = _Classes(initial_classes(y, adjacent, d_t), n)
+    cl = _Classes(initial_classes(x, adjacent, d_t, st.scale), n)
     p["initial_classes"] = len(cl.starts)
     if say is not None:
         say(f"isodata: N={n} K={p['K']} O_N={p['O_N']} I={p['I']} L={max_merges} "

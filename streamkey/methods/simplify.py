@@ -217,21 +217,26 @@ def split_order(x: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
     return np.array(order[:count], dtype=np.int64), np.array(dists[:count])
 
 
-def max_chord_error(x: np.ndarray, keys: np.ndarray) -> np.ndarray:
+def max_chord_error(x: np.ndarray, keys: np.ndarray, rows: int = 4096) -> np.ndarray:
     """Largest time-parametrised chord distance inside each segment between sorted `keys`.
 
-    `keys` must hold row 0 and the last row; returns one value a segment (vectorised).
+    `keys` must hold row 0 and the last row; returns one value a segment (vectorised, `rows`
+    frames at a time so the temporaries stay cache-sized).
     """
     keys = np.asarray(keys, dtype=np.int64)
     if len(keys) < 2:
         return np.zeros(0)
-    frames = np.arange(len(x))
-    seg = np.clip(np.searchsorted(keys, frames, side="right") - 1, 0, len(keys) - 2)
-    a, b = keys[seg], keys[seg + 1]
-    t = ((frames - a) / (b - a))[:, None]
-    resid = x - x[a] - t * (x[b] - x[a])
     out = np.zeros(len(keys) - 1)
-    np.maximum.at(out, seg, np.sqrt(np.einsum("ij,ij->i", resid, resid)))
+    for lo in range(0, len(x), rows):
+        frames = np.arange(lo, min(len(x), lo + rows))
+        seg = np.clip(np.searchsorted(keys, frames, side="right") - 1, 0, len(keys) - 2)
+        a, b = keys[seg], keys[seg + 1]
+        t = ((frames - a) / (b - a))[:, None]
+        resid = x[frames] - x[a] - t * (x[b] - x[a])
+        dist = np.sqrt(np.einsum("ij,ij->i", resid, resid))
+        first = np.flatnonzero(np.diff(seg, prepend=-1))  # seg is sorted: runs of one segment
+        runs = seg[first]
+        out[runs] = np.maximum(out[runs], np.maximum.reduceat(dist, first))
     return out
 
 
