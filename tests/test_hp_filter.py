@@ -103,9 +103,9 @@ def test_hp_bank_gives_the_same_trends_as_hp_filter() -> None:
     rng = np.random.default_rng(3)
     v = np.abs(rng.normal(size=500)).cumsum()
     lams = np.array([hp_lambda(f, DT) for f in (8.0, 2.0, 0.5)])
-    bank = HPBank(lams, len(v))
+    bank = HPBank(lams)
     for i, lam in enumerate(lams):
         np.testing.assert_allclose(bank.solve(v, i), hp_filter(v, lam), rtol=1e-9)
-        for n in (3, 4, 5, 6, 100, 499):  # shorter windows share the capacity's factor
+        for n in (3, 4, 5, 6, 100, 499):  # every length: the same factor
             np.testing.assert_allclose(bank.solve(v[:n], i), hp_filter(v[:n], lam), rtol=1e-9)
-            assert np.array_equal(bank.solve(v[:n], i), HPBank(lams, n).solve(v[:n], i))
+            assert np.array_equal(bank.solve(v[:n], i), HPBank(lams).solve(v[:n], i))
