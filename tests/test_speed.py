@@ -397,3 +397,47 @@ def test_1d_ward_keeps_the_offline_keyposes_on_the_shared_clips_concatenated() -
     finally:
         speed.WARD_1D_FROM = old
     np.testing.assert_array_equal(ours.frames, scipy_way.frames)
+
+
+def test_the_regular_analysis_is_spread_over_the_frames_after_its_start(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """No push runs a whole re-analysis (144 HP solves): each frame does a share of it."""
+    from streamkey.bench import long_motion
+
+    motion, _ = long_motion(3400, DATA)
+    kf = speed.Online(motion.skeleton, motion.fps)
+    assert (kf.hop, kf.delay) == (24, 16)
+    solves = [0]
+    real = speed.HPBank.solve
+
+    def counted(self: speed.HPBank, v: np.ndarray, i: int, keep: bool = False) -> np.ndarray:
+        solves[0] += 1
+        return real(self, v, i, keep)
+
+    monkeypatch.setattr(speed.HPBank, "solve", counted)
+    per_push = []
+    for frame in motion.frames():
+        solves[0] = 0
+        kf.push(frame)
+        per_push.append(solves[0])
+    steady = np.array(per_push[2592:3384])  # window full (2,546 frames), 33 whole hops
+    assert 0 < steady.max() <= 144 // 4
+    busy = (steady > 0).reshape(-1, kf.hop).sum(axis=1)[1:-1]  # frames with solves per hop
+    assert busy.min() >= kf.delay - 2
+
+
+def test_hp_factors_are_shared_between_streams_and_left_out_of_pickles() -> None:
+    from streamkey.bench import long_motion
+
+    motion, _ = long_motion(3600, DATA)  # 30 s: the window and its factors at full length
+    a = speed.Online(motion.skeleton, motion.fps)
+    b = speed.Online(motion.skeleton, motion.fps, stream="other")
+    a.push_block(motion.frames())
+    b.push_block(motion.frames())
+    n = len(a._v)
+    lows = [i for i in range(len(a._lams)) if a._lengths[i] >= n]  # solved on the whole window
+    assert lows and all(a._bank.factor(n, i) is b._bank.factor(n, i) for i in lows)
+    blob = pickle.dumps(a)
+    assert len(blob) < 1.5 * 2**20  # measured 1.05 MB (the window's rows); factors: 3.6 MB
+    clone = pickle.loads(blob)
+    assert clone._bank.factor(n, lows[0]) is a._bank.factor(n, lows[0])
