@@ -6,6 +6,7 @@ import itertools
 import json
 import pickle
 from functools import cache
+from typing import Any
 
 import numpy as np
 import pytest
@@ -410,9 +411,9 @@ def test_the_regular_analysis_is_spread_over_the_frames_after_its_start(
     solves = [0]
     real = speed.HPBank.solve
 
-    def counted(self: speed.HPBank, v: np.ndarray, i: int, keep: bool = False) -> np.ndarray:
+    def counted(self: speed.HPBank, *args: Any) -> np.ndarray:
         solves[0] += 1
-        return real(self, v, i, keep)
+        return real(self, *args)
 
     monkeypatch.setattr(speed.HPBank, "solve", counted)
     per_push = []
