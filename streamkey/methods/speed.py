@@ -64,6 +64,7 @@ cut-off sample (the candidates of `cutoff_history` frames); pickled after 30 s: 
 from __future__ import annotations
 
 import heapq
+import threading
 from collections import OrderedDict, deque
 from dataclasses import dataclass
 from typing import Any
@@ -114,6 +115,27 @@ def speed_signal(positions: np.ndarray, frame_time: float, f_c: float = 10.0) ->
 _FACTORS: OrderedDict[tuple[float, int], np.ndarray] = OrderedDict()  # (lambda, n) -> factor
 FACTOR_CACHE_BYTES = 32 * 2**20  # shared by every stream: ~3.8 MB per parameter set at 120 fps
 _cached_bytes = 0
+_FACTORS_LOCK = threading.Lock()
+
+
+_TAILS: dict[tuple[float, int, int], np.ndarray] = {}  # (lambda, n, k) -> step operator
+
+
+def speed_tail(positions: np.ndarray, frame_time: float, f_c: float, k: int) -> np.ndarray:
+    """The last k values of `speed_signal(positions)` through one cached matrix product:
+    the HP smoother's last k + 1 rows, differenced ((k, n), shared like the HP factors)."""
+    n = len(positions)
+    key = (hp_lambda(f_c, frame_time), n, k)
+    with _FACTORS_LOCK:
+        op = _TAILS.get(key)
+    if op is None:
+        rows = hp_filter(np.eye(n), key[0])[n - k - 1 :]
+        op = rows[1:] - rows[:-1]
+        with _FACTORS_LOCK:
+            if len(_TAILS) >= 64:
+                _TAILS.clear()
+            _TAILS[key] = op
+    return np.linalg.norm(op @ positions, axis=1) / frame_time
 
 
 class HPBank:
@@ -136,17 +158,20 @@ class HPBank:
         """Upper banded Cholesky factor (3, n) of the length-n HP system for lambda i."""
         global _cached_bytes
         key = (float(self.lams[i]), int(n))
-        got = _FACTORS.get(key)
-        if got is not None:
-            _FACTORS.move_to_end(key)
-            return got
+        with _FACTORS_LOCK:  # streams may run in threads
+            got = _FACTORS.get(key)
+            if got is not None:
+                _FACTORS.move_to_end(key)
+                return got
         c = hp_factor(n, key[0])
         if keep:
             c.setflags(write=False)
-            _FACTORS[key] = c
-            _cached_bytes += c.nbytes
-            while _cached_bytes > FACTOR_CACHE_BYTES and len(_FACTORS) > 1:
-                _cached_bytes -= _FACTORS.popitem(last=False)[1].nbytes
+            with _FACTORS_LOCK:
+                if key not in _FACTORS:
+                    _FACTORS[key] = c
+                    _cached_bytes += c.nbytes
+                while _cached_bytes > FACTOR_CACHE_BYTES and len(_FACTORS) > 1:
+                    _cached_bytes -= _FACTORS.popitem(last=False)[1].nbytes
         return c
 
     def solve(self, v: np.ndarray, i: int, keep: bool = False, tail: int | None = None
@@ -575,7 +600,7 @@ class _Job:
     the cut-off sample), so when a step runs does not change its result; plain attributes
     (pickled with the keyframer). Steps: the speed signal and candidates; one per scale (both
     HP solves, minima, chain matching); Ward in `WARD_STEPS`; the decisions. `cost` is each
-    step's estimated cost in solved rows (integers, so the schedule is exact).
+    step's estimated cost (integers, so the schedule is exact).
     """
 
     def __init__(self, anchor: int, zone_end: int, lo: int, base: int, rows: np.ndarray,
@@ -755,11 +780,16 @@ class Online(OnlineKeyframer):
         self._ring.dropped_since = 0
         # Decided (sent or not) in the last `cutoff_history` frames: intensities as decided.
         sample = np.concatenate([self._history(t), [u for _, u, _ in self._scheduled]])
-        solved = np.minimum(self._lengths, n)
+        # Step costs, ~ns (measured: a scale's Python overhead weighs as much as its solves;
+        # the first scale matches all candidates; Ward's first step sorts and heaps).
+        solved = np.minimum(self._lengths, n) + min(self._region, n)
         s = len(self._lams) // 2
-        ward = 120 * (len(sample) + 20) // WARD_STEPS
-        cost = np.concatenate([[54 * len(snap)], solved[:s] + solved[s:] + 140,
-                               np.full(WARD_STEPS, ward), [3000]])
+        scales = 50_000 + 3 * (solved[:s] + solved[s:])
+        scales[0] += 200_000
+        ward = np.full(WARD_STEPS, 1_000 * (len(sample) + 20) // WARD_STEPS)
+        ward[0] += 300 * (len(sample) + 20)
+        cost = np.concatenate([[120_000 if old is not None else 2_000 * len(snap)], scales,
+                               ward, [160_000]])
         lo = self._ring.first_seq - 1 if self._scheduled_upto is None else self._scheduled_upto
         self._job = _Job(self._count, zone_end, lo, self._ring.first_seq, snap, old, sample,
                          cost)
@@ -781,9 +811,11 @@ class Online(OnlineKeyframer):
         i = job.step
         job.step += 1
         if i == 0:  # speed signal and candidates
-            v = speed_signal(job.rows, 1.0 / self.fps, self.f_c)
-            if job.old is not None:
-                v = np.concatenate([job.old, v[-self._fresh :]])
+            if job.old is None:
+                v = speed_signal(job.rows, 1.0 / self.fps, self.f_c)
+            else:
+                v = np.concatenate([job.old, speed_tail(job.rows, 1.0 / self.fps, self.f_c,
+                                                        self._fresh)])
             self._v = job.v = v
             job.start = max(0, len(v) - self._region)
             cand = local_minima(v)
