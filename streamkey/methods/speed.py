@@ -591,6 +591,21 @@ class _Ring:
 
 
 WARD_STEPS = 4  # steps the online cut-off's Ward agglomeration is split into
+CHAIN_STEPS = 4  # steps the online chain matching over the scales is split into
+
+
+def _tail_minima(tf: np.ndarray, th: np.ndarray, lo: int, start: int
+                 ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """`scale_minimum` for every scale at once from the trends' tails: f trends from `lo`,
+    f/2 trends from `start` (one row per scale); same comparisons as `local_minima`."""
+    mid = tf[:, 1:-1]
+    r, c = np.nonzero((mid < tf[:, :-2]) & (mid <= tf[:, 2:]))
+    m = c + 1 + lo
+    keep = m >= start
+    r, m = r[keep], m[keep]
+    u = np.abs(tf[r, m - lo] - th[r, m - start])
+    cuts = np.cumsum(np.bincount(r, minlength=len(tf)))[:-1]
+    return list(zip(np.split(m, cuts), np.split(u, cuts), strict=True))
 
 
 class _Job:
@@ -598,8 +613,9 @@ class _Job:
 
     Everything it needs is taken at the anchor (the newest position rows, the older speeds,
     the cut-off sample), so when a step runs does not change its result; plain attributes
-    (pickled with the keyframer). Steps: the speed signal and candidates; one per scale (both
-    HP solves, minima, chain matching); Ward in `WARD_STEPS`; the decisions. `cost` is each
+    (pickled with the keyframer). Steps: the speed signal and candidates; one per scale (its
+    two HP solves, where they count); the minima of all scales and their chain matching in
+    `CHAIN_STEPS`; Ward in `WARD_STEPS`; the decisions. `cost` is each
     step's estimated cost (integers, so the schedule is exact).
     """
 
@@ -609,8 +625,9 @@ class _Job:
         self.rows, self.old, self.sample = rows, old, sample
         self.cum = np.cumsum(cost).tolist()
         self.step = 0
-        self.v = self.cand = self.new = self.cut = np.empty(0)
-        self.start = 0
+        self.v = self.cand = self.new = self.cut = self.tf = self.th = np.empty(0)
+        self.start = self.lo_trend = 0
+        self.minima: list[tuple[np.ndarray, np.ndarray]] = []
         self.chain: Chain | None = None
         self.ward: Ward1D | None = None
 
@@ -784,12 +801,13 @@ class Online(OnlineKeyframer):
         # the first scale matches all candidates; Ward's first step sorts and heaps).
         solved = np.minimum(self._lengths, n) + min(self._region, n)
         s = len(self._lams) // 2
-        scales = 50_000 + 3 * (solved[:s] + solved[s:])
-        scales[0] += 200_000
+        solves = 20_000 + 3 * (solved[:s] + solved[s:])
+        chains = np.full(CHAIN_STEPS, 12_000 * s // CHAIN_STEPS)
+        chains[0] += 300_000
         ward = np.full(WARD_STEPS, 1_000 * (len(sample) + 20) // WARD_STEPS)
         ward[0] += 300 * (len(sample) + 20)
-        cost = np.concatenate([[120_000 if old is not None else 2_000 * len(snap)], scales,
-                               ward, [160_000]])
+        cost = np.concatenate([[120_000 if old is not None else 2_000 * len(snap)], solves,
+                               chains, ward, [160_000]])
         lo = self._ring.first_seq - 1 if self._scheduled_upto is None else self._scheduled_upto
         self._job = _Job(self._count, zone_end, lo, self._ring.first_seq, snap, old, sample,
                          cost)
@@ -821,13 +839,25 @@ class Online(OnlineKeyframer):
             cand = local_minima(v)
             job.cand = cand[cand >= job.start]
             job.chain = Chain(job.cand)
-        elif i <= s:
-            assert job.chain is not None
+            job.lo_trend = max(job.start - 1, 0)  # a minimum needs its left neighbour
+            job.tf = np.empty((s, len(v) - job.lo_trend))
+            job.th = np.empty((s, len(v) - job.start))
+        elif i <= s:  # both HP solves of scale i - 1, where they count
             steady = len(job.v) >= self._ring.capacity - 1  # the window's length from now on
-            job.chain.extend(*scale_minimum(job.v, self._bank, i - 1, self._lengths, job.start,
-                                            steady))
-        elif i <= s + WARD_STEPS:
+            n, j = len(job.v), i - 1
+            a = n - min(int(self._lengths[j]), n)
+            b = n - min(int(self._lengths[s + j]), n)
+            job.tf[j] = self._bank.solve(job.v[a:], j, steady, n - job.lo_trend)
+            job.th[j] = self._bank.solve(job.v[b:], s + j, steady, n - job.start)
+        elif i <= s + CHAIN_STEPS:  # minima of every scale at once, then their chains
+            assert job.chain is not None
             if i == s + 1:
+                job.minima = _tail_minima(job.tf, job.th, job.lo_trend, job.start)
+            k = i - s - 1
+            for m, u in job.minima[k * s // CHAIN_STEPS : (k + 1) * s // CHAIN_STEPS]:
+                job.chain.extend(m, u)
+        elif i <= s + CHAIN_STEPS + WARD_STEPS:
+            if i == s + CHAIN_STEPS + 1:
                 assert job.chain is not None
                 u, seqs = job.chain.total, job.cand + job.base
                 job.new = (seqs > job.lo) & (seqs <= job.zone_end)
