@@ -407,29 +407,36 @@ def test_1d_ward_keeps_the_offline_keyposes_on_the_shared_clips_concatenated() -
 
 def test_the_regular_analysis_is_spread_over_the_frames_after_its_start(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """No push runs a whole re-analysis (144 HP solves): each frame does a share of it."""
+    """No push runs a whole re-analysis (144 HP solves and the rest): each frame of the
+    `delay` after the analysis starts does a share of it."""
     from streamkey.bench import long_motion
 
     motion, _ = long_motion(3400, DATA)
     kf = speed.Online(motion.skeleton, motion.fps)
     assert (kf.hop, kf.delay) == (24, 16)
-    solves = [0]
-    real = speed.HPBank.solve
+    solves, steps = [0], [0]
+    real_solve, real_step = speed.HPBank.solve, speed.Online._step
 
-    def counted(self: speed.HPBank, *args: Any) -> np.ndarray:
+    def counted_solve(self: speed.HPBank, *args: Any) -> np.ndarray:
         solves[0] += 1
-        return real(self, *args)
+        return real_solve(self, *args)
 
-    monkeypatch.setattr(speed.HPBank, "solve", counted)
+    def counted_step(self: speed.Online, *args: Any) -> None:
+        steps[0] += 1
+        real_step(self, *args)
+
+    monkeypatch.setattr(speed.HPBank, "solve", counted_solve)
+    monkeypatch.setattr(speed.Online, "_step", counted_step)
     per_push = []
     for frame in motion.frames():
-        solves[0] = 0
+        solves[0] = steps[0] = 0
         kf.push(frame)
-        per_push.append(solves[0])
+        per_push.append((solves[0], steps[0]))
     steady = np.array(per_push[2592:3384])  # window full (2,546 frames), 33 whole hops
-    assert 0 < steady.max() <= 144 // 4
-    busy = (steady > 0).reshape(-1, kf.hop).sum(axis=1)[1:-1]  # frames with solves per hop
+    assert 0 < steady[:, 0].max() <= 144 // 4
+    busy = (steady[:, 1] > 0).reshape(-1, kf.hop).sum(axis=1)[1:-1]  # frames with work, per hop
     assert busy.min() >= kf.delay - 2
+    assert steady[:, 1].sum() == 33 * (1 + 72 + speed.CHAIN_STEPS + speed.WARD_STEPS + 1)
 
 
 def test_hp_factors_are_shared_between_streams_and_left_out_of_pickles() -> None:
