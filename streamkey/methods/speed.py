@@ -590,8 +590,8 @@ class _Ring:
         return float(self._times[self._start + seq - self.first_seq])
 
 
-WARD_STEPS = 4  # steps the online cut-off's Ward agglomeration is split into
-CHAIN_STEPS = 4  # steps the online chain matching over the scales is split into
+WARD_STEPS = 6  # steps the online cut-off's Ward agglomeration is split into
+CHAIN_STEPS = 6  # steps of the online minima and chain matching (costs below assume 6)
 
 
 def _tail_minima(tf: np.ndarray, th: np.ndarray, lo: int, start: int
@@ -801,13 +801,12 @@ class Online(OnlineKeyframer):
         # the first scale matches all candidates; Ward's first step sorts and heaps).
         solved = np.minimum(self._lengths, n) + min(self._region, n)
         s = len(self._lams) // 2
-        solves = 20_000 + 3 * (solved[:s] + solved[s:])
-        chains = np.full(CHAIN_STEPS, 12_000 * s // CHAIN_STEPS)
-        chains[0] += 300_000
+        solves = 30_000 + 6 * (solved[:s] + solved[s:])
+        chains = np.array([350_000, 300_000, 220_000, 150_000, 130_000, 80_000])  # fine: more
         ward = np.full(WARD_STEPS, 1_000 * (len(sample) + 20) // WARD_STEPS)
-        ward[0] += 300 * (len(sample) + 20)
-        cost = np.concatenate([[120_000 if old is not None else 2_000 * len(snap)], solves,
-                               chains, ward, [160_000]])
+        ward[0] += 500 * (len(sample) + 20)
+        cost = np.concatenate([[200_000 if old is not None else 2_000 * len(snap)], solves,
+                               chains, ward, [200_000]])
         lo = self._ring.first_seq - 1 if self._scheduled_upto is None else self._scheduled_upto
         self._job = _Job(self._count, zone_end, lo, self._ring.first_seq, snap, old, sample,
                          cost)
@@ -851,10 +850,13 @@ class Online(OnlineKeyframer):
             job.th[j] = self._bank.solve(job.v[b:], s + j, steady, n - job.start)
         elif i <= s + CHAIN_STEPS:  # minima of every scale at once, then their chains
             assert job.chain is not None
-            if i == s + 1:
+            k = i - s - 1  # 0: minima; 1: the first scale (all candidates); then the rest
+            if k == 0:
                 job.minima = _tail_minima(job.tf, job.th, job.lo_trend, job.start)
-            k = i - s - 1
-            for m, u in job.minima[k * s // CHAIN_STEPS : (k + 1) * s // CHAIN_STEPS]:
+            parts = CHAIN_STEPS - 2
+            lo, hi = (0, 1) if k == 1 else (1 + (k - 2) * (s - 1) // parts,
+                                            1 + (k - 1) * (s - 1) // parts) if k else (0, 0)
+            for m, u in job.minima[lo:hi]:
                 job.chain.extend(m, u)
         elif i <= s + CHAIN_STEPS + WARD_STEPS:
             if i == s + CHAIN_STEPS + 1:
