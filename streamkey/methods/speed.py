@@ -84,7 +84,7 @@ from ..signal import HP_SETTLE, hp_factor, hp_filter, hp_lambda, hp_settle, loca
 __all__ = ["extract", "scale_frequencies", "speed_signal", "HPBank", "scale_minima",
            "match_minima", "intensities", "mojena_threshold", "MojenaResult", "METHOD", "Online",
            "scale_lambdas", "settle_frames", "ward_1d", "WARD_1D_FROM", "scale_minimum", "Chain",
-           "Ward1D"]
+           "Ward1D", "speed_tail"]
 
 METHOD = "speed"
 _PBTRS = get_lapack_funcs("pbtrs", (np.empty(1),))
@@ -853,6 +853,7 @@ class Online(OnlineKeyframer):
             k = i - s - 1  # 0: minima; 1: the first scale (all candidates); then the rest
             if k == 0:
                 job.minima = _tail_minima(job.tf, job.th, job.lo_trend, job.start)
+                job.tf = job.th = np.empty(0)  # done with: snapshots stay small
             parts = CHAIN_STEPS - 2
             lo, hi = (0, 1) if k == 1 else (1 + (k - 2) * (s - 1) // parts,
                                             1 + (k - 1) * (s - 1) // parts) if k else (0, 0)
