@@ -30,10 +30,10 @@ WALKS = sorted(c for c in HEELSTRIKES if not c.startswith("131_"))
 MIN_F1_REASON = ("measured: lowest F1 0.370 (05_18), also 131_03 0.381, 05_13 0.471: the cut-off "
                  "of early, calm parts cannot know the later, larger moves")
 ONLINE_COST_REASON = (
-    "measured with bench_perf_online (streamkey bench --perf's rows), 100,000 frames on the "
-    "shared 2-core machine under load: mean 439 us, p99 1,417 us per push, of which the "
-    "feature stage ~95 us; the re-analysis is spread over 16 of every 24 frames (was 426 / "
-    "8,656 us with a burst per hop) but its ~5 ms of Python-bound steps per hop stay")
+    "measured with bench_perf_online (streamkey bench --perf's rows), 100,000 frames, one per "
+    "push, on the shared 2-core machine under load (feature stage 88 us there): speed mean 383 "
+    "us, p99 1,127 us (was 426 / 8,656 us with a re-analysis burst per hop); the analysis is "
+    "spread over 16 of every 24 frames, but its ~5 ms of Python-bound steps per hop stay")
 
 
 @cache

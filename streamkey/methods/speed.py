@@ -58,7 +58,8 @@ keyframer state: `HPBank` holds the lambdas only and the online factors (one per
 regular length, 3.6 MB, plus 2.5 MB of first columns, at 120 fps with the defaults) live in
 module-level caches keyed by (lambda, length), shared by every stream with equal parameters
 and never pickled. Memory per keyframer is bounded by the window (positions, speeds) and the
-cut-off sample (the candidates of `cutoff_history` frames); pickled after 30 s: ~1.05 MB.
+cut-off sample (the candidates of `cutoff_history` frames); pickled after 30 s: 0.98 MB, up to
+1.5 MB while an analysis holds its trends.
 """
 
 from __future__ import annotations
