@@ -5,13 +5,16 @@ Pure functions over numpy arrays; no I/O. Derivatives are with respect to the fr
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
+
 import numpy as np
-from scipy.linalg import solveh_banded
+from scipy.linalg import cholesky_banded, solveh_banded
 
 from .errors import UsageError
 
-__all__ = ["hp_lambda", "hp_filter", "hp_banded", "unwrap_degrees", "unwrap_step", "local_minima",
-           "local_maxima"]
+__all__ = ["hp_lambda", "hp_filter", "hp_banded", "hp_settle", "hp_factor", "unwrap_degrees",
+           "unwrap_step", "local_minima", "local_maxima"]
 
 
 def hp_lambda(cutoff_hz: float, frame_time: float) -> float:
@@ -47,6 +50,69 @@ def hp_filter(y: np.ndarray, lam: float) -> np.ndarray:
     if n < 3:
         return y.copy()
     return solveh_banded(hp_banded(n, lam), y, check_finite=False)
+
+
+HP_SETTLE = 20.0  # time constants an HP filter needs to forget a boundary (e^(-20/sqrt 2) ~ 7e-7)
+
+
+def hp_settle(lams: np.ndarray | float) -> np.ndarray:
+    """Frames after which an HP filter forgets a boundary to ~1e-6: HP_SETTLE time constants.
+
+    The HP smoother's impulse response decays with time constant lambda^(1/4) frames; its
+    banded Cholesky factor converges column by column at the same rate (to LAPACK's own
+    rounding noise, ~1e-11 relative, within these frames).
+    """
+    return np.ceil(HP_SETTLE * np.asarray(lams, dtype=np.float64) ** 0.25).astype(int) + 8
+
+
+_PREFIXES: OrderedDict[float, np.ndarray] = OrderedDict()  # lambda -> LAPACK's first columns
+_PREFIX_LIMIT = 1024
+_PREFIXES_LOCK = threading.Lock()
+
+
+def _prefix(lam: float) -> np.ndarray:
+    """LAPACK's upper banded factor of I + lam D'D in its first `hp_settle(lam)` columns."""
+    with _PREFIXES_LOCK:  # shared by streams that may run in threads
+        got = _PREFIXES.get(lam)
+        if got is not None:
+            _PREFIXES.move_to_end(lam)
+            return got
+    k = int(hp_settle(lam))
+    got = cholesky_banded(hp_banded(k + 2, lam), check_finite=False)[:, :k].copy()
+    got.setflags(write=False)
+    with _PREFIXES_LOCK:
+        _PREFIXES[lam] = got
+        if len(_PREFIXES) > _PREFIX_LIMIT:
+            _PREFIXES.popitem(last=False)
+    return got
+
+
+def hp_factor(n: int, lam: float) -> np.ndarray:
+    """Upper banded Cholesky factor (3, n) of the length-n HP system I + lam D'D, O(n).
+
+    Column j of the factor only looks back, so the first n - 2 columns of every length agree;
+    they converge to a fixed column within `hp_settle` columns. Built here from LAPACK's first
+    `hp_settle` columns (shared by every length and caller, cached per lambda), that converged
+    column repeated, and the two bottom-corner columns (D'D has 5 and 1 there) finished by the
+    same arithmetic every time: a deterministic function of (n, lam), without a factorisation
+    of length n (which costs ~80 ns a column in LAPACK).
+    """
+    lam = float(lam)
+    if n < 5:
+        return cholesky_banded(hp_banded(n, lam), check_finite=False)
+    pre = _prefix(lam)
+    k = min(n, pre.shape[1])
+    c = np.empty((3, n), order="F")  # LAPACK's layout: no copy per solve
+    c[:, :k] = pre[:, :k]
+    c[:, k:] = pre[:, k - 1 : k]  # converged: the last column, repeated
+    # Bottom corner rows n-2, n-1 of I + lam D'D: 1 + 5 lam, -2 lam, 1 + lam.
+    u0, u1 = c[0, n - 2], c[1, n - 2]          # U[n-4, n-2], U[n-3, n-2]
+    v0 = c[0, n - 1]                            # U[n-3, n-1]
+    d2 = np.sqrt((1.0 + 5.0 * lam) - u0 * u0 - u1 * u1)
+    e = ((-2.0 * lam) - u1 * v0) / d2
+    c[2, n - 2], c[1, n - 1] = d2, e
+    c[2, n - 1] = np.sqrt((1.0 + lam) - v0 * v0 - e * e)
+    return c
 
 
 def unwrap_step(raw: np.ndarray, prev_raw: np.ndarray | None,

@@ -13,13 +13,15 @@ from fractions import Fraction
 import numpy as np
 import pytest
 from cmu import DATA
+from scipy.linalg import cholesky_banded
 from statsmodels.tsa.filters.hp_filter import hpfilter
 
 from streamkey.bvh import read_bvh
 from streamkey.methods.speed import HPBank
-from streamkey.signal import hp_filter, hp_lambda, unwrap_degrees
+from streamkey.signal import hp_banded, hp_factor, hp_filter, hp_lambda, hp_settle, unwrap_degrees
 
 DT = 1.0 / 120.0
+EPS = float(np.finfo(float).eps)
 WELL_CONDITIONED_HZ = (10.0, 8.0, 4.0, 2.0, 1.0)
 
 
@@ -103,9 +105,22 @@ def test_hp_bank_gives_the_same_trends_as_hp_filter() -> None:
     rng = np.random.default_rng(3)
     v = np.abs(rng.normal(size=500)).cumsum()
     lams = np.array([hp_lambda(f, DT) for f in (8.0, 2.0, 0.5)])
-    bank = HPBank(lams, len(v))
+    bank = HPBank(lams)
     for i, lam in enumerate(lams):
         np.testing.assert_allclose(bank.solve(v, i), hp_filter(v, lam), rtol=1e-9)
-        for n in (3, 4, 5, 6, 100, 499):  # shorter windows share the capacity's factor
+        for n in (3, 4, 5, 6, 100, 499):  # every length: the same factor
             np.testing.assert_allclose(bank.solve(v[:n], i), hp_filter(v[:n], lam), rtol=1e-9)
-            assert np.array_equal(bank.solve(v[:n], i), HPBank(lams, n).solve(v[:n], i))
+            assert np.array_equal(bank.solve(v[:n], i), HPBank(lams).solve(v[:n], i))
+
+
+@pytest.mark.parametrize("cutoff", [8.0, 1.0, 0.1])
+def test_hp_factor_equals_lapacks_factorisation_at_every_length(cutoff: float) -> None:
+    lam = hp_lambda(cutoff, DT)
+    k = int(hp_settle(lam))  # columns taken from LAPACK; the converged one repeated after
+    for n in (3, 4, 5, 6, 40, k - 1, k, k + 1, k + 2, k + 3, 3 * k):
+        ref = cholesky_banded(hp_banded(n, lam), check_finite=False)
+        got = hp_factor(n, lam)
+        np.testing.assert_allclose(got[:, :-2], ref[:, :-2], rtol=1e-9, err_msg=f"n = {n}")
+        # The bottom corner, (1 + 5 lam) - u0^2 - u1^2 ~ 1, cancels ~eps lam in any order.
+        np.testing.assert_allclose(got[:, -2:], ref[:, -2:], rtol=max(1e-9, 8 * EPS * lam),
+                                   err_msg=f"n = {n}")
