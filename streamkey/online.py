@@ -22,6 +22,7 @@ restart, and a `GapEvent` with `bridged=False` is emitted. Nothing in this path 
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -29,7 +30,15 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .errors import UsageError
-from .keyframes import Event, GapEvent, KeyframeEvent, StatusEvent, params_digest
+from .keyframes import (
+    STRENGTH_WINDOW,
+    Event,
+    GapEvent,
+    KeyframeEvent,
+    StatusEvent,
+    params_digest,
+    rank_strength,
+)
 from .kinematics import FKResult, body_height, forward_kinematics, joint_heights, pelvis_frame
 from .motion import Frame, Skeleton
 from .roles import resolve_roles
@@ -256,6 +265,8 @@ class OnlineKeyframer:
         self.params_digest = params_digest({"method": self.method, **self.params})
         self.guard = StreamGuard(skeleton.n_channels, stream, self.method, max_bridge_frames)
         self.features = FeatureStage(skeleton, fps, role_mapping)
+        # Scores of the last keys sent, for their strength (kept over restarts and flushes).
+        self.recent_scores: deque[float] = deque(maxlen=STRENGTH_WINDOW)
 
     def push(self, frame: Frame) -> list[Event]:
         """Feed one frame; returns the events it decided (each final)."""
@@ -274,13 +285,21 @@ class OnlineKeyframer:
         return events
 
     def event(self, frame: int, time: float, score: float, decided_at: int) -> KeyframeEvent:
-        """Build a `KeyframeEvent` carrying this keyframer's identity and parameters."""
+        """Build a `KeyframeEvent` carrying this keyframer's identity and parameters; its
+        strength ranks the score among the keys sent before (`keyframes.rank_strengths`)."""
+        self.recent_scores.append(float(score))
         return KeyframeEvent(self.stream, self.method, int(frame), float(time), float(score),
-                             int(decided_at), self.lookahead, self.params_digest)
+                             int(decided_at), self.lookahead, self.params_digest,
+                             strength=rank_strength(self.recent_scores, float(score)))
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Advance over clean consecutive frames (subclass hook)."""
         raise NotImplementedError
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Keys this keyframer expects among its undecided frames now, as (seq, time, score)
+        (subclass hook, read for provisional events; must not change state)."""
+        return []
 
     def idle(self) -> list[KeyframeEvent]:
         """Deferred work of the last frame (subclass hook): called right after `process`,

@@ -553,6 +553,16 @@ class Online(OnlineKeyframer):
             return []
         return self._events(self.solver.finish(), self.seq[-1])
 
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Provisional hook: the keys after the decided part on the best chain of the newest
+        priced frame (what a deadline would take now), that frame itself left out."""
+        s = self.solver
+        if s.stale is not None or s.done == 0:
+            return []
+        path = om.chain(s.bp, s.done - 1 - s.base, s.decided - s.base)
+        rows = [k + s.base - self.t0 for k in path[:-1]]
+        return [(self.seq[r], self.time[r], 0.0) for r in rows if 0 <= r < len(self.seq)]
+
 
 # ----------------------------------------------------------------------------- --max-gap
 
@@ -570,9 +580,11 @@ def max_gap(motion: Motion, keys: Keyframes, seconds: float,
     frames = np.union1d(rows, added)
     score = dict(zip(rows.tolist(), keys.scores.tolist(), strict=True))
     scores = np.array([score.get(int(r), 0.0) for r in frames])
+    strength = dict(zip(rows.tolist(), np.asarray(keys.strength).tolist(), strict=True))
     info = {**keys.info, "max_gap_added": (added + motion.first_frame).tolist()}
     return Keyframes(keys.method, frames + motion.first_frame, scores,
-                     {**keys.params, "max_gap": seconds}, keys.n_frames, info)
+                     {**keys.params, "max_gap": seconds}, keys.n_frames, info,
+                     strength=[strength.get(int(r), 0.0) for r in frames])
 
 
 class MaxGap(OnlineKeyframer):
@@ -613,7 +625,8 @@ class MaxGap(OnlineKeyframer):
             a = self.last - self.t0
             k = om.best_split(np.array(self.rows), a, a + self.gap + 1, a + self.gap)
             out.append(KeyframeEvent(self.stream, self.method, self.seq[k], self.time[k], 0.0,
-                                     self.seq[-1], self.lookahead, self.params_digest))
+                                     self.seq[-1], self.lookahead, self.params_digest,
+                                     strength=0.0))  # inserted: not a key the method found
             self.last = k + self.t0
         return out
 
@@ -658,6 +671,10 @@ class MaxGap(OnlineKeyframer):
         if self.t < 0:
             return self.inner.idle()
         return self._advance(self.inner.idle(), self._idle_final)
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """The inner keyframer's candidates (provisional hook)."""
+        return self.inner.candidates()
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: the inner keyframer's rest, then the gaps up to the last frame."""

@@ -76,6 +76,7 @@ makes the online result equal the offline one when every decision waits for `flu
 
 from __future__ import annotations
 
+import copy
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
@@ -613,3 +614,24 @@ class Online(OnlineKeyframer):
         tm = self.buf["tm"]
         return [self.event(self.seq0 + row, float(tm[row - self.base]), score,
                            self.seq0 + self.t) for row, score in closed]
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Provisional hook: the keys that the open cluster and the frames with final maps
+        not yet classified point to, with the statistics of this moment (nothing decided)."""
+        if self.basis is None:
+            return []
+        warm = self.warm
+        a, thr = self._norm or normalisation(warm if warm is not None and self.st.n < warm.n
+                                             else self.st)
+        sim = copy.deepcopy(self.clusterer)
+        closed: list[tuple[int, float]] = []
+        lo, hi = self.n_class, self.s_ready
+        if hi > lo:
+            sal = combine(self.buf["s"][lo - self.base : hi - self.base], a)
+            rel = sal / np.where(thr > 0, thr, 1.0)
+            for i, flags in enumerate(sal > thr):
+                closed.extend(sim.add(lo + i, flags, self.weights, self.footmask, rel[i]))
+        if sim.rows:
+            closed.append(sim.close())
+        tm = self.buf["tm"]
+        return [(self.seq0 + row, float(tm[row - self.base]), score) for row, score in closed]

@@ -454,3 +454,13 @@ class Online(OnlineKeyframer):
         keys[hi] = 0.0
         events += [self._commit(self._base + r, keys[r]) for r in sorted(keys)]
         return events
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Provisional hook: the undecided keys in view, the window recursion's keys after
+        the decision frame and the witness."""
+        d = max(self._t - self.lookahead, self._c)
+        keys = {k: v for k, v in self._p.items() if d < k <= self._t}
+        if self._w is not None and self._w[0] > d:
+            keys[self._w[0]] = self._w[1]
+        return [(int(self._seq[k - self._base]), float(self._time[k - self._base]), float(v))
+                for k, v in sorted(keys.items()) if k >= self._base]

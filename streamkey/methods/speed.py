@@ -586,6 +586,7 @@ class Online(OnlineKeyframer):
         self._v = np.empty(0)
         self._hist_seq: deque[int] = deque()
         self._hist_u: deque[float] = deque()
+        self._pending: list[tuple[int, float, float]] = []  # provisional hook
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Append frames; every `hop` frames re-analyse the window and decide what is due."""
@@ -658,6 +659,9 @@ class Online(OnlineKeyframer):
             threshold = self._cutoff(u[new], u[seqs > zone_end], t, final=False)
             self._scheduled.extend(zip(seqs[new].tolist(), u[new].tolist(),
                                        (u[new] > threshold).tolist(), strict=True))
+            ahead = (seqs > zone_end) & (u > threshold)
+            self._pending = [(c, self._ring.time(c), x) for c, x in
+                             zip(seqs[ahead].tolist(), u[ahead].tolist(), strict=True)]
 
     def _analyse(self, zone_end: int, final: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Intensities of the window's candidates; mask of those in (scheduled, zone_end]."""
@@ -707,6 +711,14 @@ class Online(OnlineKeyframer):
         if res.n_clusters == 1 and not final and len(sample) < self.warmup_candidates:
             return _two_cluster_threshold(sample)
         return res.threshold
+
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Provisional hook: keys decided but not yet sent, and the window's later minima
+        whose intensity clears the cut-off at the last analysis."""
+        t = self._last_seq - self.lookahead
+        return ([(c, self._ring.time(c), u) for c, u, keep in self._scheduled if keep]
+                + [p for p in self._pending if p[0] > t])
 
 
 def _check_count(name: str, value: object, low: int) -> None:

@@ -1,0 +1,519 @@
+"""Playable events (issue 12 §1): strength, `--min-interval` debounce, provisional events and
+the continuous signal. Sans-I/O: wrappers around any online keyframer, and the same rules as
+functions over offline `Keyframes`.
+
+- **Strength** (every key, online and offline): the mid-rank of the key's score among the
+  method's last `STRENGTH_WINDOW` (64) keys, itself included: (keys below + half the keys
+  equal) / keys, in (0, 1). A rank, so it reads the same for every method whatever its score's
+  unit (saliency 0.01–82, speed 0.5–68, simplify 0–0.5): 0.9 is "stronger than 90 % of this
+  method's recent keys". Causal: online it is computed when the key is sent
+  (`OnlineKeyframer.event`), offline over the keys in frame order (`rank_strengths`); with
+  an unbounded lookahead the keys, their order and so their strengths are identical. The
+  first key of a stream has 0.5; keys inserted by `--max-gap` have 0.
+- **Debounce** (`--min-interval SECONDS`, per method): of keys closer than the interval, keep
+  the stronger (higher score; a tie keeps the earlier). Greedy in frame order: a held key is
+  replaced by a stronger key less than the interval after it, and sent once a key at least the
+  interval after it arrives or once no such key can come any more. Online (`MinInterval`) the
+  latter is known when the inner keyframer has decided every frame up to held + interval - 1,
+  i.e. at most `interval - 1` frames after its own deadline: the wrapper's lookahead is the
+  inner one plus the interval. Same keys offline (`debounce`) and online, whatever the
+  lookahead, given the same inner keys.
+- **Provisional events** (`--provisional`, opt-in): every method exposes `candidates()`, the
+  keys it expects among its undecided frames right now (speed: the window's speed minima
+  whose current intensity clears the current cut-off, recomputed every `hop` frames;
+  saliency: the clusters the frames with final maps point to, with this moment's statistics;
+  simplify: the window recursion's keys and the witness; optimal: the keys of the best
+  chain after the decided part). `Playable` asks after every frame: a candidate with no open
+  provisional within `radius` frames (0.05 s) gets a `ProvisionalEvent`; an open one follows
+  its nearest candidate. A final key confirms the nearest open provisional within `radius`
+  (its `confirms` is that `pid`), else a provisional is sent right before it (lead 0), so
+  every final key confirms exactly one provisional. An open provisional whose frame +
+  `radius` has been decided without a key gets a `CancelEvent`; at the end of a stream or a
+  window every open one is resolved. The final events are the inner keyframer's, unchanged
+  but for `confirms`. Opt-in because it doubles the event count and asks the consumer to
+  handle take-backs; the final-only stream stays what existing sinks and scripts expect.
+- **Signal** (`--signal [N]`, opt-in): one `SignalEvent` per stream every N frames (seq % N
+  == 0) with `body_speed` (mean speed of Miura's 16 body parts in the pelvis frame, body
+  heights per second, smoothed causally with a 50 ms time constant) and per method its
+  running keyness: the strength of its strongest candidate in view (0 when it has none).
+  The last keyframer of the pipeline sends it, reading the others' per-frame keyness.
+
+`Playable` runs its inner keyframer frame by frame (block slices), so provisional and
+signal events are the same whatever the block split.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import UsageError
+from .keyframes import (
+    CancelEvent,
+    Event,
+    KeyframeEvent,
+    Keyframes,
+    ProvisionalEvent,
+    SignalEvent,
+    rank_strength,
+)
+from .online import FeatureBlock, OnlineKeyframer
+from .roles import MIURA_ROLES
+
+__all__ = ["debounce", "debounce_rows", "Debouncer", "MinInterval", "Playable",
+           "parse_min_interval", "interval_frames", "wrap", "link_signal",
+           "add_playable_options", "playable_params", "debounce_results", "measure",
+           "bench_playable", "RADIUS_SECONDS", "SIGNAL_SMOOTHING_SECONDS"]
+
+RADIUS_SECONDS = 0.05  # a provisional and a final key this close are the same key
+SIGNAL_SMOOTHING_SECONDS = 0.05  # time constant of the body-speed smoothing
+
+
+# --------------------------------------------------------------------------- debounce
+
+def interval_frames(seconds: float, fps: float) -> int:
+    """A minimum interval in frames (at least 1)."""
+    if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds >= 0):
+        raise UsageError(f"min-interval must be a number of seconds >= 0, got {seconds!r}")
+    return max(1, int(round(seconds * fps)))
+
+
+class Debouncer:
+    """The debounce rule over keys arriving in frame order (shared offline and online)."""
+
+    def __init__(self, gap: int) -> None:
+        self.gap = int(gap)
+        self.held: tuple[int, float, Any] | None = None  # (frame, score, item)
+
+    def offer(self, frame: int, score: float, item: Any) -> list[Any]:
+        """A new key; returns the held item it releases (if any)."""
+        held = self.held
+        if held is not None and frame - held[0] < self.gap:
+            if score > held[1]:
+                self.held = (frame, score, item)
+            return []
+        self.held = (frame, score, item)
+        return [] if held is None else [held[2]]
+
+    def due(self, final: int) -> list[Any]:
+        """Frames <= `final` carry no further key: release the held key if none can reach it."""
+        if self.held is not None and self.held[0] + self.gap - 1 <= final:
+            item, self.held = self.held[2], None
+            return [item]
+        return []
+
+    def finish(self) -> list[Any]:
+        """End of stream: release the held key."""
+        item, self.held = (None if self.held is None else self.held[2]), None
+        return [] if item is None else [item]
+
+
+def debounce_rows(frames: np.ndarray, scores: np.ndarray, gap: int) -> np.ndarray:
+    """Indices of the keys kept by the debounce rule (frames sorted)."""
+    d = Debouncer(gap)
+    kept: list[int] = []
+    for i, (f, s) in enumerate(zip(np.asarray(frames).tolist(), np.asarray(scores).tolist(),
+                                   strict=True)):
+        kept += d.offer(int(f), float(s), i)
+    kept += d.finish()
+    return np.array(kept, dtype=np.int64)
+
+
+def debounce(keys: Keyframes, seconds: float, fps: float) -> Keyframes:
+    """`keys` without keys closer than `seconds` to a stronger one (module docstring)."""
+    keep = debounce_rows(keys.frames, keys.scores, interval_frames(seconds, fps))
+    strength = np.asarray(keys.strength)
+    info = {**keys.info, "min_interval_dropped": int(len(keys) - len(keep))}
+    return Keyframes(keys.method, keys.frames[keep], keys.scores[keep],
+                     {**keys.params, "min_interval": seconds}, keys.n_frames, info,
+                     strength=strength[keep] if len(keep) else np.zeros(0))
+
+
+def _adopt(wrapper: OnlineKeyframer, inner: OnlineKeyframer, lookahead: int,
+           params: dict[str, Any]) -> None:
+    """The base-class attributes of a wrapper, sharing the inner keyframer's guard and
+    feature stage (no second role resolution)."""
+    wrapper.inner = inner  # type: ignore[attr-defined]
+    wrapper.method = inner.method  # type: ignore[misc]
+    wrapper.skeleton, wrapper.fps, wrapper.stream = inner.skeleton, inner.fps, inner.stream
+    wrapper.lookahead = int(lookahead)
+    wrapper.params = params
+    wrapper.params_digest = inner.params_digest
+    wrapper.guard, wrapper.features = inner.guard, inner.features
+    wrapper.recent_scores = inner.recent_scores
+
+
+class MinInterval(OnlineKeyframer):
+    """Any online keyframer with `--min-interval`: the debounce rule online (module
+    docstring). Latency: the inner lookahead plus the interval, at most."""
+
+    method = "?"
+
+    def __init__(self, inner: OnlineKeyframer, seconds: float) -> None:
+        self.gap = interval_frames(seconds, inner.fps)
+        _adopt(self, inner, inner.lookahead + self.gap,
+               {**inner.params, "min_interval": seconds})
+        self.inner = inner
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream (the inner keyframer too)."""
+        self.inner.reset()
+        self.debouncer = Debouncer(self.gap)
+        self.t = -1
+
+    @property
+    def trace(self) -> Any:
+        """The inner keyframer's live trace (saliency), if any."""
+        return getattr(self.inner, "trace", None)
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """The inner candidates and the key held back (provisional hook)."""
+        held = self.debouncer.held
+        own = [] if held is None else [(held[2].frame, held[2].time, held[2].score)]
+        return own + self.inner.candidates()
+
+    def _release(self, items: list[KeyframeEvent], t: int) -> list[KeyframeEvent]:
+        return [e if e.decided_at >= t else dataclasses.replace(e, decided_at=t,
+                                                                 lookahead=self.lookahead)
+                for e in items]
+
+    def _offer(self, events: list[Event], upto: int | None) -> tuple[list[Event], int]:
+        """Offer the inner events decided at frames <= upto (all if None)."""
+        out: list[Event] = []
+        i = 0
+        for i, e in enumerate(events):  # noqa: B007 - the index is returned
+            if upto is not None and isinstance(e, KeyframeEvent) and e.decided_at > upto:
+                return out, i
+            if isinstance(e, KeyframeEvent):
+                out += self._release(self.debouncer.offer(e.frame, e.score, e), e.decided_at)
+            else:
+                out.append(e)
+        return out, len(events)
+
+    def process(self, block: FeatureBlock) -> list[Event]:  # type: ignore[override]
+        """The inner keyframer over the block; the debounce frame by frame after it."""
+        events: list[Event] = list(self.inner.process(block))
+        out: list[Event] = []
+        seqs = block.seq.tolist()
+        last = len(seqs) - 1
+        for i, t in enumerate(seqs):
+            got, used = self._offer(events, t)
+            out += got
+            events = events[used:]
+            # Inside a block the inner deferred work already ran; at its end it waits for idle.
+            final = t - self.inner.lookahead - (1 if i == last else 0)
+            out += self._release(self.debouncer.due(final), t)
+        if events:
+            out += self._offer(events, None)[0]
+        if seqs:
+            self.t = seqs[-1]
+        return out
+
+    def idle(self) -> list[Event]:  # type: ignore[override]
+        """The inner deferred work, then what it settles."""
+        out = self._offer(list(self.inner.idle()), None)[0]
+        if self.t >= 0:
+            out += self._release(self.debouncer.due(self.t - self.inner.lookahead), self.t)
+        return out
+
+    def finish(self) -> list[Event]:  # type: ignore[override]
+        """End of stream: the inner rest, then the held key."""
+        out = self._offer(list(self.inner.finish()), None)[0]
+        return out + self._release(self.debouncer.finish(), self.t)
+
+
+# --------------------------------------------------------------------------- provisional
+
+def _innermost(kf: OnlineKeyframer) -> OnlineKeyframer:
+    while hasattr(kf, "inner"):
+        kf = kf.inner
+    return kf
+
+
+class Playable(OnlineKeyframer):
+    """Any online keyframer with provisional events and/or the keyness signal (module
+    docstring). Final events pass unchanged but for `confirms`."""
+
+    method = "?"
+
+    def __init__(self, inner: OnlineKeyframer, provisional: bool = True,
+                 signal_every: int = 0) -> None:
+        if isinstance(signal_every, bool) or not isinstance(signal_every, int) or (
+                signal_every < 0):
+            raise UsageError(f"signal: decimation must be an integer >= 1, got {signal_every!r}")
+        _adopt(self, inner, inner.lookahead, dict(inner.params))
+        self.inner = inner
+        self.provisional = bool(provisional)
+        self.signal_every = int(signal_every)
+        self.radius = max(1, int(round(RADIUS_SECONDS * inner.fps)))
+        self.scorer = _innermost(inner)  # whose recent scores rank the candidates
+        self.siblings: list[Playable] = []  # the signal's other methods (set by link_signal)
+        self.sends_signal = signal_every > 0
+        self.next_pid = 0
+        self._joints = [self.features.roles[name] for name in MIURA_ROLES]
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream (the inner keyframer too); pids keep counting."""
+        self.inner.reset()
+        self.open: dict[int, list[Any]] = {}  # pid: [frame, time, strength]
+        self.t = -1
+        self.keyness: deque[tuple[int, float]] = deque(maxlen=64)  # (seq, keyness)
+        self.speed = 0.0
+        self._prev: np.ndarray | None = None
+
+    @property
+    def trace(self) -> Any:
+        """The inner keyframer's live trace (saliency), if any."""
+        return getattr(self.inner, "trace", None)
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """The inner keyframer's candidates."""
+        return self.inner.candidates()
+
+    def _strength(self, score: float) -> float:
+        recent = list(self.scorer.recent_scores)
+        return rank_strength(recent + [score], score)
+
+    def _nearest(self, frame: int) -> int | None:
+        best = None
+        for pid, p in self.open.items():
+            d = abs(p[0] - frame)
+            if d <= self.radius and (best is None or d < best[0]):
+                best = (d, pid)
+        return None if best is None else best[1]
+
+    def _new(self, frame: int, time: float, strength: float, t: int) -> ProvisionalEvent:
+        pid, self.next_pid = self.next_pid, self.next_pid + 1
+        self.open[pid] = [frame, time, strength]
+        return ProvisionalEvent(self.stream, self.method, frame, time, strength, t, pid)
+
+    def _track(self, events: list[Event], t: int, final: int, announce: bool = True
+               ) -> list[Event]:
+        """Confirm with the final keys, announce new candidates, cancel what was passed."""
+        if not self.provisional:
+            return list(events)
+        out: list[Event] = []
+        for e in events:
+            if not isinstance(e, KeyframeEvent):
+                out.append(e)
+                continue
+            pid = self._nearest(e.frame)
+            if pid is None:
+                out.append(self._new(e.frame, e.time, e.strength, t))
+                pid = self.next_pid - 1
+            del self.open[pid]
+            out.append(dataclasses.replace(e, confirms=pid))
+        for frame, time, score in (self.inner.candidates() if announce else []):
+            if frame <= final:
+                continue
+            pid = self._nearest(frame)
+            if pid is None:
+                out.append(self._new(frame, time, self._strength(score), t))
+            else:
+                self.open[pid][0:2] = [frame, time]
+        for pid in [p for p, v in self.open.items() if v[0] + self.radius <= final]:
+            out.append(CancelEvent(self.stream, self.method, self.open.pop(pid)[0], pid, t))
+        return out
+
+    def _keyness(self, final: int) -> float:
+        strengths = [self._strength(s) for f, _, s in self.inner.candidates() if f > final]
+        return max(strengths, default=0.0)
+
+    def _signal(self, block: FeatureBlock, i: int, t: int, final: int) -> list[Event]:
+        """Log this frame's keyness; the sender adds the body speed and sends (decimated)."""
+        self.keyness.append((t, self._keyness(final)))
+        if not self.sends_signal:
+            return []
+        rows = block.pelvis_positions[i, self._joints] / self.features.body_height
+        if self._prev is not None:
+            raw = float(np.linalg.norm(rows - self._prev, axis=1).mean() * self.fps)
+            a = 1.0 - math.exp(-1.0 / (SIGNAL_SMOOTHING_SECONDS * self.fps))
+            self.speed += a * (raw - self.speed)
+        self._prev = rows
+        if t % self.signal_every:
+            return []
+        values = {"body_speed": self.speed}
+        for kf in [*self.siblings, self]:
+            values[kf.method] = next((v for s, v in reversed(kf.keyness) if s == t), 0.0)
+        return [SignalEvent(self.stream, t, float(block.time[i]), values)]
+
+    def process(self, block: FeatureBlock) -> list[Event]:  # type: ignore[override]
+        """The inner keyframer frame by frame (its deferred work between frames), tracking
+        after each step."""
+        out: list[Event] = []
+        n = len(block)
+        for i in range(n):
+            part = block if n == 1 else block.slice(i, i + 1)
+            t = self.t = int(block.seq[i])
+            final = t - self.lookahead - 1  # before the deferred work of frame t
+            out += self._track(list(self.inner.process(part)), t, final)
+            if self.signal_every:
+                out += self._signal(block, i, t, final)
+            if i < n - 1:
+                out += self._track(list(self.inner.idle()), t, final + 1)
+        return out
+
+    def idle(self) -> list[Event]:  # type: ignore[override]
+        """The inner deferred work of the last frame, tracked."""
+        events = list(self.inner.idle())
+        return self._track(events, self.t, self.t - self.lookahead) if self.t >= 0 else events
+
+    def finish(self) -> list[Event]:  # type: ignore[override]
+        """End of stream or window: the inner rest; every open provisional resolved."""
+        out = self._track(list(self.inner.finish()), self.t, self.t - self.lookahead, False)
+        for pid, p in sorted(self.open.items()):
+            out.append(CancelEvent(self.stream, self.method, p[0], pid, self.t))
+        self.open.clear()
+        return out
+
+
+# --------------------------------------------------------------------------- wiring
+
+def wrap(kf: OnlineKeyframer, options: dict[str, Any]) -> OnlineKeyframer:
+    """`kf` with the playable options of `params["*"]` (`playable_params`): min_interval
+    ({method or "*": seconds}), provisional (bool), signal (every N frames, 0 = off)."""
+    intervals = options.get("min_interval") or {}
+    seconds = intervals.get(kf.method, intervals.get("*"))
+    if seconds:
+        kf = MinInterval(kf, seconds)
+    provisional, signal = bool(options.get("provisional")), int(options.get("signal") or 0)
+    if provisional or signal:
+        kf = Playable(kf, provisional, signal)
+    return kf
+
+
+def link_signal(keyframers: list[OnlineKeyframer]) -> None:
+    """One signal per stream: the last keyframer sends it with the others' keyness."""
+    mine = [kf for kf in keyframers if isinstance(kf, Playable) and kf.signal_every]
+    for kf in mine[:-1]:
+        kf.sends_signal = False
+    if mine:
+        mine[-1].siblings = mine[:-1]
+
+
+def parse_min_interval(text: str | None) -> dict[str, float] | None:
+    """`0.15` (every method) or `simplify=0.2,speed=0.1` -> {method or "*": seconds}."""
+    if text is None:
+        return None
+    out: dict[str, float] = {}
+    for part in (p.strip() for p in text.split(",")):
+        name, _, value = part.rpartition("=")
+        try:
+            seconds = float(value)
+        except ValueError:
+            seconds = math.nan
+        if not part or not math.isfinite(seconds) or seconds < 0:
+            raise UsageError(f"--min-interval: expected SECONDS or METHOD=SECONDS[,...], "
+                             f"got {text!r}")
+        out[name.strip() or "*"] = seconds
+    return out
+
+
+def add_playable_options(p: argparse.ArgumentParser, live: bool = True) -> None:
+    """`--min-interval` (and, live, `--provisional`, `--signal [N]`)."""
+    p.add_argument("--min-interval", metavar="SECONDS",
+                   help="any method: of keys closer than SECONDS keep the stronger; one "
+                        "value or METHOD=SECONDS,... (online: adds SECONDS to the latency)")
+    if live:
+        p.add_argument("--provisional", action="store_true",
+                       help="also send a provisional event as soon as a method sees a likely "
+                            "key, then exactly one confirm (the keyframe event) or cancel")
+        p.add_argument("--signal", type=int, nargs="?", const=1, metavar="N",
+                       help="send a signal event (body speed, each method's keyness) every "
+                            "N frames (default 1: every frame)")
+
+
+def playable_params(args: argparse.Namespace) -> dict[str, Any]:
+    """The playable options of parsed CLI args, for `params["*"]`."""
+    signal = getattr(args, "signal", None)
+    if signal is not None and signal < 1:
+        raise UsageError(f"--signal: N must be >= 1 frame, got {signal}")
+    return {"min_interval": parse_min_interval(getattr(args, "min_interval", None)),
+            "provisional": bool(getattr(args, "provisional", False)), "signal": signal or 0}
+
+
+def debounce_results(results: list[Any], text: str | None) -> None:
+    """`extract --min-interval`: debounce every offline result in place (`FileResult`s)."""
+    intervals = parse_min_interval(text)
+    if not intervals:
+        return
+    for r in results:
+        if r.motion is None:
+            continue
+        for name, keys in r.results.items():
+            seconds = intervals.get(name, intervals.get("*"))
+            if seconds:
+                r.results[name] = debounce(keys, seconds, r.motion.fps)
+
+
+# --------------------------------------------------------------------------- measurement
+
+def measure(motion: Any, method: str, params: dict[str, Any] | None = None
+            ) -> dict[str, list[float]]:
+    """One clip, one method, provisional events on: per confirmed provisional its lead (ms,
+    final decision minus announcement), per provisional whether it was cancelled, per final
+    key its pose-to-event delay (ms)."""
+    from .online import Pipeline
+    from .streaming import make_keyframers
+
+    opts = {**(params or {}), "*": {"provisional": True}}
+    pipeline = Pipeline(make_keyframers(motion, [method], opts))
+    events = pipeline.push_block(motion.frames()) + pipeline.flush()
+    ms = 1000.0 / motion.fps
+    seen = {e.pid: e.seen_at for e in events if isinstance(e, ProvisionalEvent)}
+    keys = [e for e in events if isinstance(e, KeyframeEvent)]
+    cancels = [e for e in events if isinstance(e, CancelEvent)]
+    return {"lead_ms": [(e.decided_at - seen[e.confirms]) * ms for e in keys
+                        if e.confirms is not None],
+            "cancelled": [1.0] * len(cancels) + [0.0] * len(keys),
+            "delay_ms": [e.latency_frames * ms for e in keys]}
+
+
+def bench_playable(data: Path, output: Path) -> list[Path]:
+    """`bench --playable`: the provisional lead, cancel share and pose-to-event delay per
+    online method over every clip of `data`; writes bench_playable.json and .md."""
+    import json
+
+    from .batch import find_motion_files, load_motion
+    from .methods import ONLINE_METHODS
+
+    paths = find_motion_files([str(data)])
+    rows: dict[str, dict[str, Any]] = {}
+    for method in ONLINE_METHODS:
+        acc: dict[str, list[float]] = {"lead_ms": [], "cancelled": [], "delay_ms": []}
+        for path in paths:
+            for k, v in measure(load_motion(path), method).items():
+                acc[k] += v
+        lead = np.array(acc["lead_ms"])
+        rows[method] = {
+            "provisionals": len(acc["cancelled"]), "keys": len(acc["delay_ms"]),
+            "median_lead_ms": float(np.median(lead)) if len(lead) else None,
+            "early_share": float(np.mean(lead > 0)) if len(lead) else None,
+            "cancel_share": float(np.mean(acc["cancelled"])) if acc["cancelled"] else None,
+            "median_delay_ms": float(np.median(acc["delay_ms"])) if acc["delay_ms"] else None}
+    output.mkdir(parents=True, exist_ok=True)
+    result = {"clips": len(paths), "methods": rows,
+              "note": "default parameters and lookahead; lead = decided_at - seen_at of the "
+                      "provisional each final key confirms (0 when it had none before)"}
+    lines = [f"Provisional events over {len(paths)} clips (default parameters):", "",
+             "| method | median provisional lead (ms) | announced early | cancelled | "
+             "median pose-to-final delay (ms) | keys | provisionals |",
+             "|---|---|---|---|---|---|---|"]
+    for m, r in rows.items():
+        lines.append(f"| {m} | {r['median_lead_ms']:.0f} | {100 * r['early_share']:.0f} % | "
+                     f"{100 * r['cancel_share']:.0f} % | {r['median_delay_ms']:.0f} | "
+                     f"{r['keys']} | {r['provisionals']} |")
+    written = []
+    for suffix, text in (("json", json.dumps(result, indent=1)), ("md", "\n".join(lines))):
+        path = output / f"bench_playable.{suffix}"
+        path.write_text(text + "\n", encoding="utf-8")
+        written.append(path)
+    return written
