@@ -13,6 +13,7 @@ from typing import Any
 
 from . import __version__
 from .errors import StreamkeyError
+from .playable import add_playable_options, playable_params
 
 __all__ = ["main", "build_parser"]
 
@@ -45,7 +46,8 @@ def _method_params(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
             optimal[name] = getattr(args, name)
     return {"saliency": saliency, "simplify": simplify, "uniform": counted, "decimate": decimate,
             "isodata": isodata, "optimal": optimal,
-            "*": {"max_gap": getattr(args, "max_gap", None)}}  # every online keyframer
+            "*": {"max_gap": getattr(args, "max_gap", None),  # every online keyframer
+                  **playable_params(args)}}
 
 
 def _write(text: str, output: str) -> None:
@@ -114,6 +116,9 @@ def cmd_extract(args: argparse.Namespace) -> int:
                 if r.motion is not None:
                     r.results = {m: max_gap(r.motion, k, args.max_gap)
                                  for m, k in r.results.items()}
+        from .playable import debounce_results
+
+        debounce_results(results, args.min_interval)
     _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
     _export(results, args)
     failed = [r for r in results if r.error]
@@ -265,6 +270,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """`streamkey bench`: time and memory of the offline and/or online methods, to files."""
     from .bench import run_bench
 
+    if args.playable:
+        from .playable import bench_playable
+
+        for path in bench_playable(Path(args.data or "../shared/data/cmu"), Path(args.output)):
+            print(f"wrote {path}")
+        return 0
     kinds = [k for k in ("offline", "online", "agreement", "perf") if getattr(args, k)]
     kinds += [k for k in ("memory", "latency", "ws_clients") if getattr(args, k)]
     kinds = kinds or ["offline", "online"]
@@ -382,6 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_optimal_options(p)
     p.add_argument("--online", action="store_true",
                    help="run the online keyframers over each file as if streamed")
+    add_playable_options(p, live=False)
     p.add_argument("--lookahead", type=int, help="online: lookahead in frames (default: method's)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.add_argument("--export-bvh", metavar="OUT",
@@ -437,6 +449,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--space", choices=("positions", "channels"), default="positions",
                    help=argparse.SUPPRESS)
     _add_optimal_options(p)
+    add_playable_options(p)
     _add_dashboard_options(p)
     _add_roles_option(p)
     p.set_defaults(func=cmd_run)
@@ -490,6 +503,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ws-clients", dest="ws_clients", action="store_true",
                    help="live: event latency with 0, 100 and 300 WebSocket clients")
     p.add_argument("--quick", action="store_true", help="live benches: shorter runs")
+    p.add_argument("--playable", action="store_true", help="provisional lead, cancel share "
+                   "and pose-to-event delay per online method over every clip of --data")
     p.add_argument("--perf", action="store_true",
                    help="per-frame CPU time on a long stream and offline growth exponents")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")

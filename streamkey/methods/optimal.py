@@ -473,10 +473,17 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
     else:
         rows, err = _solve_all(x, max_len, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
-    scores = np.zeros(len(rows))
-    scores[1:] += err
-    scores[:-1] += err  # a key's score: the error of the segments it bounds
+    scores = key_scores(x, rows)
     return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
+
+
+def key_scores(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """A key's score: the cost of the segment it ends (the first key: 0), each segment priced
+    alone, so offline and online (which knows it once the key is decided) agree bit for bit."""
+    out = np.zeros(len(rows))
+    for i in range(1, len(rows)):
+        out[i] = om.pair_costs(x, [rows[i - 1]], [rows[i]])[0]
+    return out
 
 
 class Online(OnlineKeyframer):
@@ -520,10 +527,17 @@ class Online(OnlineKeyframer):
         self.seq: list[int] = []
         self.time: list[float] = []
         self.t0 = 0  # stream index of seq[0]
+        self.prev_key: int | None = None  # stream index of the last key sent
 
     def _events(self, keys: list[int], decided_at: int) -> list[KeyframeEvent]:
-        return [self.event(self.seq[k - self.t0], self.time[k - self.t0], 0.0, decided_at)
-                for k in keys]
+        out = []
+        s = self.solver
+        for k in keys:
+            prev, self.prev_key = self.prev_key, k
+            score = 0.0 if prev is None else key_scores(s.x, np.array([prev, k]) - s.base)[1]
+            out.append(self.event(self.seq[k - self.t0], self.time[k - self.t0], score,
+                                  decided_at))
+        return out
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Append the block's frames; decide what converged or reached its deadline."""
