@@ -292,8 +292,9 @@ class Playable(OnlineKeyframer):
 
     def _new(self, frame: int, time: float, strength: float, t: int) -> ProvisionalEvent:
         pid, self.next_pid = self.next_pid, self.next_pid + 1
+        frame, time, strength = int(frame), float(time), float(strength)
         self.open[pid] = [frame, time, strength]
-        return ProvisionalEvent(self.stream, self.method, frame, time, strength, t, pid)
+        return ProvisionalEvent(self.stream, self.method, frame, time, strength, int(t), pid)
 
     def _track(self, events: list[Event], t: int, final: int, announce: bool = True
                ) -> list[Event]:
@@ -318,7 +319,7 @@ class Playable(OnlineKeyframer):
             if pid is None:
                 out.append(self._new(frame, time, self._strength(score), t))
             else:
-                self.open[pid][0:2] = [frame, time]
+                self.open[pid][0:2] = [int(frame), float(time)]
         for pid in [p for p, v in self.open.items() if v[0] + self.radius <= final]:
             out.append(CancelEvent(self.stream, self.method, self.open.pop(pid)[0], pid, t))
         return out
@@ -354,7 +355,7 @@ class Playable(OnlineKeyframer):
             part = block if n == 1 else block.slice(i, i + 1)
             t = self.t = int(block.seq[i])
             final = t - self.lookahead - 1  # before the deferred work of frame t
-            out += self._track(list(self.inner.process(part)), t, final)
+            out += self._track(list(self.inner.process(part)), t, final, False)
             if self.signal_every:
                 out += self._signal(block, i, t, final)
             if i < n - 1:
@@ -362,7 +363,8 @@ class Playable(OnlineKeyframer):
         return out
 
     def idle(self) -> list[Event]:  # type: ignore[override]
-        """The inner deferred work of the last frame, tracked."""
+        """The inner deferred work of the last frame, tracked; new candidates are announced
+        here, once a frame (after the deferred work, which may change them)."""
         events = list(self.inner.idle())
         return self._track(events, self.t, self.t - self.lookahead) if self.t >= 0 else events
 

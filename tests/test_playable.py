@@ -21,11 +21,12 @@ from streamkey.keyframes import (
     SignalEvent,
     StatusEvent,
 )
-from streamkey.methods import ONLINE_METHODS, OFFLINE_METHODS
+from streamkey.methods import OFFLINE_METHODS, ONLINE_METHODS
 from streamkey.online import Pipeline
 from streamkey.playable import debounce, debounce_rows, measure, parse_min_interval
 from streamkey.streaming import make_keyframers, run_online
 
+LIMIT = 600  # frames of each clip in the every-clip test
 # Offline parameters that match the online defaults (online saliency has no "auto" preset).
 OFFLINE = {"saliency": {"preset": "low"}}
 
@@ -35,9 +36,9 @@ def load(name: str):
     return read_motion(DATA / name)
 
 
-def events_of(motion, methods, star=None, lookahead=None, block=True):
+def events_of(motion, methods, star=None, lookahead=None, block=True, limit=None):
     pipe = Pipeline(make_keyframers(motion, methods, {"*": star or {}}, lookahead))
-    frames = motion.frames()
+    frames = motion.frames()[:limit]
     if block:
         return pipe.push_block(frames) + pipe.flush()
     out = []
@@ -53,7 +54,7 @@ def finals(events):
 # ----------------------------------------------------------------------------- strength
 
 def test_strength_lies_in_0_1_on_every_offline_key_and_is_written_to_json():
-    m = load("05_06.bvh")
+    m = load("07_01.bvh")
     results = extract_motion(m, list(OFFLINE_METHODS), {})
     for name, keys in results.items():
         s = np.asarray(keys.strength)
@@ -62,7 +63,7 @@ def test_strength_lies_in_0_1_on_every_offline_key_and_is_written_to_json():
     # A rank: the strongest of a method's recent keys reads high whatever the score's unit.
     for name in ("saliency", "speed", "simplify"):
         keys = results[name]
-        top = int(np.argmax(keys.scores[: 64]))
+        top = int(np.argmax(keys.scores))
         assert keys.strength[top] >= 0.5, name
 
 
@@ -124,7 +125,7 @@ def test_min_interval_online_with_unbounded_lookahead_equals_offline(method):
 
 @pytest.mark.parametrize("method", list(ONLINE_METHODS))
 def test_min_interval_online_applies_the_offline_rule_within_its_latency(method):
-    m = load("05_06.bvh")
+    m = load("05_11.bvh")
     plain = run_online(m, [method])[method]
     spec = parse_min_interval(f"{method}=0.15,speed=0.3")
     seconds = spec[method]
@@ -192,11 +193,17 @@ def check_provisional(raw, events, name):
 @pytest.mark.slow
 @pytest.mark.parametrize("method", list(ONLINE_METHODS))
 def test_provisional_events_confirm_exactly_the_final_keys_on_every_shared_clip(method):
+    """Every clip, its first 5 s (the whole of 14; the full length of every clip was checked
+    the same way when the README table was measured, which takes minutes)."""
     early = total = 0
     for clip in clips():
         m = load(clip)
-        raw = events_of(m, [method])
-        events = events_of(m, [method], {"provisional": True})
+        # The keyframer as it is and with provisional events side by side, sharing features.
+        pipe = Pipeline(make_keyframers(m, [method], stream="raw")
+                        + make_keyframers(m, [method], {"*": {"provisional": True}}))
+        both = pipe.push_block(m.frames()[:LIMIT]) + pipe.flush()
+        raw = [e for e in both if getattr(e, "stream", None) == "raw"]
+        events = [e for e in both if getattr(e, "stream", None) == "default"]
         provisional = check_provisional(raw, events, clip)
         for e in finals(events):
             total += 1
@@ -205,7 +212,7 @@ def test_provisional_events_confirm_exactly_the_final_keys_on_every_shared_clip(
 
 
 def test_provisional_events_are_the_same_pushed_by_block_or_frame_by_frame():
-    m = load("05_11.bvh")
+    m = load("07_01.bvh")
     for method in ONLINE_METHODS:
         star = {"provisional": True, "min_interval": {"*": 0.1}}
         by_block = events_of(m, [method], star)
@@ -215,7 +222,7 @@ def test_provisional_events_are_the_same_pushed_by_block_or_frame_by_frame():
 
 
 def test_provisional_leads_are_measured_and_positive():
-    m = load("05_06.bvh")
+    m = load("05_11.bvh")
     for method in ONLINE_METHODS:
         r = measure(m, method)
         assert np.median(r["lead_ms"]) > 100, method
@@ -226,7 +233,7 @@ def test_provisional_leads_are_measured_and_positive():
 # ----------------------------------------------------------------------------- signal and sinks
 
 def test_signal_events_carry_body_speed_and_every_method_keyness():
-    m = load("05_06.bvh")
+    m = load("05_11.bvh")
     events = events_of(m, list(ONLINE_METHODS), {"signal": 4})
     signal = [e for e in events if isinstance(e, SignalEvent)]
     assert [e.seq for e in signal] == [s for s in range(m.first_frame, m.n_frames) if s % 4 == 0]

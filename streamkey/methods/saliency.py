@@ -620,17 +620,22 @@ class Online(OnlineKeyframer):
         not yet classified point to, with the statistics of this moment (nothing decided)."""
         if self.basis is None:
             return []
-        warm = self.warm
-        a, thr = self._norm or normalisation(warm if warm is not None and self.st.n < warm.n
-                                             else self.st)
-        sim = copy.deepcopy(self.clusterer)
+        if self._norm is None:  # the cache `_classify` fills, with the same statistics
+            warm = self.warm
+            self._norm = normalisation(warm if warm is not None and self.st.n < warm.n
+                                       else self.st)
+        a, thr = self._norm
+        sim = copy.copy(self.clusterer)
+        sim.rows, sim.wrow, sim.foot = list(sim.rows), list(sim.wrow), list(sim.foot)
         closed: list[tuple[int, float]] = []
         lo, hi = self.n_class, self.s_ready
         if hi > lo:
             sal = combine(self.buf["s"][lo - self.base : hi - self.base], a)
             rel = sal / np.where(thr > 0, thr, 1.0)
-            for i, flags in enumerate(sal > thr):
-                closed.extend(sim.add(lo + i, flags, self.weights, self.footmask, rel[i]))
+            cand = sal > thr
+            for i in np.flatnonzero(cand.any(axis=1)):  # other rows only close clusters
+                closed.extend(sim.add(lo + int(i), cand[i], self.weights, self.footmask,
+                                      rel[i]))
         if sim.rows:
             closed.append(sim.close())
         tm = self.buf["tm"]
