@@ -63,6 +63,7 @@ from .keyframes import (
     SignalEvent,
     rank_strength,
 )
+from .methods import OFFLINE_METHODS
 from .online import FeatureBlock, OnlineKeyframer
 from .roles import MIURA_ROLES
 
@@ -415,7 +416,11 @@ def parse_min_interval(text: str | None) -> dict[str, float] | None:
         if not part or not math.isfinite(seconds) or seconds < 0:
             raise UsageError(f"--min-interval: expected SECONDS or METHOD=SECONDS[,...], "
                              f"got {text!r}")
-        out[name.strip() or "*"] = seconds
+        name = name.strip() or "*"
+        if name != "*" and name not in OFFLINE_METHODS:
+            raise UsageError(f"--min-interval: unknown method {name!r}; choose from "
+                             f"{', '.join(OFFLINE_METHODS)}")
+        out[name] = seconds
     return out
 
 
@@ -461,8 +466,8 @@ def debounce_results(results: list[Any], text: str | None) -> None:
 def measure(motion: Any, method: str, params: dict[str, Any] | None = None
             ) -> dict[str, list[float]]:
     """One clip, one method, provisional events on: per confirmed provisional its lead (ms,
-    final decision minus announcement), per provisional whether it was cancelled, per final
-    key its pose-to-event delay (ms)."""
+    final decision minus announcement), per provisional whether it was cancelled and its
+    pose-to-announcement delay (ms), per final key its pose-to-event delay (ms)."""
     from .online import Pipeline
     from .streaming import make_keyframers
 
@@ -473,7 +478,9 @@ def measure(motion: Any, method: str, params: dict[str, Any] | None = None
     seen = {e.pid: e.seen_at for e in events if isinstance(e, ProvisionalEvent)}
     keys = [e for e in events if isinstance(e, KeyframeEvent)]
     cancels = [e for e in events if isinstance(e, CancelEvent)]
-    return {"lead_ms": [(e.decided_at - seen[e.confirms]) * ms for e in keys
+    return {"announce_ms": [(e.seen_at - e.frame) * ms for e in events
+                            if isinstance(e, ProvisionalEvent)],
+            "lead_ms": [(e.decided_at - seen[e.confirms]) * ms for e in keys
                         if e.confirms is not None],
             "cancelled": [1.0] * len(cancels) + [0.0] * len(keys),
             "delay_ms": [e.latency_frames * ms for e in keys]}
@@ -490,7 +497,8 @@ def bench_playable(data: Path, output: Path) -> list[Path]:
     paths = find_motion_files([str(data)])
     rows: dict[str, dict[str, Any]] = {}
     for method in ONLINE_METHODS:
-        acc: dict[str, list[float]] = {"lead_ms": [], "cancelled": [], "delay_ms": []}
+        acc: dict[str, list[float]] = {"lead_ms": [], "cancelled": [], "delay_ms": [],
+                                       "announce_ms": []}
         for path in paths:
             for k, v in measure(load_motion(path), method).items():
                 acc[k] += v
@@ -500,19 +508,21 @@ def bench_playable(data: Path, output: Path) -> list[Path]:
             "median_lead_ms": float(np.median(lead)) if len(lead) else None,
             "early_share": float(np.mean(lead > 0)) if len(lead) else None,
             "cancel_share": float(np.mean(acc["cancelled"])) if acc["cancelled"] else None,
-            "median_delay_ms": float(np.median(acc["delay_ms"])) if acc["delay_ms"] else None}
+            "median_delay_ms": float(np.median(acc["delay_ms"])) if acc["delay_ms"] else None,
+            "median_announce_ms": (float(np.median(acc["announce_ms"])) if acc["announce_ms"]
+                                   else None)}
     output.mkdir(parents=True, exist_ok=True)
     result = {"clips": len(paths), "methods": rows,
               "note": "default parameters and lookahead; lead = decided_at - seen_at of the "
                       "provisional each final key confirms (0 when it had none before)"}
     lines = [f"Provisional events over {len(paths)} clips (default parameters):", "",
              "| method | median provisional lead (ms) | announced early | cancelled | "
-             "median pose-to-final delay (ms) | keys | provisionals |",
-             "|---|---|---|---|---|---|---|"]
+             "median pose-to-provisional (ms) | median pose-to-final delay (ms) | keys | "
+             "provisionals |", "|---|---|---|---|---|---|---|---|"]
     for m, r in rows.items():
         lines.append(f"| {m} | {r['median_lead_ms']:.0f} | {100 * r['early_share']:.0f} % | "
-                     f"{100 * r['cancel_share']:.0f} % | {r['median_delay_ms']:.0f} | "
-                     f"{r['keys']} | {r['provisionals']} |")
+                     f"{100 * r['cancel_share']:.0f} % | {r['median_announce_ms']:.0f} | "
+                     f"{r['median_delay_ms']:.0f} | {r['keys']} | {r['provisionals']} |")
     written = []
     for suffix, text in (("json", json.dumps(result, indent=1)), ("md", "\n".join(lines))):
         path = output / f"bench_playable.{suffix}"

@@ -157,7 +157,8 @@ def test_min_interval_on_the_command_line_offline_and_online(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv", [["--min-interval", "x"], ["--min-interval", "-1"],
                                   ["--min-interval", "speed="], ["--min-interval", ",,"],
-                                  ["--min-interval", "nan"], ["--signal", "0"]])
+                                  ["--min-interval", "nan"], ["--min-interval", "walk=0.1"],
+                                  ["--signal", "0"], ["--signal", "-3"]])
 def test_bad_playable_options_are_one_clear_error(argv, capsys):
     code = main(["run", "--from", str(DATA / "07_01.bvh"), "--fast", "--method", "speed",
                  *argv])
