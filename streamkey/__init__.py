@@ -4,7 +4,15 @@ from __future__ import annotations
 
 from .bvh import parse_bvh, read_bvh, write_bvh
 from .errors import AMCError, BVHError, InputError, RoleError, StreamkeyError, UsageError
-from .keyframes import GapEvent, KeyframeEvent, Keyframes, StatusEvent
+from .keyframes import (
+    CancelEvent,
+    GapEvent,
+    KeyframeEvent,
+    Keyframes,
+    ProvisionalEvent,
+    SignalEvent,
+    StatusEvent,
+)
 from .motion import Frame, Motion, Skeleton
 
 __version__ = "0.1.0"
@@ -13,4 +21,5 @@ __all__ = [
     "AMCError", "BVHError", "Frame", "GapEvent", "InputError", "KeyframeEvent", "Keyframes",
     "Motion", "RoleError", "Skeleton", "StatusEvent", "StreamkeyError", "UsageError",
     "parse_bvh", "read_bvh", "write_bvh", "__version__",
+    "CancelEvent", "ProvisionalEvent", "SignalEvent",
 ]

@@ -39,7 +39,10 @@ functions over offline `Keyframes`.
   The last keyframer of the pipeline sends it, reading the others' per-frame keyness.
 
 `Playable` runs its inner keyframer frame by frame (block slices), so provisional and
-signal events are the same whatever the block split.
+signal events are the same whatever the block split. Restarts (a long gap, a source starting
+over) and flushes resolve every open provisional; after a keyframer fault the engine resets
+the windows without a flush, and the open provisionals of that moment are dropped (the
+`error` status event says so).
 """
 
 from __future__ import annotations
