@@ -91,9 +91,9 @@ def test_every_online_event_carries_a_strength_in_0_1_and_a_v2_id():
             "keyframe", "provisional", "cancel", "signal", "gap", "status")
         if isinstance(e, KeyframeEvent | ProvisionalEvent):
             assert 0.0 <= e.strength <= 1.0
-    ids = [e.id for e in events if isinstance(e, KeyframeEvent)]
-    assert len(ids) == len(set(ids))
-    assert ids[0].startswith(f"default/{events[0].method}/") or ids
+    keys = [e for e in events if isinstance(e, KeyframeEvent)]
+    assert len({e.id for e in keys}) == len(keys)
+    assert all(e.id == f"default/{e.method}/{e.frame}/{e.params}" for e in keys)
     assert GapEvent("s", "*", 5, 9, True).id == "s/gap/5"
     assert StatusEvent("s", "*", "restart", {"seq": 7}).id == "s/status/restart/7"
 
