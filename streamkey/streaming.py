@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from . import playable
+from . import playable_online
 from .batch import FileResult, load_motion, per_file
 from .errors import UsageError
 from .keyframes import KeyframeEvent, Keyframes
@@ -54,8 +54,8 @@ def make_keyframers(motion: Motion, methods: list[str],
             from .methods.optimal import MaxGap
 
             kf = MaxGap(kf, max_gap)
-        out.append(playable.wrap(kf, params.get("*", {})))
-    playable.link_signal(out)
+        out.append(playable_online.wrap(kf, params.get("*", {})))
+    playable_online.link_signal(out)
     return out
 
 
