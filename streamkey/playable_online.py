@@ -155,6 +155,7 @@ class Playable(OnlineKeyframer):
         """Forget the stream (the inner keyframer too); pids keep counting."""
         self.inner.reset()
         self.open: dict[int, list[Any]] = {}  # pid: [frame, time, strength]
+        self.keys: deque[int] = deque(maxlen=8)  # frames of the last final keys
         self.t = -1
         self.keyness: deque[tuple[int, float]] = deque(maxlen=64)  # (seq, keyness)
         self.speed = 0.0
@@ -202,10 +203,11 @@ class Playable(OnlineKeyframer):
                 out.append(self._new(e.frame, e.time, e.strength, t))
                 pid = self.next_pid - 1
             del self.open[pid]
+            self.keys.append(e.frame)
             out.append(dataclasses.replace(e, confirms=pid))
         for frame, time, score in (self.inner.candidates() if announce else []):
-            if frame <= final:
-                continue
+            if frame <= final or frame in self.keys:
+                continue  # decided, or a key just sent (a candidate list may lag a little)
             pid = self._nearest(frame)
             if pid is None:
                 out.append(self._new(frame, time, self._strength(score), t))
