@@ -19,19 +19,22 @@ functions over offline `Keyframes`.
   inner one plus the interval. Same keys offline (`debounce`) and online, whatever the
   lookahead, given the same inner keys.
 - **Provisional events** (`--provisional`, opt-in): every method exposes `candidates()`, the
-  keys it expects among its undecided frames right now (speed: the window's speed minima
-  whose current intensity clears the current cut-off, recomputed every `hop` frames;
-  saliency: the clusters the frames with final maps point to, with this moment's statistics;
-  simplify: the window recursion's keys and the witness; optimal: the keys of the best
-  chain after the decided part). `Playable` asks after every frame: a candidate with no open
-  provisional within `radius` frames (0.05 s) gets a `ProvisionalEvent`; an open one follows
-  its nearest candidate. A final key confirms the nearest open provisional within `radius`
-  (its `confirms` is that `pid`), else a provisional is sent right before it (lead 0), so
-  every final key confirms exactly one provisional. An open provisional whose frame +
-  `radius` has been decided without a key gets a `CancelEvent`; at the end of a stream or a
-  window every open one is resolved. The final events are the inner keyframer's, unchanged
-  but for `confirms`. Opt-in because it doubles the event count and asks the consumer to
-  handle take-backs; the final-only stream stays what existing sinks and scripts expect.
+  keys it expects among its undecided frames right now (speed: the window's speed minima whose
+  current intensity clears the current cut-off, recomputed every `hop` frames; saliency: the
+  clusters that the frames not yet classified point to with this moment's statistics, from
+  their final maps or, for frames younger than the support, from early maps computed 2 sigma
+  frames after the frame with windows cut there, every 4 frames; simplify: the window
+  recursion's keys and the witness; optimal: the keys of the best chain after the decided
+  part). `Playable` asks after every frame: a candidate with no open provisional within
+  `radius` frames (0.05 s) gets a `ProvisionalEvent`; an open one follows its nearest
+  candidate; a candidate at a key just sent is not announced again. A final key confirms the
+  nearest open provisional within `radius` (its `confirms` is that `pid`), else a provisional
+  is sent right before it (lead 0), so every final key confirms exactly one provisional. An
+  open provisional whose frame + `radius` has been decided without a key gets a `CancelEvent`;
+  at the end of a stream or a window every open one is resolved. The final events are the
+  inner keyframer's, unchanged but for `confirms`. Opt-in because it doubles the event count
+  and asks the consumer to handle take-backs; the final-only stream stays what existing sinks
+  and scripts expect.
 - **Signal** (`--signal [N]`, opt-in): one `SignalEvent` per stream every N frames (seq % N
   == 0) with `body_speed` (mean speed of Miura's 16 body parts in the pelvis frame, body
   heights per second, smoothed causally with a 50 ms time constant) and per method its
