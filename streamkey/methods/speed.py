@@ -712,7 +712,6 @@ class Online(OnlineKeyframer):
             return _two_cluster_threshold(sample)
         return res.threshold
 
-
     def candidates(self) -> list[tuple[int, float, float]]:
         """Provisional hook: keys decided but not yet sent, and the window's later minima
         whose intensity clears the cut-off at the last analysis."""
