@@ -265,7 +265,7 @@ class OnlineKeyframer:
         self.params_digest = params_digest({"method": self.method, **self.params})
         self.guard = StreamGuard(skeleton.n_channels, stream, self.method, max_bridge_frames)
         self.features = FeatureStage(skeleton, fps, role_mapping)
-        # Scores of the last keys sent, for their strength (kept over restarts and flushes).
+        # Scores of the last keys sent, for their strength (kept over gaps, not over a flush).
         self.recent_scores: deque[float] = deque(maxlen=STRENGTH_WINDOW)
 
     def push(self, frame: Frame) -> list[Event]:
@@ -282,6 +282,7 @@ class OnlineKeyframer:
         self.reset()
         self.guard.reset()
         self.features.reset()
+        forget_scores(self)
         return events
 
     def event(self, frame: int, time: float, score: float, decided_at: int) -> KeyframeEvent:
@@ -314,6 +315,14 @@ class OnlineKeyframer:
     def reset(self) -> None:
         """Forget the window and running state; keep parameters (subclass hook)."""
         raise NotImplementedError
+
+
+def forget_scores(kf: OnlineKeyframer) -> None:
+    """A new stream: the strength ranks start afresh (wrapped keyframers too). A restart
+    inside a stream (a long gap) keeps them."""
+    while kf is not None:
+        kf.recent_scores.clear()
+        kf = getattr(kf, "inner", None)
 
 
 def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
@@ -389,6 +398,7 @@ class Pipeline:
         for kf in self.keyframers:
             events.extend(kf.finish())
             kf.reset()
+            forget_scores(kf)
         self.guard.reset()
         self.features.reset()
         return events

@@ -9,7 +9,8 @@ functions over offline `Keyframes`.
   method's recent keys". Causal: online it is computed when the key is sent
   (`OnlineKeyframer.event`), offline over the keys in frame order (`rank_strengths`); with
   an unbounded lookahead the keys, their order and so their strengths are identical. The
-  first key of a stream has 0.5; keys inserted by `--max-gap` have 0.
+  first key of a stream has 0.5; keys inserted by `--max-gap` have 0. The ranking history
+  survives a restart inside a stream (a long gap) and starts afresh at a flush.
 - **Debounce** (`--min-interval SECONDS`, per method): of keys closer than the interval, keep
   the stronger (higher score; a tie keeps the earlier). Greedy in frame order: a held key is
   replaced by a stronger key less than the interval after it, and sent once a key at least the
