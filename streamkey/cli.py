@@ -271,7 +271,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run_bench
 
     if args.playable:
-        from .playable import bench_playable
+        from .bench_playable import bench_playable
 
         for path in bench_playable(Path(args.data or "../shared/data/cmu"), Path(args.output)):
             print(f"wrote {path}")

@@ -12,6 +12,7 @@ from cmu import DATA, clips
 
 from streamkey.amc import read_motion
 from streamkey.batch import extract_motion
+from streamkey.bench_playable import measure
 from streamkey.cli import main
 from streamkey.keyframes import (
     CancelEvent,
@@ -23,7 +24,7 @@ from streamkey.keyframes import (
 )
 from streamkey.methods import OFFLINE_METHODS, ONLINE_METHODS
 from streamkey.online import Pipeline
-from streamkey.playable import debounce, debounce_rows, measure, parse_min_interval
+from streamkey.playable import debounce, debounce_rows, parse_min_interval
 from streamkey.streaming import make_keyframers, run_online
 
 LIMIT = 360  # frames of each clip in the every-clip test
