@@ -157,7 +157,7 @@ class Playable(OnlineKeyframer):
         self.open: dict[int, list[Any]] = {}  # pid: [frame, time, strength]
         self.keys: deque[int] = deque(maxlen=8)  # frames of the last final keys
         self.t = -1
-        self.keyness: deque[tuple[int, float]] = deque(maxlen=64)  # (seq, keyness)
+        self.keyness: dict[int, float] = {}  # seq: keyness, until the sender has read it
         self.speed = 0.0
         self._prev: np.ndarray | None = None
 
@@ -222,10 +222,17 @@ class Playable(OnlineKeyframer):
         return max(strengths, default=0.0)
 
     def _signal(self, block: FeatureBlock, i: int, t: int, final: int) -> list[Event]:
-        """Log this frame's keyness; the sender adds the body speed and sends (decimated)."""
-        self.keyness.append((t, self._keyness(final)))
+        """Log this frame's keyness; the sender (the pipeline's last keyframer, which runs
+        after the others have processed the block) reads everyone's, adds the body speed and
+        sends (decimated)."""
+        self.keyness[t] = self._keyness(final)
         if not self.sends_signal:
             return []
+        values = {"body_speed": 0.0}
+        for kf in [*self.siblings, self]:
+            values[kf.method] = kf.keyness.get(t, 0.0)
+            for seq in [s for s in kf.keyness if s <= t]:
+                del kf.keyness[seq]
         rows = block.pelvis_positions[i, self._joints] / self.features.body_height
         if self._prev is not None:
             raw = float(np.linalg.norm(rows - self._prev, axis=1).mean() * self.fps)
@@ -234,9 +241,7 @@ class Playable(OnlineKeyframer):
         self._prev = rows
         if t % self.signal_every:
             return []
-        values = {"body_speed": self.speed}
-        for kf in [*self.siblings, self]:
-            values[kf.method] = next((v for s, v in reversed(kf.keyness) if s == t), 0.0)
+        values["body_speed"] = self.speed
         return [SignalEvent(self.stream, t, float(block.time[i]), values)]
 
     def process(self, block: FeatureBlock) -> list[Event]:  # type: ignore[override]

@@ -246,6 +246,13 @@ def test_signal_events_carry_body_speed_and_every_method_keyness():
     for k in ONLINE_METHODS:
         assert any(e.values[k] > 0 for e in signal), k
     assert finals(events) == finals(events_of(m, list(ONLINE_METHODS)))
+    short = load("07_01.bvh")
+    star = {"signal": 3, "provisional": True}
+    by_block, by_frame = (events_of(short, list(ONLINE_METHODS), star, block=b)
+                          for b in (True, False))
+    for name in [*ONLINE_METHODS, None]:  # a pipeline interleaves its keyframers per block
+        assert [e for e in by_block if getattr(e, "method", None) == name] == [
+            e for e in by_frame if getattr(e, "method", None) == name], name
 
 
 def test_run_writes_every_event_type_to_jsonl_and_the_osc_sink_skips_the_new_ones(tmp_path,
