@@ -80,8 +80,7 @@ class MinInterval(OnlineKeyframer):
     def _offer(self, events: list[Event], upto: int | None) -> tuple[list[Event], int]:
         """Offer the inner events decided at frames <= upto (all if None)."""
         out: list[Event] = []
-        i = 0
-        for i, e in enumerate(events):  # noqa: B007 - the index is returned
+        for i, e in enumerate(events):
             if upto is not None and isinstance(e, KeyframeEvent) and e.decided_at > upto:
                 return out, i
             if isinstance(e, KeyframeEvent):
