@@ -195,8 +195,8 @@ def check_provisional(raw, events, name):
 @pytest.mark.slow
 @pytest.mark.parametrize("method", list(ONLINE_METHODS))
 def test_provisional_events_confirm_exactly_the_final_keys_on_every_shared_clip(method):
-    """Every clip, its first 3 s (the whole of 10; the full length of every clip was checked
-    the same way when the README table was measured, which takes minutes)."""
+    """Every clip, its first 3 s (the whole of 10; `streamkey bench --playable`, which
+    measures the README table, checks the same promises on every clip at full length)."""
     early = total = 0
     for clip in clips():
         m = load(clip)
