@@ -230,6 +230,7 @@ def test_provisional_leads_are_measured_and_positive():
         assert np.median(r["lead_ms"]) > 100, method
         assert 0 <= np.mean(r["cancelled"]) < 0.5, method
         assert all(d >= 0 for d in r["delay_ms"])
+        assert r["mismatch"] == [0.0] and min(r["announce_ms"]) >= 0
 
 
 # ----------------------------------------------------------------------------- signal and sinks
