@@ -13,6 +13,7 @@ from typing import Any
 
 from . import __version__
 from .errors import StreamkeyError
+from .playable import add_playable_options, playable_params
 
 __all__ = ["main", "build_parser"]
 
@@ -158,7 +159,8 @@ def _method_params(args: argparse.Namespace, online: bool = False) -> dict[str, 
     bridge = _max_bridge(getattr(args, "max_bridge", None))
     if bridge and not online:
         raise UsageError("--max-bridge: online only; add --online")
-    params["*"] = {"max_gap": getattr(args, "max_gap", None), **bridge}  # every online keyframer
+    params["*"] = {"max_gap": getattr(args, "max_gap", None), **bridge,  # every online keyframer
+                   **playable_params(args)}
     return params
 
 
@@ -239,6 +241,10 @@ def cmd_extract(args: argparse.Namespace) -> int:
             if r.motion is not None:
                 r.results = {m: max_gap(r.motion, k, args.max_gap)
                              for m, k in r.results.items()}
+    if not args.online:  # online, the keyframers debounce themselves
+        from .playable import debounce_results
+
+        debounce_results(results, args.min_interval)
     _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
     _export(results, args)
     failed = [r for r in results if r.error]
@@ -400,6 +406,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """`streamkey bench`: time and memory of the offline and/or online methods, to files."""
     from .bench import BenchInterrupted, run_bench
 
+    if args.playable:
+        from .bench_playable import bench_playable
+
+        for path in bench_playable(Path(args.data or "../shared/data/cmu"), Path(args.output)):
+            print(f"wrote {path}")
+        return 0
     kinds = [k for k in ("offline", "online", "agreement", "perf") if getattr(args, k)]
     kinds += [k for k in ("memory", "latency", "ws_clients") if getattr(args, k)]
     if getattr(args, "engines", False):  # extract on local / Ray / Dask (issue 14 §6)
@@ -624,6 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="-", help="output file (default: stdout)")
     p.add_argument("--online", action="store_true",
                    help="run the online keyframers over each file as if streamed")
+    add_playable_options(p, live=False)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.add_argument("--export-bvh", metavar="OUT",
                    help="write the keyposes-only BVH (+ OUT.keys.json with their original "
@@ -682,6 +695,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",
                    help="stop once frames have flowed and then none came for SECONDS "
                         "(default: run until Ctrl-C / SIGTERM)")
+    add_playable_options(p)
     _add_dashboard_options(p)
     _add_roles_option(p)
     _add_method_options(p, online=True)
@@ -751,6 +765,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "2 minutes), shorter live benches")
     p.add_argument("--engines", action="store_true", help="extract DIR on local, Ray and "
                    "Dask: wall and CPU (needs streamkey[cluster])")
+    p.add_argument("--playable", action="store_true", help="provisional lead, cancel share "
+                   "and pose-to-event delay per online method over every clip of --data")
     p.add_argument("--perf", action="store_true",
                    help="per-frame CPU time on a long stream and offline growth exponents")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")

@@ -322,10 +322,8 @@ class Engine:
                     per_method = self.summary.method_latency[event.method] = LatencyHistogram()
                 per_method.add(latency)
                 self.summary.events[event.method] += 1
-            elif isinstance(event, StatusEvent):
-                self.summary.events["status"] += 1
-            else:
-                self.summary.events["gap"] += 1
+            else:  # status, gap, provisional, cancel, signal
+                self.summary.events[type(event).__name__.removesuffix("Event").lower()] += 1
             for sink in self.sinks:
                 if sink.stats.disabled:
                     sink.stats.dropped += 1

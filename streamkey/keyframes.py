@@ -1,7 +1,11 @@
-"""Results and events: offline `Keyframes`, online `KeyframeEvent`, `GapEvent`, `StatusEvent`.
+"""Results and events: offline `Keyframes`, online `KeyframeEvent`, `GapEvent`, `StatusEvent`,
+and the playable extras (`ProvisionalEvent`, `CancelEvent`, `SignalEvent`; `streamkey.playable`).
 
 Events are final once emitted (DESIGN §3) and serialise to the versioned JSON schema
-documented in the README (`to_json()`).
+documented in the README (`to_dict()`, `"v": 2`). Every event has an idempotent `id`: a
+consumer that sees the same id twice (a resent packet, a replayed log) may drop the second.
+A provisional event is the one event that is not a decision: it announces a likely key early
+and is followed by exactly one final `KeyframeEvent` (`confirms` = its `pid`) or `CancelEvent`.
 """
 
 from __future__ import annotations
@@ -13,17 +17,36 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Keyframes", "KeyframeEvent", "GapEvent", "StatusEvent", "Event", "SCHEMA_VERSION",
-           "params_digest"]
+__all__ = ["Keyframes", "KeyframeEvent", "GapEvent", "StatusEvent", "ProvisionalEvent",
+           "CancelEvent", "SignalEvent", "Event", "SCHEMA_VERSION", "params_digest",
+           "rank_strength", "rank_strengths", "STRENGTH_WINDOW"]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+STRENGTH_WINDOW = 64  # keys: a key's strength is its score's rank among this many recent keys
+
+
+def rank_strength(recent: Any, score: float) -> float:
+    """Mid-rank of `score` in `recent` (the scores it is ranked among, itself included):
+    (number below + half the number equal) / count, in (0, 1); 0.5 for a lone key."""
+    below = sum(1 for s in recent if s < score)
+    equal = sum(1 for s in recent if s == score)
+    return (below + 0.5 * equal) / max(len(recent), 1)
+
+
+def rank_strengths(scores: Any, window: int = STRENGTH_WINDOW) -> np.ndarray:
+    """Strength of each key of a sorted key list: the mid-rank of its score among itself and
+    the `window - 1` keys before it (causal, the same numbers as the online keyframer's)."""
+    s = np.asarray(scores, dtype=np.float64)
+    return np.array([rank_strength(s[max(0, i - window + 1) : i + 1], float(s[i]))
+                     for i in range(len(s))])
 
 
 @dataclass
 class Keyframes:
     """Offline result: sorted unique frame indices (file numbering), a score each, the params.
 
-    `info` holds method diagnostics (candidates, thresholds, chosen sigma, ...).
+    `info` holds method diagnostics (candidates, thresholds, chosen sigma, ...). `strength`
+    (in [0, 1], comparable across methods) defaults to `rank_strengths(scores)`.
     """
 
     method: str
@@ -32,12 +55,15 @@ class Keyframes:
     params: dict[str, Any]
     n_frames: int
     info: dict[str, Any] = field(default_factory=dict)
+    strength: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.frames = np.asarray(self.frames, dtype=np.int64)
         self.scores = np.asarray(self.scores, dtype=np.float64)
-        if self.frames.shape != self.scores.shape:
-            raise ValueError("frames and scores must have the same length")
+        self.strength = (rank_strengths(self.scores) if self.strength is None
+                         else np.asarray(self.strength, dtype=np.float64))
+        if self.frames.shape != self.scores.shape or self.frames.shape != self.strength.shape:
+            raise ValueError("frames, scores and strengths must have the same length")
         if len(self.frames) > 1 and np.any(np.diff(self.frames) <= 0):
             raise ValueError("keyframes must be sorted and unique")
 
@@ -48,6 +74,7 @@ class Keyframes:
         """JSON-ready dict: keyframes, scores, params (the `extract` output schema)."""
         return {"method": self.method, "keyframes": self.frames.tolist(),
                 "scores": [round(float(s), 6) for s in self.scores],
+                "strength": [round(float(s), 6) for s in np.asarray(self.strength)],
                 "params": _jsonable(self.params), "n_frames": self.n_frames}
 
 
@@ -71,7 +98,10 @@ def params_digest(params: dict[str, Any]) -> str:
 
 @dataclass(frozen=True, slots=True)
 class KeyframeEvent:
-    """A final keyframe decision: frame `frame` decided when frame `decided_at` arrived."""
+    """A final keyframe decision: frame `frame` decided when frame `decided_at` arrived.
+
+    `strength` in [0, 1] ranks the score among the method's recent keys (comparable across
+    methods); `confirms` is the `pid` of the provisional event it confirms (None: none)."""
 
     stream: str
     method: str
@@ -82,19 +112,97 @@ class KeyframeEvent:
     lookahead: int
     params: str
     wall_latency_ms: float | None = None
+    strength: float = 0.5
+    confirms: int | None = None
 
     @property
     def latency_frames(self) -> int:
         """Frames between the key pose and the frame that decided it."""
         return self.decided_at - self.frame
 
+    @property
+    def id(self) -> str:
+        """Idempotent id: stream/method/frame/params-digest."""
+        return f"{self.stream}/{self.method}/{self.frame}/{self.params}"
+
     def to_dict(self) -> dict[str, Any]:
         """The event as the documented JSON object."""
-        return {"v": SCHEMA_VERSION, "type": "keyframe", "stream": self.stream,
+        return {"v": SCHEMA_VERSION, "type": "keyframe", "id": self.id, "stream": self.stream,
                 "method": self.method, "frame": self.frame, "time": round(self.time, 6),
-                "score": round(float(self.score), 6), "decided_at": self.decided_at,
-                "latency_frames": self.latency_frames, "lookahead": self.lookahead,
-                "wall_latency_ms": self.wall_latency_ms, "params": self.params}
+                "score": round(float(self.score), 6), "strength": round(self.strength, 6),
+                "decided_at": self.decided_at, "latency_frames": self.latency_frames,
+                "lookahead": self.lookahead, "wall_latency_ms": self.wall_latency_ms,
+                "params": self.params, "confirms": self.confirms}
+
+
+@dataclass(frozen=True, slots=True)
+class ProvisionalEvent:
+    """A likely key at `frame`, announced when frame `seen_at` arrived, before the final
+    decision; exactly one `KeyframeEvent` (confirms=pid) or `CancelEvent` (pid) follows."""
+
+    stream: str
+    method: str
+    frame: int
+    time: float
+    strength: float
+    seen_at: int
+    pid: int
+
+    @property
+    def id(self) -> str:
+        """Idempotent id: stream/method/provisional/pid."""
+        return f"{self.stream}/{self.method}/provisional/{self.pid}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The event as the documented JSON object."""
+        return {"v": SCHEMA_VERSION, "type": "provisional", "id": self.id,
+                "stream": self.stream, "method": self.method, "frame": self.frame,
+                "time": round(self.time, 6), "strength": round(self.strength, 6),
+                "seen_at": self.seen_at, "pid": self.pid}
+
+
+@dataclass(frozen=True, slots=True)
+class CancelEvent:
+    """The provisional `pid` (at `frame`) did not become a key; decided at `decided_at`."""
+
+    stream: str
+    method: str
+    frame: int
+    pid: int
+    decided_at: int
+
+    @property
+    def id(self) -> str:
+        """Idempotent id: stream/method/cancel/pid."""
+        return f"{self.stream}/{self.method}/cancel/{self.pid}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The event as the documented JSON object."""
+        return {"v": SCHEMA_VERSION, "type": "cancel", "id": self.id, "stream": self.stream,
+                "method": self.method, "frame": self.frame, "pid": self.pid,
+                "decided_at": self.decided_at}
+
+
+@dataclass(frozen=True, slots=True)
+class SignalEvent:
+    """Continuous per-stream values at frame `seq` (opt-in): body speed, each method's
+    running keyness (`streamkey.playable`)."""
+
+    stream: str
+    seq: int
+    time: float
+    values: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def id(self) -> str:
+        """Idempotent id: stream/signal/seq."""
+        return f"{self.stream}/signal/{self.seq}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The event as the documented JSON object."""
+        return {"v": SCHEMA_VERSION, "type": "signal", "id": self.id, "stream": self.stream,
+                "seq": self.seq, "time": round(self.time, 6),
+                "values": {k: round(float(v), 6) for k, v in self.values.items()}}
 
 
 @dataclass(frozen=True, slots=True)
@@ -107,9 +215,15 @@ class GapEvent:
     last: int
     bridged: bool
 
+    @property
+    def id(self) -> str:
+        """Idempotent id: stream/gap/first seq."""
+        return f"{self.stream}/gap/{self.first}"
+
     def to_dict(self) -> dict[str, Any]:
         """The event as the documented JSON object."""
-        return {"v": SCHEMA_VERSION, "type": "gap", "stream": self.stream, "method": self.method,
+        return {"v": SCHEMA_VERSION, "type": "gap", "id": self.id, "stream": self.stream,
+                "method": self.method,
                 "first": self.first, "last": self.last, "missing": self.last - self.first + 1,
                 "bridged": self.bridged}
 
@@ -122,11 +236,19 @@ class StatusEvent:
     method: str
     status: str
     detail: dict[str, Any] = field(default_factory=dict)
+    seq: int | None = None
+
+    @property
+    def id(self) -> str:
+        """Idempotent id: stream/status/name/seq (`seq`, else the detail's seq, else 0)."""
+        seq = self.seq if self.seq is not None else self.detail.get("seq", 0)
+        return f"{self.stream}/status/{self.status}/{seq}"
 
     def to_dict(self) -> dict[str, Any]:
         """The event as the documented JSON object."""
-        return {"v": SCHEMA_VERSION, "type": "status", "stream": self.stream,
+        return {"v": SCHEMA_VERSION, "type": "status", "id": self.id, "stream": self.stream,
                 "method": self.method, "status": self.status, "detail": _jsonable(self.detail)}
 
 
-Event = KeyframeEvent | GapEvent | StatusEvent
+Event = (KeyframeEvent | GapEvent | StatusEvent | ProvisionalEvent | CancelEvent
+         | SignalEvent)

@@ -28,6 +28,7 @@ the source), so statistics are never carried across skeletons.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -35,7 +36,15 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .errors import UsageError
-from .keyframes import Event, GapEvent, KeyframeEvent, StatusEvent, params_digest
+from .keyframes import (
+    STRENGTH_WINDOW,
+    Event,
+    GapEvent,
+    KeyframeEvent,
+    StatusEvent,
+    params_digest,
+    rank_strength,
+)
 from .kinematics import FKResult, body_height, forward_kinematics, joint_heights, pelvis_frame
 from .motion import Frame, Skeleton
 from .roles import resolve_roles
@@ -263,6 +272,8 @@ class OnlineKeyframer:
         self.params_digest = params_digest({"method": self.method, **self.params})
         self.guard = StreamGuard(skeleton.n_channels, stream, self.method, max_bridge_frames)
         self.features = FeatureStage(skeleton, fps, role_mapping)
+        # Scores of the last keys sent, for their strength (kept over gaps, not over a flush).
+        self.recent_scores: deque[float] = deque(maxlen=STRENGTH_WINDOW)
 
     def push(self, frame: Frame) -> list[Event]:
         """Feed one frame; returns the events it decided (each final)."""
@@ -279,16 +290,25 @@ class OnlineKeyframer:
         self.reset()
         self.guard.reset()
         self.features.reset()
+        forget_scores(self)
         return events
 
     def event(self, frame: int, time: float, score: float, decided_at: int) -> KeyframeEvent:
-        """Build a `KeyframeEvent` carrying this keyframer's identity and parameters."""
+        """Build a `KeyframeEvent` carrying this keyframer's identity and parameters; its
+        strength ranks the score among the keys sent before (`keyframes.rank_strengths`)."""
+        self.recent_scores.append(float(score))
         return KeyframeEvent(self.stream, self.method, int(frame), float(time), float(score),
-                             int(decided_at), self.lookahead, self.params_digest)
+                             int(decided_at), self.lookahead, self.params_digest,
+                             strength=rank_strength(self.recent_scores, float(score)))
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Advance over clean consecutive frames (subclass hook)."""
         raise NotImplementedError
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Keys this keyframer expects among its undecided frames now, as (seq, time, score)
+        (subclass hook, read for provisional events; must not change state)."""
+        return []
 
     def idle(self) -> list[KeyframeEvent]:
         """Deferred work of the last frame (subclass hook): called right after `process`,
@@ -310,6 +330,14 @@ class OnlineKeyframer:
         PCA moments, cut-off history, rate controller), so it does not warm up again.
         Without, or for a method that keeps none, this is `reset()`. (subclass hook)"""
         self.reset()
+
+
+def forget_scores(kf: OnlineKeyframer) -> None:
+    """A new stream: the strength ranks start afresh (wrapped keyframers too). A restart
+    inside a stream (a long gap) keeps them."""
+    while kf is not None:
+        kf.recent_scores.clear()
+        kf = getattr(kf, "inner", None)
 
 
 def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
@@ -393,6 +421,7 @@ class Pipeline:
         for kf in self.keyframers:
             events.extend(kf.finish())
             kf.reset()
+            forget_scores(kf)
         self.guard.reset()
         self.features.reset()
         return events

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from . import playable_online
 from .batch import FileResult, load_motion, per_file
 from .errors import UsageError
 from .keyframes import KeyframeEvent, Keyframes
@@ -73,7 +74,8 @@ def make_keyframers(motion: Motion, methods: list[str],
             from .methods.optimal import MaxGap
 
             kf = MaxGap(kf, max_gap)
-        out.append(kf)
+        out.append(playable_online.wrap(kf, params.get("*", {})))
+    playable_online.link_signal(out)
     return out
 
 
@@ -92,7 +94,8 @@ def run_online(motion: Motion, methods: list[str],
         out[kf.method] = Keyframes(
             kf.method, np.array([e.frame for e in mine], dtype=np.int64),
             np.array([e.score for e in mine]), {**kf.params, "online": True}, motion.n_frames,
-            info={"latency_frames_max": max(latency, default=0), "lookahead": kf.lookahead})
+            info={"latency_frames_max": max(latency, default=0), "lookahead": kf.lookahead},
+            strength=[e.strength for e in mine])
     return out
 
 

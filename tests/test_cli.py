@@ -16,7 +16,7 @@ def test_extract_writes_the_documented_json_schema(tmp_path, capsys):
                  "-o", str(out), "-q"])
     assert code == 0
     doc = json.loads(out.read_text())
-    assert doc["schema"] == 1
+    assert doc["schema"] == 2
     assert [f["file"] for f in doc["files"]] == [str(DATA / "07_01.bvh"), str(DATA / "07_05.amc")]
     for entry in doc["files"]:
         assert set(entry["methods"]) == {"saliency", "speed", "simplify", "uniform", "decimate",
@@ -24,6 +24,8 @@ def test_extract_writes_the_documented_json_schema(tmp_path, capsys):
         for name, result in entry["methods"].items():
             keys = result["keyframes"]
             assert keys == sorted(set(keys)) and len(keys) == len(result["scores"]) > 0, name
+            assert len(result["strength"]) == len(keys)
+            assert all(0.0 <= s <= 1.0 for s in result["strength"]), name
             assert all(entry["first_frame"] <= k < entry["frames"] for k in keys)
             assert isinstance(result["params"], dict)
         sal = len(entry["methods"]["saliency"]["keyframes"])

@@ -108,3 +108,20 @@ def test_every_keyframer_class_documents_itself(method):
     cls = online_class(method)
     assert cls.__doc__ and cls.method == method
     assert cls.__module__.startswith("streamkey.methods.")
+
+
+PLAYABLE = {"*": {"provisional": True, "min_interval": {"*": 0.1}, "signal": 5}}
+
+
+@pytest.mark.parametrize("method", list(ONLINE_METHODS))
+def test_playable_wrappers_pickled_mid_stream_resume_identically(method):
+    from streamkey.streaming import make_keyframers
+
+    m = read_motion(DATA / "07_01.bvh")
+    frames = m.frames()
+    whole = run(make_keyframers(m, [method], PLAYABLE)[0], frames)
+    kf = make_keyframers(m, [method], PLAYABLE)[0]
+    head = [e for f in frames[:200] for e in kf.push(f)]
+    clone = pickle.loads(pickle.dumps(kf))
+    assert head + run(clone, frames[200:]) == whole
+    assert keyframes(whole) and kf.lookahead >= online_class(method)(m.skeleton, m.fps).lookahead

@@ -473,10 +473,17 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
     else:
         rows, err = _solve_all(x, max_len, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
-    scores = np.zeros(len(rows))
-    scores[1:] += err
-    scores[:-1] += err  # a key's score: the error of the segments it bounds
+    scores = key_scores(x, rows)
     return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
+
+
+def key_scores(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """A key's score: the cost of the segment it ends (the first key: 0), each segment priced
+    alone, so offline and online (which knows it once the key is decided) agree bit for bit."""
+    out = np.zeros(len(rows))
+    for i in range(1, len(rows)):
+        out[i] = om.pair_costs(x, [rows[i - 1]], [rows[i]])[0]
+    return out
 
 
 class Online(OnlineKeyframer):
@@ -520,6 +527,7 @@ class Online(OnlineKeyframer):
         self.seq: list[int] = []
         self.time: list[float] = []
         self.t0 = 0  # stream index of seq[0]
+        self.prev_key: int | None = None  # stream index of the last key sent
 
     def restart(self, keep_statistics: bool = True) -> None:
         """A new window after a long gap or a source restart: the rate controller's cost
@@ -532,8 +540,14 @@ class Online(OnlineKeyframer):
             self.solver.lam = self.solver.rate_estimate()
 
     def _events(self, keys: list[int], decided_at: int) -> list[KeyframeEvent]:
-        return [self.event(self.seq[k - self.t0], self.time[k - self.t0], 0.0, decided_at)
-                for k in keys]
+        out = []
+        s = self.solver
+        for k in keys:
+            prev, self.prev_key = self.prev_key, k
+            score = 0.0 if prev is None else key_scores(s.x, np.array([prev, k]) - s.base)[1]
+            out.append(self.event(self.seq[k - self.t0], self.time[k - self.t0], score,
+                                  decided_at))
+        return out
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Append the block's frames; decide what converged or reached its deadline."""
@@ -563,6 +577,16 @@ class Online(OnlineKeyframer):
             return []
         return self._events(self.solver.finish(), self.seq[-1])
 
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Provisional hook: the keys after the decided part on the best chain of the newest
+        priced frame (what a deadline would take now), that frame itself left out."""
+        s = self.solver
+        if s.stale is not None or s.done == 0:
+            return []
+        path = om.chain(s.bp, s.done - 1 - s.base, s.decided - s.base)
+        rows = [k + s.base - self.t0 for k in path[:-1]]
+        return [(self.seq[r], self.time[r], 0.0) for r in rows if 0 <= r < len(self.seq)]
+
 
 # ----------------------------------------------------------------------------- --max-gap
 
@@ -580,9 +604,11 @@ def max_gap(motion: Motion, keys: Keyframes, seconds: float,
     frames = np.union1d(rows, added)
     score = dict(zip(rows.tolist(), keys.scores.tolist(), strict=True))
     scores = np.array([score.get(int(r), 0.0) for r in frames])
+    strength = dict(zip(rows.tolist(), np.asarray(keys.strength).tolist(), strict=True))
     info = {**keys.info, "max_gap_added": (added + motion.first_frame).tolist()}
     return Keyframes(keys.method, frames + motion.first_frame, scores,
-                     {**keys.params, "max_gap": seconds}, keys.n_frames, info)
+                     {**keys.params, "max_gap": seconds}, keys.n_frames, info,
+                     strength=[strength.get(int(r), 0.0) for r in frames])
 
 
 class MaxGap(OnlineKeyframer):
@@ -632,7 +658,8 @@ class MaxGap(OnlineKeyframer):
             a = self.last - self.t0
             k = om.best_split(np.array(self.rows), a, a + self.gap + 1, a + self.gap)
             out.append(KeyframeEvent(self.stream, self.method, self.seq[k], self.time[k], 0.0,
-                                     self.seq[-1], self.lookahead, self.params_digest))
+                                     self.seq[-1], self.lookahead, self.params_digest,
+                                     strength=0.0))  # inserted: not a key the method found
             self.last = k + self.t0
         return out
 
@@ -677,6 +704,10 @@ class MaxGap(OnlineKeyframer):
         if self.t < 0:
             return self.inner.idle()
         return self._advance(self.inner.idle(), self._idle_final)
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """The inner keyframer's candidates (provisional hook)."""
+        return self.inner.candidates()
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: the inner keyframer's rest, then the gaps up to the last frame."""

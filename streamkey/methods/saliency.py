@@ -79,6 +79,7 @@ makes the online result equal the offline one when every decision waits for `flu
 
 from __future__ import annotations
 
+import copy
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
@@ -127,6 +128,7 @@ from .saliency_math import (
 )
 
 TRACE_FRAMES = 2400  # 20 s at 120 Hz of per-frame saliency kept for live views
+CANDIDATE_EVERY = 4  # frames between two derivations of the provisional candidates
 
 __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FOOT_SIGMA",
            "SCALES", "HISTORY_SECONDS", "Basis", "Moments", "MapStats", "moments", "pca_basis",
@@ -655,3 +657,62 @@ class Online(OnlineKeyframer):
         tm = self.buf["tm"]
         return [self.event(self.seq0 + row, float(tm[row - self.base]), score,
                            self.seq0 + self.t) for row, score in closed]
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Provisional hook: the keys that the open cluster and the frames not yet classified
+        point to, with the statistics of this moment (nothing decided): frames with final
+        maps, then frames with early maps (`_early_maps`). Re-derived every
+        `CANDIDATE_EVERY` frames (the clustering runs in Python over ~100 frames)."""
+        if self.basis is None:
+            return []
+        early = self._early_maps(max(self.n_class, self.s_ready))  # one new row a frame
+        slot, basis, cached = getattr(self, "_cand", (None, None, []))
+        if slot == self.t // CANDIDATE_EVERY and basis is self.basis:
+            rows = self.clusterer.rows  # clusters closed since are no longer candidates
+            lo = self.seq0 + (rows[0] if rows else self.n_class)
+            return [c for c in cached if c[0] >= lo]
+        self._cand = (self.t // CANDIDATE_EVERY, self.basis, self._candidates(early))
+        return self._cand[2]
+
+    def _candidates(self, early: np.ndarray) -> list[tuple[int, float, float]]:
+        if self._norm is None:  # the cache `_classify` fills, with the same statistics
+            warm = self.warm
+            self._norm = normalisation(warm if warm is not None and self.st.n < warm.n
+                                       else self.st)
+        a, thr = self._norm
+        sim = copy.copy(self.clusterer)
+        sim.rows, sim.wrow, sim.foot = list(sim.rows), list(sim.wrow), list(sim.foot)
+        closed: list[tuple[int, float]] = []
+        lo, hi = self.n_class, self.s_ready
+        maps = [self.buf["s"][lo - self.base : max(lo, hi) - self.base], early]
+        hi = lo + len(maps[0]) + len(maps[1])
+        if hi > lo:
+            sal = combine(np.concatenate(maps), a)
+            rel = sal / np.where(thr > 0, thr, 1.0)
+            cand = sal > thr
+            for i in np.flatnonzero(cand.any(axis=1)):  # other rows only close clusters
+                closed.extend(sim.add(lo + int(i), cand[i], self.weights, self.footmask,
+                                      rel[i]))
+        if sim.rows:
+            closed.append(sim.close())
+        tm = self.buf["tm"]
+        return [(self.seq0 + row, float(tm[row - self.base]), score) for row, score in closed]
+
+    def _early_maps(self, start: int) -> np.ndarray:
+        """Maps of the rows start.. that have no final maps yet, each computed once, 2 sigma
+        frames after its frame, from windows cut there (the clip-end rule); for provisional
+        candidates only, never for decisions or statistics."""
+        basis, cache = getattr(self, "_early", (None, {}))
+        if basis is not self.basis:  # a new basis moves every curve
+            cache = {}
+        g = self.t - self.cmax
+        if g >= start and g not in cache and self.t >= 2:
+            lo, cs = self._edge_curvatures(self.t)
+            cache[g] = truncated_maps(cs, self._bank2, np.array([g - lo]), self.footmask)[0]
+        for row in [r for r in cache if r < start]:
+            del cache[row]
+        self._early = (self.basis, cache)
+        out = []
+        while start + len(out) in cache:
+            out.append(cache[start + len(out)])
+        return np.array(out).reshape(len(out), len(self.weights), 4)

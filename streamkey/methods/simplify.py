@@ -28,7 +28,8 @@ Definitions this module settles:
   chord length |X_b - X_a| exceeds it; Önder's text says "higher ... stop", which inverts the
   rule of its own Fig. 2, we follow the figure), ``count`` (thesis ch. 4: split the worst
   segment first, heap, exactly K keyframes). Ties split at the earliest frame.
-- Scores: the distance at which a frame became a key (endpoints: the largest such score, or 0).
+- Scores: the distance at which a frame became a key (endpoints: 0, as online, where the first
+  frame is a key before anything is known).
 - Iterative (stack / heap), never recursive; the result of the tolerance rules does not depend
   on the order in which segments are processed. Segments of 1024 rows or more rank their rows
   by the expanded square (one matrix product instead of an n x d temporary: 100k frames in
@@ -284,8 +285,8 @@ def extract(motion: Motion, *, tolerance: float | None = None, ratio: float | No
         keys.setdefault(n - 1, 0.0)
         rows = np.array(sorted(keys), dtype=np.int64)
         scores = np.array([keys[int(r)] for r in rows])
-    top = float(scores.max()) if len(scores) else 0.0
-    scores[[0, -1]] = top  # the endpoints are always keys
+    scores[[0, -1]] = 0.0  # the endpoints are keys without a split (as online, where the
+    # first frame is a key before anything is known)
     err = max_chord_error(x, rows)
     info = {"max_error": float(err.max()) if len(err) else 0.0, "dimensions": int(x.shape[1])}
     return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
@@ -459,3 +460,13 @@ class Online(OnlineKeyframer):
         keys[hi] = 0.0
         events += [self._commit(self._base + r, keys[r]) for r in sorted(keys)]
         return events
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Provisional hook: the undecided keys in view, the window recursion's keys after
+        the decision frame and the witness."""
+        d = max(self._t - self.lookahead, self._c)
+        keys = {k: v for k, v in self._p.items() if d < k <= self._t}
+        if self._w is not None and self._w[0] > d:
+            keys[self._w[0]] = self._w[1]
+        return [(int(self._seq[k - self._base]), float(self._time[k - self._base]), float(v))
+                for k, v in sorted(keys.items()) if k >= self._base]

@@ -707,6 +707,7 @@ class Online(OnlineKeyframer):
         self._hist_u: deque[float] = deque()
         self._job: _Job | None = None
         self._resume_after: int | None = None  # last seq before a restart (history kept)
+        self._pending: list[tuple[int, float, float]] = []  # provisional hook
 
     def restart(self, keep_statistics: bool = True) -> None:
         """A new window after a long gap or a source restart (after `finish()`): the cut-off
@@ -896,6 +897,10 @@ class Online(OnlineKeyframer):
                 threshold = self._threshold(job.cut, False, job.ward)
                 self._scheduled.extend(zip(seqs.tolist(), u.tolist(),
                                            (u > threshold).tolist(), strict=True))
+                total, later = job.chain.total, job.cand + job.base
+                ahead = (later > job.zone_end) & (total > threshold)
+                self._pending = [(c, self._ring.time(c), x) for c, x in  # provisional hook
+                                 zip(later[ahead].tolist(), total[ahead].tolist(), strict=True)]
 
     def _speed(self) -> np.ndarray:
         """Speed over the whole window (at flush)."""
@@ -919,6 +924,13 @@ class Online(OnlineKeyframer):
         if res.n_clusters == 1 and not final and len(sample) < self.warmup_candidates:
             return _two_cluster_threshold(sample)
         return res.threshold
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Provisional hook: keys decided but not yet sent, and the window's later minima
+        whose intensity clears the cut-off at the last analysis."""
+        t = self._last_seq - self.lookahead
+        return ([(c, self._ring.time(c), u) for c, u, keep in self._scheduled if keep]
+                + [p for p in self._pending if p[0] > t])
 
 
 def _check_count(name: str, value: object, low: int) -> None:
