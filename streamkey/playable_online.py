@@ -58,6 +58,15 @@ class MinInterval(OnlineKeyframer):
     def reset(self) -> None:
         """Forget the stream (the inner keyframer too)."""
         self.inner.reset()
+        self._forget()
+
+    def restart(self, keep_statistics: bool = True) -> None:
+        """A new window: the inner keyframer restarts (keeping its statistics unless told
+        otherwise); the debounce starts over."""
+        self.inner.restart(keep_statistics)
+        self._forget()
+
+    def _forget(self) -> None:
         self.debouncer = Debouncer(self.gap)
         self.t = -1
 
@@ -153,6 +162,15 @@ class Playable(OnlineKeyframer):
     def reset(self) -> None:
         """Forget the stream (the inner keyframer too); pids keep counting."""
         self.inner.reset()
+        self._forget()
+
+    def restart(self, keep_statistics: bool = True) -> None:
+        """A new window: the inner keyframer restarts (keeping its statistics unless told
+        otherwise); the provisional bookkeeping starts over (`finish` resolved it)."""
+        self.inner.restart(keep_statistics)
+        self._forget()
+
+    def _forget(self) -> None:
         self.open: dict[int, list[Any]] = {}  # pid: [frame, time, strength]
         self.keys: deque[int] = deque(maxlen=8)  # frames of the last final keys
         self.t = -1

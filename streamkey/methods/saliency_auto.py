@@ -83,6 +83,22 @@ class AutoOnline(OnlineKeyframer):
         self.last = -1  # seq of the last keyframe sent
         self.cut = -1  # after a switch: keys at or before this seq were already covered
 
+    def restart(self, keep_statistics: bool = True) -> None:
+        """A new window after a long gap: the decided preset and its keyframer's running
+        statistics are kept (`Online.restart`); before the decision, or without
+        `keep_statistics`, everything starts over (`reset`)."""
+        if not keep_statistics or self.active is None:
+            self.reset()
+            return
+        self.active.restart(keep_statistics=True)
+        self.held, self.last, self.cut = [], -1, -1
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """Provisional hook: the running keyframer's candidates ("low" until the decision,
+        whose events are the ones sent), none at or before a switch's cut."""
+        kf = self.active or self.inners["low"]
+        return [c for c in kf.candidates() if c[0] > self.cut]
+
     @property
     def trace(self) -> Any:
         """(seq, saliency) of the classified frames, of the running keyframer ("low" before
