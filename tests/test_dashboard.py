@@ -250,28 +250,10 @@ def wait_for(condition: Any, what: str, timeout: float = 60.0) -> Any:
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def click_reject(driver: Any) -> int | None:
-    """Click "reject" on the newest method keypose; its frame, or None if the list moved."""
-    from selenium.common.exceptions import (
-        ElementClickInterceptedException,
-        StaleElementReferenceException,
-    )
-    from selenium.webdriver.common.action_chains import ActionChains
-    from selenium.webdriver.common.by import By
-
-    try:
-        # The list holds still while the pointer is over it: hover first, then pick, so a
-        # key that slides in between reading the frame and clicking cannot take the click.
-        ActionChains(driver).move_to_element(driver.find_element(By.ID, "keys")).perform()
-        item = driver.find_element(By.CSS_SELECTOR, "#keys li:not([data-method=manual])")
-        frame = int(item.get_attribute("data-frame"))
-        item.find_element(By.CLASS_NAME, "reject").click()
-        return frame
-    except (StaleElementReferenceException, ElementClickInterceptedException):
-        return None  # the list moved before the pointer reached it (it holds still now)
-
-
-def test_browser_shows_markers_counters_and_logs_a_typed_label(tmp_path: Path) -> None:
+def test_browser_operator_session_waits_on_state_never_on_time(tmp_path: Path) -> None:
+    """Markers, counters, a label, a manual key pressed while the list is held under the
+    pointer (it must survive the replay of the paused keys), a reject undone from the
+    annotation list, the method filter and the second view. Every wait is on page state."""
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
@@ -289,40 +271,79 @@ def test_browser_shows_markers_counters_and_logs_a_typed_label(tmp_path: Path) -
         driver.get(url.group(1))
         wait = WebDriverWait(driver, 60 * MS, poll_frequency=0.05)
         text = lambda element_id: driver.find_element(By.ID, element_id).text  # noqa: E731
+        js = driver.execute_script
+        cards = "#keys li:not([data-method=manual])"
 
         def markers(method: str) -> int:
-            span = driver.find_element(By.CSS_SELECTOR, f'#legend span[data-method="{method}"]')
-            return int(span.get_attribute("data-count") or 0)
+            label = driver.find_element(By.CSS_SELECTOR, f'#legend label[data-method="{method}"]')
+            return int(label.get_attribute("data-count") or 0)
 
         for method in LIVE:  # a marker drawn in the strip chart for every method
             wait.until(lambda _, m=method: markers(m) > 0)
         first = int(text("c-frames"))
         wait.until(lambda _: int(text("c-frames")) > first)  # the counters move
         # the saliency signal is drawn too (it trails the stream by the lookahead)
-        wait.until(lambda _: driver.execute_script("return state.saliency.length") > 10)
+        wait.until(lambda _: js("return state.saliency.length") > 10)
         assert re.search(r"saliency \d+", text("c-events"))
         assert re.fullmatch(r"[\d.]+ / [\d.]+ ms", text("c-latency"))
         assert all(re.search(rf"{m} \d+", text("c-lookahead")) for m in LIVE)
+        wait.until(lambda _: all(re.search(rf"{m} [\d.]+ f / [\d.]+ ms", text("c-delay"))
+                                 for m in LIVE))
+        assert text("c-lost") == "0" and text("c-drops") == "0"
+        assert text("take") == "demo" and re.fullmatch(r"\d\d:\d\d:\d\d\.\d{3}", text("timecode"))
+        wait.until(lambda _: len(driver.find_elements(By.CSS_SELECTOR, cards)) >= 3)
 
-        item = driver.find_element(By.CSS_SELECTOR, "#keys li:not([data-method=manual])")
+        # the pointer over the list: it holds still from then on
+        ActionChains(driver).move_to_element(driver.find_element(By.ID, "keys")).perform()
+        wait.until(lambda _: js("return state.hold"))
+        item = driver.find_element(By.CSS_SELECTOR, cards)
         frame, method = int(item.get_attribute("data-frame")), item.get_attribute("data-method")
         item.find_element(By.TAG_NAME, "input").send_keys("heel strike", Keys.ENTER)
-        wait.until(lambda _: "saved label" in text("message"))
-        logged = wait_for(lambda: [e for e in read_jsonl(log) if e["type"] == "annotation"],
-                          "the label in the JSON Lines log")
-        assert [(e["action"], e["frame"], e["method"], e["text"]) for e in logged] == [
-            ("label", frame, method, "heel strike")]
-        assert item.find_element(By.CLASS_NAME, "label-text").text == "heel strike"
-
+        wait.until(lambda _: item.find_element(By.CLASS_NAME, "label-text").text == "heel strike")
+        js("document.activeElement.blur()")
         driver.find_element(By.TAG_NAME, "body").send_keys("k")  # the manual-key hotkey
-        wait.until(lambda _: "saved key" in text("message"))
-        rejected = wait.until(lambda _: click_reject(driver))
-        wait.until(lambda _: "saved reject" in text("message"))
-        assert driver.find_elements(By.CSS_SELECTOR, f"#keys li.rejected[data-frame='{rejected}']")
+        manual = wait.until(lambda _: driver.find_elements(By.CSS_SELECTOR,
+                                                            "#keys li[data-method=manual]"))
+        manual_frame = int(manual[0].get_attribute("data-frame"))
+        victim = driver.find_elements(By.CSS_SELECTOR, cards)[1]  # not the labelled one
+        rejected = int(victim.get_attribute("data-frame"))
+        victim.find_element(By.CLASS_NAME, "reject").click()
+        wait.until(lambda _: "rejected" in (victim.get_attribute("class") or ""))
+        assert js("return state.hold")  # the clicks kept the pointer on the list
+        wait.until(lambda _: js("return state.pending.length") >= 3)  # keys wait to be shown
+
+        # undo the reject from the annotation list: the pointer leaves the keys, which replay
+        entry = wait.until(lambda _: driver.find_elements(
+            By.CSS_SELECTOR, "#annotations li[data-action=reject] button.undo"))
+        entry[0].click()
+        wait.until(lambda _: driver.find_elements(
+            By.CSS_SELECTOR, "#annotations li.undone[data-action=reject]"))
+        wait.until(lambda _: "rejected" not in (victim.get_attribute("class") or ""))
+        wait.until(lambda _: not js("return state.hold") and text("held") == "")
+        kept = driver.find_elements(By.CSS_SELECTOR, f"#keys li[data-method=manual]"
+                                                     f"[data-frame='{manual_frame}']")
+        assert kept, "the manual key vanished when the paused list replayed"
+        plain = js("return [...document.querySelectorAll('#keys li')]"
+                   ".filter((li) => !busy(li)).length")
+        assert plain <= 24
+        assert wait.until(lambda _: int(text("c-annotations")) == 4)
+
+        # the method filter hides a method's cards and lane, and brings them back
+        box = driver.find_element(By.CSS_SELECTOR, '#legend label[data-method="simplify"] input')
+        box.click()
+        wait.until(lambda _: not driver.find_elements(
+            By.CSS_SELECTOR, "#keys li[data-method=simplify]:not([hidden])"))
+        assert js("return state.hidden.has('simplify')")
+        box.click()
+        wait.until(lambda _: len(driver.find_elements(
+            By.CSS_SELECTOR, "#keys li[data-method=simplify]:not([hidden])")) >= 2)
+        toggle = driver.find_element(By.ID, "view2-mode")
+        toggle.click()
+        wait.until(lambda _: toggle.get_attribute("data-mode") == "top")
+        toggle.click()
+        wait.until(lambda _: toggle.get_attribute("data-mode") == "side")
         ActionChains(driver).move_to_element(driver.find_element(By.ID, "c-frames")).perform()
-        driver.execute_script("window.scrollTo(0, 0)")  # pointer off the list: it moves again
-        wait.until(lambda _: driver.find_elements(By.CSS_SELECTOR, "#keys li[data-method=manual]"))
-        assert wait.until(lambda _: int(text("c-annotations")) == 3)
+        driver.execute_script("window.scrollTo(0, 0)")
         shot = (ROOT / "docs" if os.environ.get("STREAMKEY_UPDATE_DOCS") else ROOT / "results")
         shot.mkdir(exist_ok=True)
         assert driver.save_screenshot(str(shot / "dashboard.png"))
@@ -343,10 +364,13 @@ def test_browser_shows_markers_counters_and_logs_a_typed_label(tmp_path: Path) -
         if failure is not None:
             failure.add_note(f"streamkey stderr:\n{err[-4000:]}")
     assert proc.returncode == 0, err
-    assert "annotations: 3" in err and "Traceback" not in err
+    assert "annotations: 4" in err and "Traceback" not in err
     events = read_jsonl(log)
-    actions = [(e["action"], e["frame"]) for e in events if e["type"] == "annotation"]
-    assert [a for a, _ in actions] == ["label", "key", "reject"]
+    notes = [e for e in events if e["type"] == "annotation"]
+    assert [(e["action"], e["frame"]) for e in notes] == [
+        ("label", frame), ("key", manual_frame), ("reject", rejected), ("undo", rejected)]
+    assert notes[0]["method"] == method and notes[0]["text"] == "heel strike"
+    assert notes[3]["ref"] == notes[2]["id"] and notes[3]["undoes"] == "reject"
     assert {e["method"] for e in events if e["type"] == "keyframe"} == set(LIVE)
 
 
