@@ -205,7 +205,8 @@ class _Reject(Exception):
 
 def bone_sides(skeleton: Skeleton, bones: list[list[int]]) -> list[str]:
     """"L", "R" or "" per bone (child point, parent point): the side of the nearest hip or
-    shoulder at or above the child; all "" when the rig's roles are not found."""
+    shoulder at or above the child, else the one side all its children share (clavicles,
+    hip joints); all "" when the rig's roles are not found."""
     try:
         roles = resolve_roles(skeleton, needed=("left_hip", "right_hip", "left_shoulder",
                                                 "right_shoulder"))
@@ -213,13 +214,17 @@ def bone_sides(skeleton: Skeleton, bones: list[list[int]]) -> list[str]:
         return [""] * len(bones)
     side = {i: r[0].upper() for r, i in roles.items()}
     parents = {child: parent for child, parent in bones}
-    out = []
-    for child, _ in bones:
+    found: dict[int, str] = {}
+    for child in parents:
         point: int | None = child
         while point is not None and point not in side:
             point = parents.get(point)
-        out.append(side.get(point, "") if point is not None else "")
-    return out
+        found[child] = side.get(point, "") if point is not None else ""
+    for point in sorted(found, reverse=True):  # children come after their parents
+        kids = {found[c] for c, p in bones if p == point}
+        if not found[point] and len(kids) == 1:
+            found[point] = kids.pop()
+    return [found[child] for child, _ in bones]
 
 
 class LiveView:

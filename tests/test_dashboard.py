@@ -91,15 +91,58 @@ def test_annotator_builds_annotation_events_that_reference_the_frame() -> None:
 
 @settings(max_examples=300, deadline=None)
 @given(st.one_of(st.text(max_size=300),
-                 st.dictionaries(st.sampled_from(["action", "frame", "method", "text", "id"]),
+                 st.dictionaries(st.sampled_from(["action", "frame", "method", "text", "id",
+                                                  "ref"]),
                                  st.one_of(st.none(), st.integers(), st.text(max_size=20),
-                                           st.sampled_from(["label", "key", "reject"]),
-                                           st.floats(), st.lists(st.integers(), max_size=3)))
+                                           st.sampled_from(["label", "key", "reject", "accept",
+                                                            "undo", "take/annotation/x-1"]),
+                                           st.floats(), st.lists(st.integers(), max_size=3),
+                                           st.dictionaries(st.text(max_size=3),
+                                                           st.integers(), max_size=2)))
                  .map(json.dumps)))
 def test_annotator_never_raises_whatever_the_client_sends(text: str) -> None:
-    record, reply = annotator_with_keys().handle(text)
+    a = annotator_with_keys()
+    good, _ = a.handle('{"action": "reject", "frame": 150, "method": "saliency"}')
+    assert good is not None
+    record, reply = a.handle(text)
     assert reply["type"] in ("ack", "error")
     assert (record is None) == (reply["type"] == "error")
+    assert a.refused == (reply["type"] == "error")  # every refusal counted
+    # whatever came before, an undo of the first annotation still answers (ack or error)
+    again, reply = a.handle(json.dumps({"action": "undo", "ref": good["id"]}))
+    assert reply["type"] in ("ack", "error") and (again is None) == (reply["type"] == "error")
+
+
+def test_annotator_accept_and_undo_take_back_one_annotation_each() -> None:
+    a = annotator_with_keys()
+    reject, _ = a.handle('{"action": "reject", "frame": 150, "method": "saliency"}')
+    accept, _ = a.handle('{"action": "accept", "frame": 200, "method": "speed"}')
+    key, _ = a.handle('{"action": "key", "frame": 300}')
+    assert reject and accept and key
+    assert len({reject["id"], accept["id"], key["id"]}) == 3
+    assert reject["id"].startswith("take/annotation/")
+    undo, reply = a.handle(json.dumps({"id": 9, "action": "undo", "ref": reject["id"]}))
+    assert reply["type"] == "ack" and reply["id"] == 9 and undo is not None
+    assert (undo["action"], undo["frame"], undo["method"], undo["ref"], undo["undoes"]) == (
+        "undo", 150, "saliency", reject["id"], "reject")
+    assert undo["time"] == pytest.approx(150 / 120)
+    # undoing a manual key un-keys its frame: it can no longer be labelled
+    assert a.handle(json.dumps({"action": "undo", "ref": key["id"]}))[0] is not None
+    assert "not a keyframe" in a.handle(
+        '{"action": "label", "frame": 300, "text": "x"}')[1]["error"]
+    refusals = [
+        (json.dumps({"action": "undo", "ref": reject["id"]}), "already undone"),
+        (json.dumps({"action": "undo", "ref": undo["id"]}), "an undo cannot be undone"),
+        ('{"action": "undo", "ref": "take/annotation/nope"}', "unknown annotation"),
+        ('{"action": "undo", "ref": 3}', "'ref' must be the id"),
+        ('{"action": "undo"}', "'ref' must be the id"),
+        ('{"action": "accept", "frame": 151, "method": "speed"}', "not a keyframe"),
+        ('{"action": ["undo"]}', "unknown action"),
+    ]
+    for message, reason in refusals:
+        record, reply = a.handle(message)
+        assert record is None and reason in reply["error"], (message, reply)
+    assert a.refused == len(refusals) + 1 and a.count == 5
 
 
 @asynccontextmanager
@@ -150,6 +193,9 @@ async def test_malformed_client_messages_get_errors_and_the_session_goes_on(
         assert hello["methods"] == METHODS and len(set(hello["colors"].values())) == 4
         key = await next_of(ws, ("keyframe",))
         assert key["pose"] is not None  # the thumbnail of the key's own frame
+        later = board.hello()  # what a page opened now gets: take name, bones and their sides
+        assert later["take"] == "demo" and len(later["sides"]) == len(later["bones"])
+        assert {"L", "R", ""} == set(later["sides"])
         bad = ["{bad", "null", '{"action": "label", "frame": 1e9, "text": "x"}',
                json.dumps({"action": "label", "frame": key["frame"], "method": key["method"],
                            "text": "y" * 600}),
@@ -167,11 +213,21 @@ async def test_malformed_client_messages_get_errors_and_the_session_goes_on(
                                   "method": key["method"], "text": "arms up"}))
         ack = await next_of(ws, ("ack", "error"))
         assert ack["type"] == "ack" and ack["id"] == "a1"
+        await ws.send(json.dumps({"action": "undo", "ref": ack["annotation"]["id"]}))
+        assert (await next_of(ws, ("ack", "error")))["type"] == "ack"
         await next_of(ws, ("pose",))
         assert board.engine.summary.frames_in > frames_before  # type: ignore[union-attr]
+        stats = await next_of(ws, ("stats",))
+        assert stats["refused"] == len(bad) and stats["annotations"] == 2
+        assert stats["lost"] == 0 and set(stats["delay"]) <= set(METHODS)
+        for method, delay in stats["delay"].items():
+            assert 0 <= delay["frames"] <= stats["lookahead"][method]
+            assert delay["ms"] == pytest.approx(1000 * delay["frames"] / 120, abs=0.06)
     logged = [e for e in read_jsonl(tmp_path / "session.jsonl") if e["type"] == "annotation"]
-    assert [(e["frame"], e["method"], e["text"]) for e in logged] == [
-        (key["frame"], key["method"], "arms up")]
+    assert [(e["action"], e["frame"], e["method"], e["text"]) for e in logged] == [
+        ("label", key["frame"], key["method"], "arms up"),
+        ("undo", key["frame"], key["method"], "")]
+    assert logged[1]["ref"] == logged[0]["id"]
 
 
 def http_get(url: str, headers: dict[str, str] | None = None) -> tuple[int, str]:
@@ -292,6 +348,23 @@ def test_browser_operator_session_waits_on_state_never_on_time(tmp_path: Path) -
         assert text("c-lost") == "0" and text("c-drops") == "0"
         assert text("take") == "demo" and re.fullmatch(r"\d\d:\d\d:\d\d\.\d{3}", text("timecode"))
         wait.until(lambda _: len(driver.find_elements(By.CSS_SELECTOR, cards)) >= 3)
+        # event types of the v2 contract and unknown ones go through the page's own dispatch:
+        # a provisional key is drawn hollow until its cancel; unknown types are skipped
+        deliver = "for (const m of arguments[0]) state.ws.onmessage({data: m}); return true"
+        js(deliver, [json.dumps({"type": "provisional", "v": 2, "stream": "demo",
+                                 "method": "speed", "frame": -1, "pid": 7, "strength": 0.5,
+                                 "time": 0.0, "seen_at": 0})])
+        js("state.provisional.get('speed/7').frame = state.frame")
+        js(deliver, [json.dumps(m) for m in (
+            {"type": "signal", "v": 2, "stream": "demo", "seq": 1, "values": {"speed": 1}},
+            {"type": "from-the-future", "v": 3}, {"type": "constructor"}, {"type": None},
+            {"no": "type"}, [1, 2], None, "text")] + ["{bad"])
+        assert js("return state.provisional.size") == 1
+        js(deliver, [json.dumps({"type": "cancel", "v": 2, "stream": "demo", "method": "speed",
+                                 "frame": 0, "pid": 7, "decided_at": 9})])
+        assert js("return state.provisional.size") == 0
+        frames_now = int(text("c-frame"))
+        wait.until(lambda _: int(text("c-frame")) > frames_now)  # the page kept drawing
 
         # the pointer over the list: it holds still from then on
         ActionChains(driver).move_to_element(driver.find_element(By.ID, "keys")).perform()
@@ -489,3 +562,87 @@ async def test_the_websocket_event_sink_applies_the_dashboards_origin_host_and_t
             pass
     finally:
         await wide.close()
+
+
+# ------------------------------------------------------------- issue 12 §5: operator's view
+
+@pytest.mark.parametrize("command", [
+    ["demo", "--seconds", "4"],
+    ["run", "--from", "07_01.bvh", "--method", "speed", "--to", "jsonl:take.jsonl"],
+])
+def test_a_busy_dashboard_port_is_one_error_line_and_leaves_no_file(
+        command: list[str], data_dir: Path, tmp_path: Path) -> None:
+    import socket as socket_module
+
+    command = [str(data_dir / c) if c.endswith(".bvh") else c for c in command]
+    with socket_module.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = streamkey(*command, "--dashboard", str(port), cwd=tmp_path)
+        _, err = proc.communicate(timeout=60 * MS)
+    assert proc.returncode == 2
+    assert err == (f"error: --dashboard {port}: cannot listen on 127.0.0.1:{port}: the port "
+                   "is in use (give another port, or 0 for a free one)\n")
+    assert list(tmp_path.iterdir()) == []  # no empty session-*.jsonl, no take.jsonl
+
+
+def test_bone_sides_colour_the_left_and_right_limbs_of_a_cmu_skeleton(data_dir: Path) -> None:
+    from streamkey.bvh import read_bvh
+    from streamkey.dashboard import LiveView, bone_sides
+    from streamkey.motion import Skeleton
+
+    skeleton = read_bvh(data_dir / "07_01.bvh").skeleton
+    view = LiveView(skeleton, 120.0)
+    named = {skeleton.names[child]: side
+             for (child, _), side in zip(view.bones, view.sides, strict=True)
+             if child < skeleton.n_joints}
+    assert all(side == "L" for name, side in named.items() if name.startswith("Left"))
+    assert all(side == "R" for name, side in named.items() if name.startswith("Right"))
+    assert named["LeftHand"] == "L" and named["RightFoot"] == "R"
+    assert named["Spine"] == "" and named["Head"] == ""
+    # a rig whose roles are unknown draws in one colour (no guessing from names)
+    odd = Skeleton(["a", "b"], [-1, 0], [[0, 0, 0], [0, 1, 0]], [["Xrotation"], ["Xrotation"]])
+    assert bone_sides(odd, [[1, 0]]) == [""]
+
+
+async def test_the_dashboard_counts_frames_lost_in_a_seq_hole_apart_from_drops(
+        data_dir: Path, tmp_path: Path) -> None:
+    """A real stream with a 30-frame seq hole (JSON Lines on stdin): the page's stats say
+    `lost 30` while `drops` stays 0."""
+    sent = await asyncio.to_thread(subprocess.run, [
+        *streamkey_argv(), "replay", str(data_dir / "07_01.bvh"), "--to", "-", "--frames",
+        "300", "--rate", "100000"], capture_output=True, text=True, timeout=120 * MS)
+    lines = [line for line in sent.stdout.splitlines()
+             if not 200 <= json.loads(line).get("seq", -1) < 230]
+    assert len(lines) == 1 + 300 - 30
+    proc = await asyncio.create_subprocess_exec(
+        *streamkey_argv(), "run", "--from", "-", "--method", "speed", "--dashboard", "0",
+        "--to", f"jsonl:{tmp_path / 'take.jsonl'}", stdin=subprocess.PIPE,
+        stderr=subprocess.PIPE)
+    assert proc.stdin is not None and proc.stderr is not None
+    try:
+        proc.stdin.write((lines[0] + "\n").encode())  # the skeleton: then the page is up
+        await proc.stdin.drain()
+        async with asyncio.timeout(60 * MS):
+            while b"dashboard on" not in (line := await proc.stderr.readline()):
+                assert line, "streamkey ended before the dashboard was up"
+        url = re.search(r"dashboard on (\S+)", line.decode())
+        assert url is not None
+        async with connect(ws_url(url.group(1))) as ws:
+            proc.stdin.write(("\n".join(lines[1:]) + "\n").encode())
+            await proc.stdin.drain()
+            async with asyncio.timeout(60 * MS):
+                while (stats := await next_of(ws, ("stats",)))["lost"] == 0:
+                    pass
+            assert (stats["lost"], stats["drops"], stats["gaps"]) == (30, 0, 1)
+    finally:
+        proc.stdin.close()
+        _, err = await asyncio.wait_for(proc.communicate(), 60 * MS)
+    assert proc.returncode == 0, err
+
+
+def streamkey_argv() -> list[str]:
+    import sys
+
+    return [sys.executable, "-m", "streamkey"]
