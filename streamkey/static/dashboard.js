@@ -4,7 +4,8 @@
 const WINDOW_SECONDS = 10;   // the strip chart shows the last 10 s of the stream
 const MAX_KEYS_SHOWN = 24;   // recent method keyposes listed (annotated and manual ones stay)
 const MAX_NOTES_SHOWN = 200; // annotations listed
-const GROUP_PX = 7;          // markers of one lane closer than this are drawn as one group
+const GROUP_PX = 11;         // markers of one lane within this width merge into one block
+const GUIDES_UP_TO = 25;     // a lane with more marker groups draws no guide lines
 
 const state = {
   methods: [], colors: {}, bones: null, sides: null, sideColors: {}, fps: 120,
@@ -403,11 +404,12 @@ function drawFigure(canvas, p, color, sides, view) {
 }
 
 function groups(xs) {
-  // runs of sorted x closer than GROUP_PX: [x of the run's middle, how many]
+  // sorted x in groups at most GROUP_PX wide (no chaining: a dense stretch stays a row of
+  // small counted blocks, never one long bar): {start, end, n}
   const out = [];
   for (const x of xs) {
     const last = out[out.length - 1];
-    if (last && x - last.end < GROUP_PX) { last.end = x; last.n += 1; } else out.push({ start: x, end: x, n: 1 });
+    if (last && x - last.start < GROUP_PX) { last.end = x; last.n += 1; } else out.push({ start: x, end: x, n: 1 });
   }
   return out;
 }
@@ -483,18 +485,29 @@ function drawChart() {
     ctx.strokeStyle = color;
     ctx.fillStyle = color;
     ctx.lineWidth = 1;
-    ctx.globalAlpha = runs.length > 40 ? 0.15 : 0.3;  // dense takes: fainter guide lines
-    ctx.beginPath();
-    for (const r of runs) { ctx.moveTo((r.start + r.end) / 2, 0); ctx.lineTo((r.start + r.end) / 2, plotH); }
-    ctx.stroke();
-    ctx.globalAlpha = 1;
-    ctx.textAlign = "left";
-    for (const r of runs) {
-      const x = (r.start + r.end) / 2;
-      ctx.beginPath(); ctx.moveTo(x, y); ctx.lineTo(x - 5, y + 10); ctx.lineTo(x + 5, y + 10);
-      ctx.fill();
-      if (r.n > 1) ctx.fillText(`${r.n}`, x + 6, y + 10);  // keys merged at this zoom
+    if (runs.length <= GUIDES_UP_TO) {  // dense lanes (dance) keep the plot readable
+      ctx.globalAlpha = 0.3;
+      ctx.beginPath();
+      for (const r of runs) { ctx.moveTo(r.start, 0); ctx.lineTo(r.start, plotH); }
+      ctx.stroke();
+      ctx.globalAlpha = 1;
     }
+    ctx.textAlign = "center";
+    ctx.font = "bold 9px sans-serif";
+    for (const r of runs) {
+      if (r.n === 1) {
+        ctx.beginPath();
+        ctx.moveTo(r.start, y); ctx.lineTo(r.start - 5, y + 10); ctx.lineTo(r.start + 5, y + 10);
+        ctx.fill();
+        continue;
+      }
+      // keys within a marker's width: one block (a pixel apart from the next), their number
+      ctx.fillRect(r.start - 5, y + 1, GROUP_PX - 1, 9);
+      ctx.fillStyle = "#fff";
+      ctx.fillText(r.n > 9 ? "+" : `${r.n}`, r.start, y + 9);
+      ctx.fillStyle = color;
+    }
+    ctx.font = "10px sans-serif";
     ctx.beginPath();  // provisional keys: hollow until confirmed or cancelled
     for (const p of state.provisional.values()) {
       if (p.method !== method || p.frame < x0) continue;
