@@ -4,19 +4,26 @@ One port serves everything (notes/ecosystem.md §2f): plain HTTP for the page (`
 static files (`/static/...`, shipped in the package: no build step, no CDN, works offline),
 and a WebSocket on `/ws` that pushes, as JSON text:
 
-- `hello` once per connection: methods and their colours, bones, fps, recent keyposes;
+- `hello` once per connection: take name, methods and their colours, bones and their sides
+  (left / right), fps, recent keyposes and annotations;
 - `pose` every few frames (about 30 per second): the current pose as points in body heights
   plus the driving signals computed here (body-frame speed and acceleration);
-- every engine event (`keyframe` events carry the pose of their frame for the thumbnail);
-- `stats` about four times a second: frames, drops, gaps, events, wall latency, lookahead;
+- every engine event as its `to_dict()` (`keyframe` events carry the pose of their frame
+  for the thumbnail; `provisional`, `cancel`, `signal` and any newer type pass through, the
+  page dispatches on `type` and skips what it does not know);
+- `stats` about four times a second: frames, drops, frames lost (seq holes), gaps, events,
+  decision delay per method (median `latency_frames`, and in ms), wall latency, lookahead,
+  annotations and refused operator messages;
 - `annotation` when any operator adds one, `ack` / `error` in reply to the sender.
 
 Operator actions arrive as JSON objects (`{"action": "label", "frame": 120, "method":
 "saliency", "text": "heel strike"}`, `{"action": "key", "frame": 300}`, `{"action":
-"reject", "frame": 120, "method": "speed"}`). `Annotator` validates them (sans-I/O): a
-malformed or oversize message, an unknown action or a frame the stream has not produced
-gets an `error` reply naming the problem, never an exception. Valid ones are written to the
-session's JSON Lines log as `annotation` events before they are broadcast.
+"reject" | "accept", "frame": 120, "method": "speed"}`, `{"action": "undo", "ref":
+"<annotation id>"}`). `Annotator` validates them (sans-I/O): a malformed or oversize
+message, an unknown action, a frame the stream has not produced or an unknown / already
+undone `ref` gets an `error` reply naming the problem (and is counted), never an exception.
+Valid ones get an `id` and are written to the session's JSON Lines log as `annotation`
+events before they are broadcast.
 
 Security: the server binds to loopback unless `listen` says otherwise; the WebSocket accepts
 only its own origin (the `Origin` header must be `http://` + the request's `Host`; a request

@@ -378,6 +378,8 @@ def test_browser_operator_session_waits_on_state_never_on_time(tmp_path: Path) -
         manual = wait.until(lambda _: driver.find_elements(By.CSS_SELECTOR,
                                                             "#keys li[data-method=manual]"))
         manual_frame = int(manual[0].get_attribute("data-frame"))
+        ActionChains(driver).move_to_element(driver.find_element(By.ID, "keys")).perform()
+        wait.until(lambda _: js("return state.hold"))  # (typing may have moved the page)
         victim = driver.find_elements(By.CSS_SELECTOR, cards)[1]  # not the labelled one
         rejected = int(victim.get_attribute("data-frame"))
         victim.find_element(By.CLASS_NAME, "reject").click()
