@@ -449,6 +449,37 @@ def test_browser_operator_session_waits_on_state_never_on_time(tmp_path: Path) -
     assert {e["method"] for e in events if e["type"] == "keyframe"} == set(LIVE)
 
 
+def test_browser_keeps_the_dense_markers_of_a_dance_take_readable(
+        data_dir: Path, tmp_path: Path) -> None:
+    """05_06 (dance) with every method: dense lanes merge keys into counted blocks that never
+    overlap, and draw no guide lines over the signals."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    driver = chrome()  # first: the take lasts 7.4 s, the page must be open before it ends
+    proc = streamkey("run", "--from", str(data_dir / "05_06.bvh"), "--method", "all",
+                     "--dashboard", "0", "--log", str(tmp_path / "dance.jsonl"), cwd=tmp_path)
+    try:
+        url = re.search(r"dashboard on (\S+)", "".join(wait_ready(proc, "dashboard on")))
+        assert url is not None
+        driver.get(url.group(1))
+        drawn = WebDriverWait(driver, 60 * MS, poll_frequency=0.05).until(
+            lambda d: d.execute_script("return state.frame >= 780 && state.drawn"))
+        if os.environ.get("STREAMKEY_UPDATE_DOCS"):
+            assert driver.save_screenshot(str(ROOT / "docs" / "dashboard_dance.png"))
+    finally:
+        driver.quit()
+        try:
+            _, err = proc.communicate(timeout=60 * MS)  # the take ends by itself (7.4 s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+    assert proc.returncode == 0, err
+    simplify = drawn["simplify"]
+    assert simplify["keys"] > simplify["marks"] >= 10  # merged, still many marks
+    assert not simplify["guides"] and drawn["speed"]["guides"]
+    assert all(d["minGap"] >= 11 for d in drawn.values() if d["marks"] > 1)  # no overlap
+
+
 def test_run_with_a_dashboard_serves_the_page_and_logs_to_the_jsonl_sink(
         data_dir: Path, tmp_path: Path) -> None:
     log = tmp_path / "take.jsonl"

@@ -5,13 +5,14 @@ const WINDOW_SECONDS = 10;   // the strip chart shows the last 10 s of the strea
 const MAX_KEYS_SHOWN = 24;   // recent method keyposes listed (annotated and manual ones stay)
 const MAX_NOTES_SHOWN = 200; // annotations listed
 const GROUP_PX = 11;         // markers of one lane within this width merge into one block
-const GUIDES_UP_TO = 25;     // a lane with more marker groups draws no guide lines
+const GUIDES_UP_TO = 15;     // a lane with more marks (blocks) draws no guide lines
 
 const state = {
   methods: [], colors: {}, bones: null, sides: null, sideColors: {}, fps: 120,
   frame: null, time: null, pose: null, signals: [], saliency: [], keys: [],
   provisional: new Map(), pending: [], hold: false, hidden: new Set(), lookahead: {},
   notes: new Map(), view2: "side", ws: null, nextId: 1, dirty: true,
+  drawn: {},  // per method lane of the last chart: keys, marks (blocks), guides, minGap (px)
 };
 
 const $ = (id) => document.getElementById(id);
@@ -482,6 +483,8 @@ function drawChart() {
       .map((k) => X(k.frame)).sort((a, b) => a - b);
     counts[method] = xs.length;
     const runs = groups(xs);
+    state.drawn[method] = { keys: xs.length, marks: runs.length, guides: runs.length <= GUIDES_UP_TO,
+                            minGap: Math.min(...runs.slice(1).map((r, i) => r.start - runs[i].start)) };
     ctx.strokeStyle = color;
     ctx.fillStyle = color;
     ctx.lineWidth = 1;
