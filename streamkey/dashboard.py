@@ -508,20 +508,19 @@ async def run_dashboard(source: Source | Motion, methods: list[str], to: list[st
     targets = list(to) + ([f"jsonl:{log}"] if log else [])
     take = source.name if isinstance(source, Motion) and source.name else stream
     board = DashboardSink(port, listen, stream, methods, take=take)
-    await board.start()  # a busy port fails here, before any log file is created
-    try:
-        sinks = [make_sink(parse_address(a), listen) for a in targets]
-    except BaseException:
-        await board.close()
-        raise
-    logs = [s for s in sinks if isinstance(s, JsonlSink)]
-    board.log = logs[0] if logs else None
-
     def ready(line: str) -> None:
         on_ready(line.replace("sending to http", "dashboard on http"))
 
-    engine = build_engine(source, methods, [*sinks, board], params, lookahead, stream, rate,
-                          loop, on_event, ready, idle_exit, on_frame=board.on_frame)
+    await board.start()  # a busy port fails here, before any log file is created
+    try:
+        sinks = [make_sink(parse_address(a), listen) for a in targets]
+        logs = [s for s in sinks if isinstance(s, JsonlSink)]
+        board.log = logs[0] if logs else None
+        engine = build_engine(source, methods, [*sinks, board], params, lookahead, stream,
+                              rate, loop, on_event, ready, idle_exit, on_frame=board.on_frame)
+    except BaseException:
+        await board.close()
+        raise
     board.attach(engine)
     if on_start is not None:
         on_start(board)
