@@ -308,6 +308,7 @@ class DashboardSink(WebSocketSink):
         self.view: LiveView | None = None
         self.engine: Engine | None = None
         self.recent: deque[dict[str, Any]] = deque(maxlen=recent)
+        self.chart: deque[dict[str, Any]] = deque(maxlen=4000)  # keys for the strip chart
         self.latency: deque[float] = deque(maxlen=2000)
         self.delay: dict[str, deque[int]] = {}  # method -> latency_frames of its last keys
         self.annotations: deque[dict[str, Any]] = deque(maxlen=MAX_ANNOTATIONS)
@@ -384,6 +385,7 @@ class DashboardSink(WebSocketSink):
                 if latency is not None:
                     self.latency.append(float(latency))
                 self.delay.setdefault(method, deque(maxlen=2000)).append(event.latency_frames)
+                self.chart.append({"method": method, "frame": frame})
                 record["pose"] = self.view.pose_of(frame) if self.view else None
                 self.recent.append(record)
             case _:
@@ -433,8 +435,16 @@ class DashboardSink(WebSocketSink):
                 "bones": self.view.bones if self.view else None,
                 "sides": self.view.sides if self.view else None, "side_colors": SIDE_COLORS,
                 "fps": self.view.fps if self.view else None, "max_text": MAX_TEXT,
-                "recent": list(self.recent), "annotations": list(self.annotations)[-50:],
+                "recent": list(self.recent), "keys": self._chart_keys(),
+                "annotations": list(self.annotations)[-50:],
                 "signals": list(self.signals), "saliency": list(self.saliency)}
+
+    def _chart_keys(self) -> list[dict[str, Any]]:
+        """Keys of the last 20 s (what the page's chart remembers), so a page opened late
+        draws the whole window, not only the recent keyposes."""
+        last, fps = self.annotator.last_seq, self.view.fps if self.view else 0.0
+        oldest = last - 20 * fps if last is not None else None
+        return [k for k in self.chart if oldest is None or k["frame"] >= oldest]
 
     # ------------------------------------------------------------------ client side
     def annotate(self, text: str) -> dict[str, Any]:
@@ -452,6 +462,10 @@ class DashboardSink(WebSocketSink):
         if record["action"] == "key":
             shown = {**record, "pose": self.view.pose_of(record["frame"]) if self.view else None}
             self.recent.append({**shown, "type": "keyframe"})
+            self.chart.append({"method": "manual", "frame": record["frame"]})
+        elif record["action"] == "undo" and record["undoes"] == "key":
+            gone = {"method": "manual", "frame": record["frame"]}
+            self.chart = deque((k for k in self.chart if k != gone), maxlen=self.chart.maxlen)
         self.broadcast(shown)
         return reply
 

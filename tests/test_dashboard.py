@@ -199,6 +199,7 @@ async def test_malformed_client_messages_get_errors_and_the_session_goes_on(
         later = board.hello()  # what a page opened now gets: take name, bones and their sides
         assert later["take"] == "demo" and len(later["sides"]) == len(later["bones"])
         assert {"L", "R", ""} == set(later["sides"])
+        assert {"method": key["method"], "frame": key["frame"]} in later["keys"]  # the chart's
         bad = ["{bad", "null", '{"action": "label", "frame": 1e9, "text": "x"}',
                json.dumps({"action": "label", "frame": key["frame"], "method": key["method"],
                            "text": "y" * 600}),

@@ -93,6 +93,7 @@ const HANDLERS = {
     state.signals = m.signals || [];
     state.saliency = m.saliency || [];
     if (state.signals.length) state.frame = state.signals[state.signals.length - 1].frame;
+    state.keys = m.keys || [];  // the chart's window (the cards get the recent ones below)
     for (const k of m.recent) addKey(k);
     for (const a of m.annotations) applyAnnotation(a);
   },
@@ -209,7 +210,7 @@ function setShown(method, shown) {
 function keyId(method, frame) { return `key-${method}-${frame}`; }
 
 function addKey(k) {
-  state.keys.push(k);
+  if (!state.keys.some((x) => x.method === k.method && x.frame === k.frame)) state.keys.push(k);
   const oldest = (state.frame ?? k.frame) - 2 * WINDOW_SECONDS * state.fps;
   state.keys = state.keys.filter((x) => x.frame >= oldest);
   if (state.hidden.has(k.method)) return;
