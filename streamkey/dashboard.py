@@ -5,7 +5,7 @@ static files (`/static/...`, shipped in the package: no build step, no CDN, work
 and a WebSocket on `/ws` that pushes, as JSON text:
 
 - `hello` once per connection: take name, methods and their colours, bones and their sides
-  (left / right), fps, recent keyposes and annotations;
+  (left / right), fps, recent keyposes, the chart's keys of the last 20 s, annotations;
 - `pose` every few frames (about 30 per second): the current pose as points in body heights
   plus the driving signals computed here (body-frame speed and acceleration);
 - every engine event as its `to_dict()` (`keyframe` events carry the pose of their frame
