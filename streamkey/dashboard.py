@@ -4,19 +4,26 @@ One port serves everything (notes/ecosystem.md §2f): plain HTTP for the page (`
 static files (`/static/...`, shipped in the package: no build step, no CDN, works offline),
 and a WebSocket on `/ws` that pushes, as JSON text:
 
-- `hello` once per connection: methods and their colours, bones, fps, recent keyposes;
+- `hello` once per connection: take name, methods and their colours, bones and their sides
+  (left / right), fps, recent keyposes, the chart's keys of the last 20 s, annotations;
 - `pose` every few frames (about 30 per second): the current pose as points in body heights
   plus the driving signals computed here (body-frame speed and acceleration);
-- every engine event (`keyframe` events carry the pose of their frame for the thumbnail);
-- `stats` about four times a second: frames, drops, gaps, events, wall latency, lookahead;
+- every engine event as its `to_dict()` (`keyframe` events carry the pose of their frame
+  for the thumbnail; `provisional`, `cancel`, `signal` and any newer type pass through, the
+  page dispatches on `type` and skips what it does not know);
+- `stats` about four times a second: frames, drops, frames lost (seq holes), gaps, events,
+  decision delay per method (median `latency_frames`, and in ms), wall latency, lookahead,
+  annotations and refused operator messages;
 - `annotation` when any operator adds one, `ack` / `error` in reply to the sender.
 
 Operator actions arrive as JSON objects (`{"action": "label", "frame": 120, "method":
 "saliency", "text": "heel strike"}`, `{"action": "key", "frame": 300}`, `{"action":
-"reject", "frame": 120, "method": "speed"}`). `Annotator` validates them (sans-I/O): a
-malformed or oversize message, an unknown action or a frame the stream has not produced
-gets an `error` reply naming the problem, never an exception. Valid ones are written to the
-session's JSON Lines log as `annotation` events before they are broadcast.
+"reject" | "accept", "frame": 120, "method": "speed"}`, `{"action": "undo", "ref":
+"<annotation id>"}`). `Annotator` validates them (sans-I/O): a malformed or oversize
+message, an unknown action, a frame the stream has not produced or an unknown / already
+undone `ref` gets an `error` reply naming the problem (and is counted), never an exception.
+Valid ones get an `id` and are written to the session's JSON Lines log as `annotation`
+events before they are broadcast.
 
 Security: the server binds to loopback unless `listen` says otherwise; the WebSocket accepts
 only its own origin (the `Origin` header must be `http://` + the request's `Host`; a request
@@ -42,20 +49,22 @@ from .adapters.base import LOOPBACK, Address, Source
 from .adapters.sinks import JsonlSink
 from .adapters.websocket import WebSocketSink
 from .engine import Engine, RunSummary
-from .errors import UsageError
+from .errors import InputError, RoleError, UsageError
 from .keyframes import SCHEMA_VERSION, Event, KeyframeEvent
 from .kinematics import body_height, forward_kinematics, pelvis_frame
 from .motion import Frame, Motion, Skeleton
+from .roles import resolve_roles
 
 __all__ = ["Annotator", "LiveView", "DashboardSink", "run_dashboard", "METHOD_COLORS",
-           "MAX_TEXT", "ACTIONS", "check_port", "method_color",
+           "MAX_TEXT", "ACTIONS", "check_port", "method_color", "bone_sides",
            "default_log"]
 
 MAX_TEXT = 500            # characters of a label or a reason
 MAX_KEYS = 10_000         # keyed frames remembered for labels and rejections
 MAX_ANNOTATIONS = 1000    # annotations kept in memory (all of them are in the log)
 MAX_CLIENT_MESSAGE = 4096  # bytes of one operator message
-ACTIONS = ("label", "key", "reject")
+ACTIONS = ("label", "key", "reject", "accept", "undo")
+SIDE_COLORS = {"L": "#1565c0", "R": "#e65100"}  # left / right bones of the live figure
 METHOD_COLORS = {"saliency": "#d62728", "speed": "#1f77b4", "simplify": "#2ca02c",
                  "manual": "#9467bd", "optimal": "#bcbd22"}
 _SPARE_COLORS = ("#ff7f0e", "#8c564b", "#e377c2", "#17becf")
@@ -82,7 +91,12 @@ class Annotator:
         self.fps = 0.0
         # frame -> methods that keyed it (and "manual"); the newest MAX_KEYS frames only
         self.keys: OrderedDict[int, set[str]] = OrderedDict()
+        # annotation id -> its record (the newest MAX_KEYS), for `undo`; ids undone so far
+        self.notes: OrderedDict[str, dict[str, Any]] = OrderedDict()
+        self.undone: set[str] = set()
+        self.session = format(int(time.time()), "x")  # keeps ids unique in an appended log
         self.count = 0
+        self.refused = 0  # messages answered with an error (each one counted, none raised)
 
     def see_frame(self, seq: int, time_s: float) -> None:
         """Remember the stream's frame range (annotations must reference a produced frame)."""
@@ -115,16 +129,27 @@ class Annotator:
             request_id = msg.get("id") if isinstance(msg.get("id"), (int, str)) else None
             record = self._validate(msg)
         except _Reject as exc:
+            self.refused += 1
             return None, {"type": "error", "id": request_id, "error": str(exc)}
         self.count += 1
+        record["id"] = f"{self.stream}/annotation/{self.session}-{self.count}"
         if record["action"] == "key":
             self.see_key("manual", record["frame"])
+        elif record["action"] == "undo":
+            self.undone.add(record["ref"])
+            if self.notes[record["ref"]]["action"] == "key":
+                self.keys.get(record["frame"], set()).discard("manual")
+        self.notes[record["id"]] = record
+        while len(self.notes) > MAX_KEYS:
+            self.undone.discard(self.notes.popitem(last=False)[0])
         return record, {"type": "ack", "id": request_id, "annotation": record}
 
     def _validate(self, msg: dict[str, Any]) -> dict[str, Any]:
         action = msg.get("action")
-        if action not in ACTIONS:
+        if not isinstance(action, str) or action not in ACTIONS:
             raise _Reject(f"unknown action {action!r}; expected one of {', '.join(ACTIONS)}")
+        if action == "undo":
+            return self._undo(msg.get("ref"))
         frame = msg.get("frame")
         if isinstance(frame, bool) or not isinstance(frame, int):
             raise _Reject(f"{action}: 'frame' must be an integer frame number, got {frame!r}")
@@ -144,7 +169,7 @@ class Annotator:
                           f"{self.max_text})")
         if action == "label" and not text.strip():
             raise _Reject("label: 'text' must not be empty")
-        if action in ("label", "reject"):
+        if action in ("label", "reject", "accept"):
             keyed = self.keys.get(frame, set())
             if method is not None and method not in keyed:
                 raise _Reject(f"{action}: frame {frame} is not a keyframe of {method!r}")
@@ -158,6 +183,22 @@ class Annotator:
                 "text": text.strip(), "time": self._time_of(frame), "seq_at": self.last_seq,
                 "wall_time": round(time.time(), 3)}
 
+    def _undo(self, ref: Any) -> dict[str, Any]:
+        """`{"action": "undo", "ref": <annotation id>}`: take back one earlier annotation."""
+        if not isinstance(ref, str):
+            raise _Reject("undo: 'ref' must be the id of an earlier annotation (a string)")
+        target = self.notes.get(ref)
+        if target is None:
+            raise _Reject(f"undo: unknown annotation {ref[:80]!r}")
+        if target["action"] == "undo":
+            raise _Reject("undo: an undo cannot be undone (annotate again instead)")
+        if ref in self.undone:
+            raise _Reject(f"undo: annotation {ref[:80]!r} is already undone")
+        frame = target["frame"]
+        return {"v": SCHEMA_VERSION, "type": "annotation", "stream": self.stream,
+                "action": "undo", "frame": frame, "method": target["method"], "ref": ref,
+                "undoes": target["action"], "text": "", "time": target["time"],
+                "seq_at": self.last_seq, "wall_time": round(time.time(), 3)}
 
     def _time_of(self, frame: int) -> float | None:
         if not self.fps or self.last_seq is None:
@@ -167,6 +208,30 @@ class Annotator:
 
 class _Reject(Exception):
     """An operator message that is refused (its text goes back to the client)."""
+
+
+def bone_sides(skeleton: Skeleton, bones: list[list[int]]) -> list[str]:
+    """"L", "R" or "" per bone (child point, parent point): the side of the nearest hip or
+    shoulder at or above the child, else the one side all its children share (clavicles,
+    hip joints); all "" when the rig's roles are not found."""
+    try:
+        roles = resolve_roles(skeleton, needed=("left_hip", "right_hip", "left_shoulder",
+                                                "right_shoulder"))
+    except RoleError:
+        return [""] * len(bones)
+    side = {i: r[0].upper() for r, i in roles.items()}
+    parents = {child: parent for child, parent in bones}
+    found: dict[int, str] = {}
+    for child in parents:
+        point: int | None = child
+        while point is not None and point not in side:
+            point = parents.get(point)
+        found[child] = side.get(point, "") if point is not None else ""
+    for point in sorted(found, reverse=True):  # children come after their parents
+        kids = {found[c] for c, p in bones if p == point}
+        if not found[point] and len(kids) == 1:
+            found[point] = kids.pop()
+    return [found[child] for child, _ in bones]
 
 
 class LiveView:
@@ -189,6 +254,7 @@ class LiveView:
         ends = sorted(skeleton.end_sites)
         self.bones = [[j, p] for j, p in enumerate(parents) if p >= 0]
         self.bones += [[skeleton.n_joints + i, j] for i, j in enumerate(ends)]
+        self.sides = bone_sides(skeleton, self.bones)
 
     def points(self, channels: np.ndarray) -> tuple[list[float], np.ndarray]:
         """Flattened display points (root centred in x/z, body heights) and body-frame points."""
@@ -230,17 +296,21 @@ class DashboardSink(WebSocketSink):
 
     def __init__(self, port: int = 8765, listen: str | None = None, stream: str = "default",
                  methods: list[str] | None = None, log: JsonlSink | None = None,
-                 token: str | None = None, rate: float = 30.0, recent: int = 24) -> None:
+                 token: str | None = None, rate: float = 30.0, recent: int = 24,
+                 take: str | None = None) -> None:
         super().__init__(Address("ws", LOOPBACK, port), listen, on_message=self.annotate,
                          token=token)
         self.methods = list(methods or [])
+        self.take = take or stream
         self.log = log
         self.rate = rate
         self.annotator = Annotator(stream)
         self.view: LiveView | None = None
         self.engine: Engine | None = None
         self.recent: deque[dict[str, Any]] = deque(maxlen=recent)
+        self.chart: deque[dict[str, Any]] = deque(maxlen=4000)  # keys for the strip chart
         self.latency: deque[float] = deque(maxlen=2000)
+        self.delay: dict[str, deque[int]] = {}  # method -> latency_frames of its last keys
         self.annotations: deque[dict[str, Any]] = deque(maxlen=MAX_ANNOTATIONS)
         self.signals: deque[dict[str, Any]] = deque(maxlen=round(10 * rate) + 1)  # 10 s chart
         self.saliency: deque[list[float]] = deque(maxlen=1500)  # 10 s at up to 150 Hz
@@ -248,7 +318,16 @@ class DashboardSink(WebSocketSink):
 
     # ------------------------------------------------------------------ engine side
     async def start(self) -> str:
-        await super().start()
+        """Bind the port (once: `run_dashboard` binds before it opens any log file)."""
+        if self.server is None:
+            try:
+                await super().start()
+            except InputError as exc:
+                why = str(exc).rpartition(": ")[2]
+                why = "the port is in use" if "in use" in why else why
+                raise InputError(f"--dashboard {self.address.port}: cannot listen on "
+                                 f"{self.host}:{self.address.port}: {why} (give another "
+                                 "port, or 0 for a free one)") from None
         return self.url
 
     @property
@@ -305,6 +384,8 @@ class DashboardSink(WebSocketSink):
                 self.annotator.see_key(method, frame)
                 if latency is not None:
                     self.latency.append(float(latency))
+                self.delay.setdefault(method, deque(maxlen=2000)).append(event.latency_frames)
+                self.chart.append({"method": method, "frame": frame})
                 record["pose"] = self.view.pose_of(frame) if self.view else None
                 self.recent.append(record)
             case _:
@@ -313,9 +394,10 @@ class DashboardSink(WebSocketSink):
 
     def counters(self) -> dict[str, Any]:
         """The counters message of the page."""
-        out: dict[str, Any] = {"type": "stats", "frames": 0, "drops": 0, "gaps": 0,
-                               "events": {}, "lookahead": {}, "latency_ms": {},
-                               "annotations": self.annotator.count, "clients": len(self.clients)}
+        out: dict[str, Any] = {"type": "stats", "frames": 0, "drops": 0, "gaps": 0, "lost": 0,
+                               "events": {}, "lookahead": {}, "latency_ms": {}, "delay": {},
+                               "annotations": self.annotator.count,
+                               "refused": self.annotator.refused, "clients": len(self.clients)}
         eng = self.engine
         if eng is None:
             return out
@@ -326,12 +408,18 @@ class DashboardSink(WebSocketSink):
             g = eng.pipeline.guard.counters
             out["drops"] += g.duplicates + g.out_of_order + g.invalid
             out["gaps"] = g.gaps
+            out["lost"] = getattr(g, "lost", 0)  # seq holes: frames that never arrived
             out["lookahead"] = {kf.method: kf.lookahead for kf in eng.pipeline.keyframers}
         out["events"] = dict(eng.summary.events)
         if self.latency:
             lat = np.array(self.latency)
             out["latency_ms"] = {"p50": round(float(np.percentile(lat, 50)), 3),
                                  "p99": round(float(np.percentile(lat, 99)), 3)}
+        fps = self.view.fps if self.view else 0.0
+        for method, frames in self.delay.items():
+            median = float(np.median(frames))
+            out["delay"][method] = {"frames": round(median, 1),
+                                    "ms": round(1000 * median / fps, 1) if fps else None}
         return out
 
     def greeting(self) -> dict[str, Any]:
@@ -342,12 +430,21 @@ class DashboardSink(WebSocketSink):
         """First message of a connection: what the page needs to draw, and recent keys."""
         methods = self.methods + ["manual"]
         return {"type": "hello", "v": SCHEMA_VERSION, "stream": self.annotator.stream,
-                "methods": self.methods,
+                "take": self.take, "methods": self.methods,
                 "colors": {m: method_color(m, self.methods) for m in methods},
                 "bones": self.view.bones if self.view else None,
+                "sides": self.view.sides if self.view else None, "side_colors": SIDE_COLORS,
                 "fps": self.view.fps if self.view else None, "max_text": MAX_TEXT,
-                "recent": list(self.recent), "annotations": list(self.annotations)[-50:],
+                "recent": list(self.recent), "keys": self._chart_keys(),
+                "annotations": list(self.annotations)[-50:],
                 "signals": list(self.signals), "saliency": list(self.saliency)}
+
+    def _chart_keys(self) -> list[dict[str, Any]]:
+        """Keys of the last 20 s (what the page's chart remembers), so a page opened late
+        draws the whole window, not only the recent keyposes."""
+        last, fps = self.annotator.last_seq, self.view.fps if self.view else 0.0
+        oldest = last - 20 * fps if last is not None else None
+        return [k for k in self.chart if oldest is None or k["frame"] >= oldest]
 
     # ------------------------------------------------------------------ client side
     def annotate(self, text: str) -> dict[str, Any]:
@@ -365,6 +462,10 @@ class DashboardSink(WebSocketSink):
         if record["action"] == "key":
             shown = {**record, "pose": self.view.pose_of(record["frame"]) if self.view else None}
             self.recent.append({**shown, "type": "keyframe"})
+            self.chart.append({"method": "manual", "frame": record["frame"]})
+        elif record["action"] == "undo" and record["undoes"] == "key":
+            gone = {"method": "manual", "frame": record["frame"]}
+            self.chart = deque((k for k in self.chart if k != gone), maxlen=self.chart.maxlen)
         self.broadcast(shown)
         return reply
 
@@ -419,15 +520,21 @@ async def run_dashboard(source: Source | Motion, methods: list[str], to: list[st
 
     on_ready = on_ready or _ready
     targets = list(to) + ([f"jsonl:{log}"] if log else [])
-    sinks = [make_sink(parse_address(a), listen) for a in targets]
-    logs = [s for s in sinks if isinstance(s, JsonlSink)]
-    board = DashboardSink(port, listen, stream, methods, logs[0] if logs else None)
-
+    take = source.name if isinstance(source, Motion) and source.name else stream
+    board = DashboardSink(port, listen, stream, methods, take=take)
     def ready(line: str) -> None:
         on_ready(line.replace("sending to http", "dashboard on http"))
 
-    engine = build_engine(source, methods, [*sinks, board], params, lookahead, stream, rate,
-                          loop, on_event, ready, idle_exit, on_frame=board.on_frame)
+    await board.start()  # a busy port fails here, before any log file is created
+    try:
+        sinks = [make_sink(parse_address(a), listen) for a in targets]
+        logs = [s for s in sinks if isinstance(s, JsonlSink)]
+        board.log = logs[0] if logs else None
+        engine = build_engine(source, methods, [*sinks, board], params, lookahead, stream,
+                              rate, loop, on_event, ready, idle_exit, on_frame=board.on_frame)
+    except BaseException:
+        await board.close()
+        raise
     board.attach(engine)
     if on_start is not None:
         on_start(board)

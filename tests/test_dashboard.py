@@ -91,20 +91,65 @@ def test_annotator_builds_annotation_events_that_reference_the_frame() -> None:
 
 @settings(max_examples=300, deadline=None)
 @given(st.one_of(st.text(max_size=300),
-                 st.dictionaries(st.sampled_from(["action", "frame", "method", "text", "id"]),
+                 st.dictionaries(st.sampled_from(["action", "frame", "method", "text", "id",
+                                                  "ref"]),
                                  st.one_of(st.none(), st.integers(), st.text(max_size=20),
-                                           st.sampled_from(["label", "key", "reject"]),
-                                           st.floats(), st.lists(st.integers(), max_size=3)))
+                                           st.sampled_from(["label", "key", "reject", "accept",
+                                                            "undo", "take/annotation/x-1"]),
+                                           st.floats(), st.lists(st.integers(), max_size=3),
+                                           st.dictionaries(st.text(max_size=3),
+                                                           st.integers(), max_size=2)))
                  .map(json.dumps)))
 def test_annotator_never_raises_whatever_the_client_sends(text: str) -> None:
-    record, reply = annotator_with_keys().handle(text)
+    a = annotator_with_keys()
+    good, _ = a.handle('{"action": "reject", "frame": 150, "method": "saliency"}')
+    assert good is not None
+    record, reply = a.handle(text)
     assert reply["type"] in ("ack", "error")
     assert (record is None) == (reply["type"] == "error")
+    assert a.refused == (reply["type"] == "error")  # every refusal counted
+    # whatever came before, an undo of the first annotation still answers (ack or error)
+    again, reply = a.handle(json.dumps({"action": "undo", "ref": good["id"]}))
+    assert reply["type"] in ("ack", "error") and (again is None) == (reply["type"] == "error")
+
+
+def test_annotator_accept_and_undo_take_back_one_annotation_each() -> None:
+    a = annotator_with_keys()
+    reject, _ = a.handle('{"action": "reject", "frame": 150, "method": "saliency"}')
+    accept, _ = a.handle('{"action": "accept", "frame": 200, "method": "speed"}')
+    key, _ = a.handle('{"action": "key", "frame": 300}')
+    assert reject and accept and key
+    assert len({reject["id"], accept["id"], key["id"]}) == 3
+    assert reject["id"].startswith("take/annotation/")
+    undo, reply = a.handle(json.dumps({"id": 9, "action": "undo", "ref": reject["id"]}))
+    assert reply["type"] == "ack" and reply["id"] == 9 and undo is not None
+    assert (undo["action"], undo["frame"], undo["method"], undo["ref"], undo["undoes"]) == (
+        "undo", 150, "saliency", reject["id"], "reject")
+    assert undo["time"] == pytest.approx(150 / 120)
+    # undoing a manual key un-keys its frame: it can no longer be labelled
+    assert a.handle(json.dumps({"action": "undo", "ref": key["id"]}))[0] is not None
+    assert "not a keyframe" in a.handle(
+        '{"action": "label", "frame": 300, "text": "x"}')[1]["error"]
+    refusals = [
+        (json.dumps({"action": "undo", "ref": reject["id"]}), "already undone"),
+        (json.dumps({"action": "undo", "ref": undo["id"]}), "an undo cannot be undone"),
+        ('{"action": "undo", "ref": "take/annotation/nope"}', "unknown annotation"),
+        ('{"action": "undo", "ref": 3}', "'ref' must be the id"),
+        ('{"action": "undo"}', "'ref' must be the id"),
+        ('{"action": "accept", "frame": 151, "method": "speed"}', "not a keyframe"),
+        ('{"action": ["undo"]}', "unknown action"),
+    ]
+    for message, reason in refusals:
+        record, reply = a.handle(message)
+        assert record is None and reason in reply["error"], (message, reply)
+    assert a.refused == len(refusals) + 1 and a.count == 5
 
 
 @asynccontextmanager
-async def serving(tmp_path: Path, **kwargs: Any) -> AsyncIterator[tuple[str, DashboardSink]]:
-    """The dashboard over the looped demo motion at 120 Hz; yields (page URL, dashboard)."""
+async def serving(tmp_path: Path, motion: Any = None, methods: list[str] = METHODS,
+                  **kwargs: Any) -> AsyncIterator[tuple[str, DashboardSink]]:
+    """The dashboard over a looped motion (default: the demo) at its fps; yields (page URL,
+    dashboard)."""
     lines: list[str] = []
     ready = asyncio.Event()
     boards: list[DashboardSink] = []
@@ -115,7 +160,8 @@ async def serving(tmp_path: Path, **kwargs: Any) -> AsyncIterator[tuple[str, Das
             ready.set()
 
     task = asyncio.create_task(run_dashboard(
-        demo_motion(4.0), METHODS, [], port=0, log=str(tmp_path / "session.jsonl"), loop=True,
+        motion or demo_motion(4.0), methods, [], port=0, log=str(tmp_path / "session.jsonl"),
+        loop=True,
         on_ready=on_ready, on_start=boards.append, **kwargs))
     await asyncio.wait_for(ready.wait(), 30 * MS)
     url = re.search(r"dashboard on (\S+)", "\n".join(lines))
@@ -150,6 +196,10 @@ async def test_malformed_client_messages_get_errors_and_the_session_goes_on(
         assert hello["methods"] == METHODS and len(set(hello["colors"].values())) == 4
         key = await next_of(ws, ("keyframe",))
         assert key["pose"] is not None  # the thumbnail of the key's own frame
+        later = board.hello()  # what a page opened now gets: take name, bones and their sides
+        assert later["take"] == "demo" and len(later["sides"]) == len(later["bones"])
+        assert {"L", "R", ""} == set(later["sides"])
+        assert {"method": key["method"], "frame": key["frame"]} in later["keys"]  # the chart's
         bad = ["{bad", "null", '{"action": "label", "frame": 1e9, "text": "x"}',
                json.dumps({"action": "label", "frame": key["frame"], "method": key["method"],
                            "text": "y" * 600}),
@@ -167,11 +217,21 @@ async def test_malformed_client_messages_get_errors_and_the_session_goes_on(
                                   "method": key["method"], "text": "arms up"}))
         ack = await next_of(ws, ("ack", "error"))
         assert ack["type"] == "ack" and ack["id"] == "a1"
+        await ws.send(json.dumps({"action": "undo", "ref": ack["annotation"]["id"]}))
+        assert (await next_of(ws, ("ack", "error")))["type"] == "ack"
         await next_of(ws, ("pose",))
         assert board.engine.summary.frames_in > frames_before  # type: ignore[union-attr]
+        stats = await next_of(ws, ("stats",))
+        assert stats["refused"] == len(bad) and stats["annotations"] == 2
+        assert stats["lost"] == 0 and set(stats["delay"]) <= set(METHODS)
+        for method, delay in stats["delay"].items():
+            assert 0 <= delay["frames"] <= stats["lookahead"][method]
+            assert delay["ms"] == pytest.approx(1000 * delay["frames"] / 120, abs=0.06)
     logged = [e for e in read_jsonl(tmp_path / "session.jsonl") if e["type"] == "annotation"]
-    assert [(e["frame"], e["method"], e["text"]) for e in logged] == [
-        (key["frame"], key["method"], "arms up")]
+    assert [(e["action"], e["frame"], e["method"], e["text"]) for e in logged] == [
+        ("label", key["frame"], key["method"], "arms up"),
+        ("undo", key["frame"], key["method"], "")]
+    assert logged[1]["ref"] == logged[0]["id"]
 
 
 def http_get(url: str, headers: dict[str, str] | None = None) -> tuple[int, str]:
@@ -250,28 +310,10 @@ def wait_for(condition: Any, what: str, timeout: float = 60.0) -> Any:
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def click_reject(driver: Any) -> int | None:
-    """Click "reject" on the newest method keypose; its frame, or None if the list moved."""
-    from selenium.common.exceptions import (
-        ElementClickInterceptedException,
-        StaleElementReferenceException,
-    )
-    from selenium.webdriver.common.action_chains import ActionChains
-    from selenium.webdriver.common.by import By
-
-    try:
-        # The list holds still while the pointer is over it: hover first, then pick, so a
-        # key that slides in between reading the frame and clicking cannot take the click.
-        ActionChains(driver).move_to_element(driver.find_element(By.ID, "keys")).perform()
-        item = driver.find_element(By.CSS_SELECTOR, "#keys li:not([data-method=manual])")
-        frame = int(item.get_attribute("data-frame"))
-        item.find_element(By.CLASS_NAME, "reject").click()
-        return frame
-    except (StaleElementReferenceException, ElementClickInterceptedException):
-        return None  # the list moved before the pointer reached it (it holds still now)
-
-
-def test_browser_shows_markers_counters_and_logs_a_typed_label(tmp_path: Path) -> None:
+def test_browser_operator_session_waits_on_state_never_on_time(tmp_path: Path) -> None:
+    """Markers, counters, a label, a manual key pressed while the list is held under the
+    pointer (it must survive the replay of the paused keys), a reject undone from the
+    annotation list, the method filter and the second view. Every wait is on page state."""
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
@@ -289,40 +331,103 @@ def test_browser_shows_markers_counters_and_logs_a_typed_label(tmp_path: Path) -
         driver.get(url.group(1))
         wait = WebDriverWait(driver, 60 * MS, poll_frequency=0.05)
         text = lambda element_id: driver.find_element(By.ID, element_id).text  # noqa: E731
+        js = driver.execute_script
+        cards = "#keys li:not([data-method=manual])"
 
         def markers(method: str) -> int:
-            span = driver.find_element(By.CSS_SELECTOR, f'#legend span[data-method="{method}"]')
-            return int(span.get_attribute("data-count") or 0)
+            label = driver.find_element(By.CSS_SELECTOR, f'#legend label[data-method="{method}"]')
+            return int(label.get_attribute("data-count") or 0)
 
         for method in LIVE:  # a marker drawn in the strip chart for every method
             wait.until(lambda _, m=method: markers(m) > 0)
         first = int(text("c-frames"))
         wait.until(lambda _: int(text("c-frames")) > first)  # the counters move
         # the saliency signal is drawn too (it trails the stream by the lookahead)
-        wait.until(lambda _: driver.execute_script("return state.saliency.length") > 10)
+        wait.until(lambda _: js("return state.saliency.length") > 10)
         assert re.search(r"saliency \d+", text("c-events"))
         assert re.fullmatch(r"[\d.]+ / [\d.]+ ms", text("c-latency"))
         assert all(re.search(rf"{m} \d+", text("c-lookahead")) for m in LIVE)
+        wait.until(lambda _: all(re.search(rf"{m} [\d.]+ f / [\d.]+ ms", text("c-delay"))
+                                 for m in LIVE))
+        assert text("c-lost") == "0" and text("c-drops").isdigit()
+        assert text("take") == "demo" and re.fullmatch(r"\d\d:\d\d:\d\d\.\d{3}", text("timecode"))
+        wait.until(lambda _: len(driver.find_elements(By.CSS_SELECTOR, cards)) >= 3)
+        # event types of the v2 contract and unknown ones go through the page's own dispatch:
+        # a provisional key is drawn hollow until its cancel; unknown types are skipped
+        # (one script: no pose message can prune the provisional key in between)
+        sizes = js("""
+            const deliver = (m) => state.ws.onmessage({data: m});
+            const sizes = [];
+            deliver(JSON.stringify({type: "provisional", v: 2, stream: "demo", method: "speed",
+                                    frame: state.frame, pid: -7, strength: 0.5, time: 0,
+                                    seen_at: state.frame}));
+            sizes.push(state.provisional.has("speed/-7"));
+            for (const m of arguments[0]) deliver(m);
+            sizes.push(state.provisional.has("speed/-7"));
+            deliver(JSON.stringify({type: "cancel", v: 2, stream: "demo", method: "speed",
+                                    frame: 0, pid: -7, decided_at: 9}));
+            sizes.push(state.provisional.has("speed/-7"));
+            return sizes;""", [json.dumps(m) for m in (
+            {"type": "signal", "v": 2, "stream": "demo", "seq": 1, "values": {"speed": 1}},
+            {"type": "from-the-future", "v": 3}, {"type": "constructor"}, {"type": None},
+            {"no": "type"}, [1, 2], None, "text")] + ["{bad"])
+        assert sizes == [True, True, False]
+        frames_now = int(text("c-frame"))
+        wait.until(lambda _: int(text("c-frame")) > frames_now)  # the page kept drawing
 
-        item = driver.find_element(By.CSS_SELECTOR, "#keys li:not([data-method=manual])")
+        # the pointer over the list: it holds still from then on
+        ActionChains(driver).move_to_element(driver.find_element(By.ID, "keys")).perform()
+        wait.until(lambda _: js("return state.hold"))
+        item = driver.find_element(By.CSS_SELECTOR, cards)
         frame, method = int(item.get_attribute("data-frame")), item.get_attribute("data-method")
         item.find_element(By.TAG_NAME, "input").send_keys("heel strike", Keys.ENTER)
-        wait.until(lambda _: "saved label" in text("message"))
-        logged = wait_for(lambda: [e for e in read_jsonl(log) if e["type"] == "annotation"],
-                          "the label in the JSON Lines log")
-        assert [(e["action"], e["frame"], e["method"], e["text"]) for e in logged] == [
-            ("label", frame, method, "heel strike")]
-        assert item.find_element(By.CLASS_NAME, "label-text").text == "heel strike"
-
+        wait.until(lambda _: item.find_element(By.CLASS_NAME, "label-text").text == "heel strike")
+        js("document.activeElement.blur()")
         driver.find_element(By.TAG_NAME, "body").send_keys("k")  # the manual-key hotkey
-        wait.until(lambda _: "saved key" in text("message"))
-        rejected = wait.until(lambda _: click_reject(driver))
-        wait.until(lambda _: "saved reject" in text("message"))
-        assert driver.find_elements(By.CSS_SELECTOR, f"#keys li.rejected[data-frame='{rejected}']")
+        manual = wait.until(lambda _: driver.find_elements(By.CSS_SELECTOR,
+                                                            "#keys li[data-method=manual]"))
+        manual_frame = int(manual[0].get_attribute("data-frame"))
+        ActionChains(driver).move_to_element(driver.find_element(By.ID, "keys")).perform()
+        wait.until(lambda _: js("return state.hold"))  # (typing may have moved the page)
+        victim = driver.find_elements(By.CSS_SELECTOR, cards)[1]  # not the labelled one
+        rejected = int(victim.get_attribute("data-frame"))
+        victim.find_element(By.CLASS_NAME, "reject").click()
+        wait.until(lambda _: "rejected" in (victim.get_attribute("class") or ""))
+        assert js("return state.hold")  # the clicks kept the pointer on the list
+        wait.until(lambda _: js("return state.pending.length") >= 3)  # keys wait to be shown
+
+        # undo the reject from the annotation list: the pointer leaves the keys, which replay
+        entry = wait.until(lambda _: driver.find_elements(
+            By.CSS_SELECTOR, "#annotations li[data-action=reject] button.undo"))
+        entry[0].click()
+        wait.until(lambda _: driver.find_elements(
+            By.CSS_SELECTOR, "#annotations li.undone[data-action=reject]"))
+        wait.until(lambda _: "rejected" not in (victim.get_attribute("class") or ""))
+        wait.until(lambda _: not js("return state.hold") and text("held") == "")
+        kept = driver.find_elements(By.CSS_SELECTOR, f"#keys li[data-method=manual]"
+                                                     f"[data-frame='{manual_frame}']")
+        assert kept, "the manual key vanished when the paused list replayed"
+        plain = js("return [...document.querySelectorAll('#keys li')]"
+                   ".filter((li) => !busy(li)).length")
+        assert plain <= 24
+        assert wait.until(lambda _: int(text("c-annotations")) == 4)
+
+        # the method filter hides a method's cards and lane, and brings them back
+        box = driver.find_element(By.CSS_SELECTOR, '#legend label[data-method="simplify"] input')
+        box.click()
+        wait.until(lambda _: not driver.find_elements(
+            By.CSS_SELECTOR, "#keys li[data-method=simplify]:not([hidden])"))
+        assert js("return state.hidden.has('simplify')")
+        box.click()
+        wait.until(lambda _: len(driver.find_elements(
+            By.CSS_SELECTOR, "#keys li[data-method=simplify]:not([hidden])")) >= 2)
+        toggle = driver.find_element(By.ID, "view2-mode")
+        toggle.click()
+        wait.until(lambda _: toggle.get_attribute("data-mode") == "top")
+        toggle.click()
+        wait.until(lambda _: toggle.get_attribute("data-mode") == "side")
         ActionChains(driver).move_to_element(driver.find_element(By.ID, "c-frames")).perform()
-        driver.execute_script("window.scrollTo(0, 0)")  # pointer off the list: it moves again
-        wait.until(lambda _: driver.find_elements(By.CSS_SELECTOR, "#keys li[data-method=manual]"))
-        assert wait.until(lambda _: int(text("c-annotations")) == 3)
+        driver.execute_script("window.scrollTo(0, 0)")
         shot = (ROOT / "docs" if os.environ.get("STREAMKEY_UPDATE_DOCS") else ROOT / "results")
         shot.mkdir(exist_ok=True)
         assert driver.save_screenshot(str(shot / "dashboard.png"))
@@ -343,11 +448,45 @@ def test_browser_shows_markers_counters_and_logs_a_typed_label(tmp_path: Path) -
         if failure is not None:
             failure.add_note(f"streamkey stderr:\n{err[-4000:]}")
     assert proc.returncode == 0, err
-    assert "annotations: 3" in err and "Traceback" not in err
+    assert "annotations: 4" in err and "Traceback" not in err
     events = read_jsonl(log)
-    actions = [(e["action"], e["frame"]) for e in events if e["type"] == "annotation"]
-    assert [a for a, _ in actions] == ["label", "key", "reject"]
+    notes = [e for e in events if e["type"] == "annotation"]
+    assert [(e["action"], e["frame"]) for e in notes] == [
+        ("label", frame), ("key", manual_frame), ("reject", rejected), ("undo", rejected)]
+    assert notes[0]["method"] == method and notes[0]["text"] == "heel strike"
+    assert notes[3]["ref"] == notes[2]["id"] and notes[3]["undoes"] == "reject"
     assert {e["method"] for e in events if e["type"] == "keyframe"} == set(LIVE)
+
+
+async def test_browser_keeps_the_dense_markers_of_a_dance_take_readable(
+        data_dir: Path, tmp_path: Path) -> None:
+    """05_06 (dance, looped) with every method: dense lanes merge keys into counted blocks
+    that never overlap, and draw no guide lines over the signals."""
+    from streamkey.bvh import read_bvh
+
+    def look(url: str) -> dict[str, Any]:
+        from selenium.webdriver.support.ui import WebDriverWait
+
+        driver = chrome()
+        try:
+            driver.get(url)
+            drawn = WebDriverWait(driver, 60 * MS, poll_frequency=0.05).until(
+                lambda d: d.execute_script("return state.frame >= 780 && state.drawn"))
+            if os.environ.get("STREAMKEY_UPDATE_DOCS"):
+                assert driver.save_screenshot(str(ROOT / "docs" / "dashboard_dance.png"))
+            return drawn  # type: ignore[no-any-return]
+        finally:
+            driver.quit()
+
+    dance = read_bvh(data_dir / "05_06.bvh")
+    async with serving(tmp_path, dance, LIVE, stream="05_06") as (url, _):
+        drawn = await asyncio.to_thread(look, url)
+    simplify = drawn["simplify"]
+    assert simplify["keys"] > simplify["marks"] >= 10  # merged, still many marks
+    assert not simplify["guides"]
+    assert all(d["guides"] == (d["marks"] <= 15) for d in drawn.values())
+    assert any(d["guides"] for d in drawn.values() if d["marks"])  # sparse lanes keep them
+    assert all(d["minGap"] >= 11 for d in drawn.values() if d["marks"] > 1)  # no overlap
 
 
 def test_run_with_a_dashboard_serves_the_page_and_logs_to_the_jsonl_sink(
@@ -465,3 +604,87 @@ async def test_the_websocket_event_sink_applies_the_dashboards_origin_host_and_t
             pass
     finally:
         await wide.close()
+
+
+# ------------------------------------------------------------- issue 12 §5: operator's view
+
+@pytest.mark.parametrize("command", [
+    ["demo", "--seconds", "4"],
+    ["run", "--from", "07_01.bvh", "--method", "speed", "--to", "jsonl:take.jsonl"],
+])
+def test_a_busy_dashboard_port_is_one_error_line_and_leaves_no_file(
+        command: list[str], data_dir: Path, tmp_path: Path) -> None:
+    import socket as socket_module
+
+    command = [str(data_dir / c) if c.endswith(".bvh") else c for c in command]
+    with socket_module.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = streamkey(*command, "--dashboard", str(port), cwd=tmp_path)
+        _, err = proc.communicate(timeout=60 * MS)
+    assert proc.returncode == 2
+    assert err == (f"error: --dashboard {port}: cannot listen on 127.0.0.1:{port}: the port "
+                   "is in use (give another port, or 0 for a free one)\n")
+    assert list(tmp_path.iterdir()) == []  # no empty session-*.jsonl, no take.jsonl
+
+
+def test_bone_sides_colour_the_left_and_right_limbs_of_a_cmu_skeleton(data_dir: Path) -> None:
+    from streamkey.bvh import read_bvh
+    from streamkey.dashboard import LiveView, bone_sides
+    from streamkey.motion import Skeleton
+
+    skeleton = read_bvh(data_dir / "07_01.bvh").skeleton
+    view = LiveView(skeleton, 120.0)
+    named = {skeleton.names[child]: side
+             for (child, _), side in zip(view.bones, view.sides, strict=True)
+             if child < skeleton.n_joints}
+    assert all(side == "L" for name, side in named.items() if name.startswith("Left"))
+    assert all(side == "R" for name, side in named.items() if name.startswith("Right"))
+    assert named["LeftHand"] == "L" and named["RightFoot"] == "R"
+    assert named["Spine"] == "" and named["Head"] == ""
+    # a rig whose roles are unknown draws in one colour (no guessing from names)
+    odd = Skeleton(["a", "b"], [-1, 0], [[0, 0, 0], [0, 1, 0]], [["Xrotation"], ["Xrotation"]])
+    assert bone_sides(odd, [[1, 0]]) == [""]
+
+
+async def test_the_dashboard_counts_frames_lost_in_a_seq_hole_apart_from_drops(
+        data_dir: Path, tmp_path: Path) -> None:
+    """A real stream with a 30-frame seq hole (JSON Lines on stdin): the page's stats say
+    `lost 30` while `drops` stays 0."""
+    sent = await asyncio.to_thread(subprocess.run, [
+        *streamkey_argv(), "replay", str(data_dir / "07_01.bvh"), "--to", "-", "--frames",
+        "300", "--rate", "100000"], capture_output=True, text=True, timeout=120 * MS)
+    lines = [line for line in sent.stdout.splitlines()
+             if not 200 <= json.loads(line).get("seq", -1) < 230]
+    assert len(lines) == 1 + 300 - 30
+    proc = await asyncio.create_subprocess_exec(
+        *streamkey_argv(), "run", "--from", "-", "--method", "speed", "--dashboard", "0",
+        "--to", f"jsonl:{tmp_path / 'take.jsonl'}", stdin=subprocess.PIPE,
+        stderr=subprocess.PIPE)
+    assert proc.stdin is not None and proc.stderr is not None
+    try:
+        proc.stdin.write((lines[0] + "\n").encode())  # the skeleton: then the page is up
+        await proc.stdin.drain()
+        async with asyncio.timeout(60 * MS):
+            while b"dashboard on" not in (line := await proc.stderr.readline()):
+                assert line, "streamkey ended before the dashboard was up"
+        url = re.search(r"dashboard on (\S+)", line.decode())
+        assert url is not None
+        async with connect(ws_url(url.group(1))) as ws:
+            proc.stdin.write(("\n".join(lines[1:]) + "\n").encode())
+            await proc.stdin.drain()
+            async with asyncio.timeout(60 * MS):
+                while (stats := await next_of(ws, ("stats",)))["lost"] == 0:
+                    pass
+            assert (stats["lost"], stats["drops"], stats["gaps"]) == (30, 0, 1)
+    finally:
+        proc.stdin.close()
+        _, err = await asyncio.wait_for(proc.communicate(), 60 * MS)
+    assert proc.returncode == 0, err
+
+
+def streamkey_argv() -> list[str]:
+    import sys
+
+    return [sys.executable, "-m", "streamkey"]
