@@ -346,6 +346,7 @@ class Online(OnlineKeyframer):
         self.clusterer = Clusterer(self.cmax)
         self._norm: tuple[np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
+        self._pick = np.zeros(0, dtype=np.int64)
         self._proj: tuple[np.ndarray, ...] = ()
         # (seq, saliency) of each frame as it is classified, for live views: the weighted
         # mean of S_j(f) / mean(S_j) over the curves (> 1 on a candidate of every curve).
@@ -407,7 +408,8 @@ class Online(OnlineKeyframer):
     def _advance(self, x: np.ndarray, foot: np.ndarray, time: float) -> list[KeyframeEvent]:
         self.t += 1
         t = self.t
-        self._room()
+        if t - self.base >= self.cap:
+            self._room()
         r = t - self.base
         b = self.buf
         b["xs"][r] = x
@@ -527,6 +529,8 @@ class Online(OnlineKeyframer):
         self.basis = new
         self.weights, self.footmask = curve_weights(new, self.contact)
         self._foot_rows = self.footmask[:, None]
+        # flat index of each curve's four maps in the (k, 8) product: foot curves take 4-7
+        self._pick = (np.arange(kk)[:, None] * 8 + np.arange(4) + 4 * self._foot_rows).ravel()
         self._proj = (new.keep, new.mean[new.keep], new.sd[new.keep],
                       np.ascontiguousarray(new.vectors[:, : kk - feet]))
 
@@ -539,8 +543,13 @@ class Online(OnlineKeyframer):
         if self.contact:
             row[-2:] = b["ft"][r]
         dd = b["d"][r - 2 : r + 1]
-        d1 = (dd[2] - dd[0]) / 2.0
-        b["c"][r - 1] = np.abs(dd[2] - 2.0 * dd[1] + dd[0]) / (1.0 + d1 * d1) ** 1.5
+        d1 = np.subtract(dd[2], dd[0])
+        d1 /= 2.0
+        num = dd[2] - 2.0 * dd[1]
+        num += dd[0]
+        den = np.multiply(d1, d1, out=d1)
+        den += 1.0
+        np.divide(np.abs(num, out=num), np.power(den, 1.5, out=den), out=b["c"][r - 1])
         if t == 2:  # first frame: D' one-sided, D'' copied from frame 1 (as `curvature`)
             d1 = dd[1] - dd[0]
             b["c"][0] = np.abs(dd[2] - 2.0 * dd[1] + dd[0]) / (1.0 + d1 * d1) ** 1.5
@@ -554,16 +563,16 @@ class Online(OnlineKeyframer):
         b, R = self.buf, self.radius
         lo = max(0, f - R)
         cs = b["c"][lo - self.base : f + R + 1 - self.base]
+        rf = f - self.base
         if lo > 0:  # G(s_i) - G(2 s_i) is one linear filter: one product for all eight maps
-            g = np.abs(cs.T @ self._diff_bank)
-            s = np.where(self._foot_rows, g[:, 4:], g[:, :4])
+            s = b["s"][rf]
+            np.abs((cs.T @ self._diff_bank).reshape(-1)[self._pick], out=s.reshape(-1))
         else:  # stream start: weights renormalised over the frames that exist
             bank = self._bank2[R - f :]
             g = cs.T @ bank / bank.sum(axis=0)
             g = np.where(self._foot_rows, g[:, 8:], g[:, :8])
             s = np.abs(g[:, :4] - g[:, 4:])
-        rf = f - self.base
-        b["s"][rf] = s
+            b["s"][rf] = s
         st = self.st
         st.n += 1
         st.total += s
@@ -598,13 +607,15 @@ class Online(OnlineKeyframer):
         closed: list[tuple[int, float]] = []
         level = rel @ self.weights / max(float(self.weights.sum()), 1e-300)
         rows = self.clusterer.rows
+        hit = cand.any(axis=1).tolist()
         for i in range(len(s)):
             if due is not None and due < (rows[0] if rows else g0 + i) + self.lookahead:
                 g1 = g0 + i - 1
                 break
-            closed.extend(self.clusterer.add(g0 + i, cand[i], self.weights, self.footmask,
-                                             rel[i]))
-            rows = self.clusterer.rows
+            if hit[i] or rows:  # else `add` has nothing to do
+                closed.extend(self.clusterer.add(g0 + i, cand[i], self.weights, self.footmask,
+                                                 rel[i]))
+                rows = self.clusterer.rows
             self.trace.append((self.seq0 + g0 + i, float(level[i])))
         self.n_class = g1 + 1
         return self._emit(closed)

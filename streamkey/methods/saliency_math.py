@@ -349,9 +349,10 @@ class Clusterer:
             rel: np.ndarray) -> list[tuple[int, float]]:
         """Classify `row` (candidate flags per curve); returns the clusters it closed."""
         closed = []
-        if self.rows and (not cand.any() or row != self.rows[-1] + 1):
+        hit = bool(cand.any())
+        if self.rows and (not hit or row != self.rows[-1] + 1):
             closed.append(self.close())
-        if cand.any():
+        if hit:
             self.run = self.run + 1 if row == self.last + 1 else 1
             self.last = row
             self.rows.append(row)
