@@ -117,6 +117,7 @@ from .saliency_math import (
     pick_keyframe,
     remap,
     remap_stats,
+    row_terms,
     scale_maps,
     support_radius,
     truncated_maps,
@@ -607,14 +608,13 @@ class Online(OnlineKeyframer):
         closed: list[tuple[int, float]] = []
         level = rel @ self.weights / max(float(self.weights.sum()), 1e-300)
         rows = self.clusterer.rows
-        hit = cand.any(axis=1).tolist()
+        hit, wrow, foot, term = row_terms(cand, rel, self.weights, self.footmask)
         for i in range(len(s)):
             if due is not None and due < (rows[0] if rows else g0 + i) + self.lookahead:
                 g1 = g0 + i - 1
                 break
-            if hit[i] or rows:  # else `add` has nothing to do
-                closed.extend(self.clusterer.add(g0 + i, cand[i], self.weights, self.footmask,
-                                                 rel[i]))
+            if hit[i] or rows:  # else the clusterer has nothing to do
+                closed.extend(self.clusterer.add_row(g0 + i, hit[i], wrow[i], foot[i], term[i]))
                 rows = self.clusterer.rows
             self.trace.append((self.seq0 + g0 + i, float(level[i])))
         self.n_class = g1 + 1
