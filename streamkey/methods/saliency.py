@@ -326,6 +326,7 @@ class Online(OnlineKeyframer):
     def reset(self) -> None:
         """Forget the window and running statistics (a new stream starts)."""
         self.t = -1
+        self.inc_t = -1  # newest frame whose incremental rows are computed (`_catch_up`)
         self.seq0 = 0
         self.x0: np.ndarray | None = None
         self.basis: Basis | None = None
@@ -410,6 +411,7 @@ class Online(OnlineKeyframer):
         self.t += 1
         t = self.t
         if t - self.base >= self.cap:
+            self._catch_up(t - 1)
             self._room()
         r = t - self.base
         b = self.buf
@@ -420,12 +422,64 @@ class Online(OnlineKeyframer):
             if t >= self.lookahead:
                 self._update(final=False)
         elif t + 1 >= self.next_update:
+            self._catch_up(t - 1)
             self._update(final=False)
-        else:
-            self._incremental(t)
         if self.basis is None:
             return []
         return self._classify_due(t)
+
+    def _catch_up(self, upto: int) -> None:
+        """The incremental rows (curve, curvature, maps, statistics) of frames up to `upto`.
+
+        They are computed when something reads them (a classification, a basis update, the
+        ring moving), for all frames since the last time at once: the same values as frame
+        by frame (the statistics are summed in the same order), for fewer numpy calls."""
+        p = self.inc_t + 1
+        if self.basis is None or upto < p:
+            return
+        self.inc_t = upto
+        R = self.radius
+        if p <= 2 * R + 1:  # stream start: the edge rules, frame by frame
+            for t in range(p, upto + 1):
+                self._incremental(t)
+            return
+        b, base = self.buf, self.base
+        a0, a1 = p - base, upto - base + 1
+        keep, mean, sd, vec = self._proj
+        d = b["d"]
+        d[a0:a1, : vec.shape[1]] = ((b["xs"][a0:a1][:, keep] - mean) / sd) @ vec
+        if self.contact:
+            d[a0:a1, -2:] = b["ft"][a0:a1]
+        dm, d0, dp = d[a0 - 2 : a1 - 2], d[a0 - 1 : a1 - 1], d[a0:a1]
+        d1 = np.subtract(dp, dm)
+        d1 /= 2.0
+        num = dp - 2.0 * d0
+        num += dm
+        den = np.multiply(d1, d1, out=d1)
+        den += 1.0
+        np.divide(np.abs(num, out=num), np.power(den, 1.5, out=den), out=b["c"][a0 - 1 : a1 - 1])
+        f0, f1 = max(self.s_ready, p - R - 1), upto - R - 1
+        if f1 < f0:
+            return
+        n = f1 - f0 + 1
+        # maps of frames f0..f1: curvatures f-R..f+R of each (the rows as `_map_row` reads them)
+        win = np.lib.stride_tricks.sliding_window_view(
+            b["c"][f0 - R - base : f1 + R + 1 - base], 2 * R + 1, axis=0)
+        s = b["s"][f0 - base : f1 - base + 1]
+        np.abs((win @ self._diff_bank).reshape(n, -1)[:, self._pick], out=s.reshape(n, -1))
+        st = self.st
+        st.n += n
+        st.total = np.add.accumulate(np.concatenate([st.total[None], s]), axis=0)[-1]
+        np.maximum(st.top, s.max(axis=0), out=st.top)
+        prev, mid = b["s"][f0 - 2 - base : f1 - 1 - base], b["s"][f0 - 1 - base : f1 - base]
+        flag = (mid > prev) & (mid >= s)
+        b["lm"][f0 - 1 - base : f1 - base] = flag
+        st.lm_n += flag.sum(axis=0)
+        peak = mid * flag
+        st.lm_sum = np.add.accumulate(np.concatenate([st.lm_sum[None], peak]), axis=0)[-1]
+        np.maximum(st.lm_top, peak.max(axis=0), out=st.lm_top)
+        self.s_ready = f1 + 1
+        self._norm = None
 
     def _classify_due(self, t: int) -> list[KeyframeEvent]:
         """Classify the frames whose deadline has come: a cluster starting at c0 (or a frame
@@ -433,10 +487,13 @@ class Online(OnlineKeyframer):
 
         Below the support, frames past t - radius - 1 are classified from maps cut at frame t
         (`truncated_maps`), and a cluster still open at its deadline is closed there."""
+        rows = self.clusterer.rows
+        if t < (rows[0] if rows else self.n_class) + self.lookahead:
+            return []  # nothing is due: the incremental rows can wait
+        self._catch_up(t)
         events: list[KeyframeEvent] = []
         g, ready = self.n_class, t - self.radius - 1
         edge: tuple[int, np.ndarray] | None = None
-        rows = self.clusterer.rows
         if g <= min(t, ready) and t >= (rows[0] if rows else g) + self.lookahead:
             # Frames with stored maps, as one block: the statistics do not change meanwhile.
             events.extend(self._classify(g, min(t, ready), due=t))
@@ -470,6 +527,7 @@ class Online(OnlineKeyframer):
         """End of stream: final basis from every frame, then decide every pending frame."""
         if self.t < 2:
             return []
+        self._catch_up(self.t)
         self._update(final=True)
         events = self._classify(self.n_class, self.t)
         if self.clusterer.rows:
@@ -512,6 +570,7 @@ class Online(OnlineKeyframer):
                 hi < self.radius):
             self.warm = map_stats(s)
         self._norm = None
+        self.inc_t = t
         self.next_update = t + 1 + min(t + 1, self.update_every)
 
     def _new_basis(self, mom: Moments) -> None:
