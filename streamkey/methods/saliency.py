@@ -331,6 +331,7 @@ class Online(OnlineKeyframer):
         self.x0: np.ndarray | None = None
         self.basis: Basis | None = None
         self.weights = np.zeros(0)
+        self._wsum = 1e-300  # max(sum of the weights, tiny), set with each basis
         self.footmask = np.zeros(0, dtype=bool)
         self.out_mom = Moments(0, np.zeros(self._m), np.zeros((self._m, self._m)))
         self.out_st = MapStats.empty(0)
@@ -346,7 +347,7 @@ class Online(OnlineKeyframer):
             "xs": np.zeros((self.cap, self._m)), "ft": np.zeros((self.cap, 2)),
             "tm": np.zeros(self.cap)}
         self.clusterer = Clusterer(self.cmax)
-        self._norm: tuple[np.ndarray, np.ndarray] | None = None
+        self._norm: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
         self._pick = np.zeros(0, dtype=np.int64)
         self._proj: tuple[np.ndarray, ...] = ()
@@ -463,8 +464,10 @@ class Online(OnlineKeyframer):
             return
         n = f1 - f0 + 1
         # maps of frames f0..f1: curvatures f-R..f+R of each (the rows as `_map_row` reads them)
-        win = np.lib.stride_tricks.sliding_window_view(
-            b["c"][f0 - R - base : f1 + R + 1 - base], 2 * R + 1, axis=0)
+        c = b["c"]
+        row = c.strides[0]
+        win = np.ndarray((n, c.shape[1], 2 * R + 1), c.dtype, c, (f0 - R - base) * row,
+                         (row, c.strides[1], row))  # a sliding window view, without its checks
         s = b["s"][f0 - base : f1 - base + 1]
         np.abs((win @ self._diff_bank).reshape(n, -1)[:, self._pick], out=s.reshape(n, -1))
         st = self.st
@@ -588,6 +591,7 @@ class Online(OnlineKeyframer):
             self._alloc_curves(kk, perm)
         self.basis = new
         self.weights, self.footmask = curve_weights(new, self.contact)
+        self._wsum = max(float(self.weights.sum()), 1e-300)
         self._foot_rows = self.footmask[:, None]
         # flat index of each curve's four maps in the (k, 8) product: foot curves take 4-7
         self._pick = (np.arange(kk)[:, None] * 8 + np.arange(4) + 4 * self._foot_rows).ravel()
@@ -656,16 +660,17 @@ class Online(OnlineKeyframer):
         lookahead after `due`)."""
         if self._norm is None:
             warm = self.warm
-            self._norm = normalisation(warm if warm is not None and self.st.n < warm.n
-                                       else self.st)
-        a, thr = self._norm
+            a, thr = normalisation(warm if warm is not None and self.st.n < warm.n
+                                   else self.st)
+            self._norm = (a, thr, np.where(thr > 0, thr, 1.0))
+        a, thr, thr_safe = self._norm
         if s is None:
             s = self.buf["s"][g0 - self.base : g1 - self.base + 1]
         sal = combine(s, a)
         cand = sal > thr
-        rel = sal / np.where(thr > 0, thr, 1.0)
+        rel = sal / thr_safe
         closed: list[tuple[int, float]] = []
-        level = rel @ self.weights / max(float(self.weights.sum()), 1e-300)
+        level = (rel @ self.weights / self._wsum).tolist()
         rows = self.clusterer.rows
         hit, wrow, foot, term = row_terms(cand, rel, self.weights, self.footmask)
         for i in range(len(s)):
@@ -675,7 +680,7 @@ class Online(OnlineKeyframer):
             if hit[i] or rows:  # else the clusterer has nothing to do
                 closed.extend(self.clusterer.add_row(g0 + i, hit[i], wrow[i], foot[i], term[i]))
                 rows = self.clusterer.rows
-            self.trace.append((self.seq0 + g0 + i, float(level[i])))
+            self.trace.append((self.seq0 + g0 + i, level[i]))
         self.n_class = g1 + 1
         return self._emit(closed)
 
