@@ -125,6 +125,8 @@ class _RotationPlan:
         # A level whose parents are consecutive rows reads them as a view, not a gather.
         self.levels_one = [(lo, hi, _as_slice(par)) for lo, hi, par in self.levels]
         self.root_template = self.template[0, self.root_axes, 3].copy()
+        # flat indices of each joint's translation in a (J, 4, 4) world, in joint order
+        self.translations = (self.where[:, None] * 16 + [3, 7, 11]).ravel()
 
     def subplan(self, joints: tuple[int, ...]) -> _RotationPlan:
         """The plan for some joints and their ancestors (cached)."""
@@ -261,7 +263,7 @@ def _fk_one(plan: _RotationPlan, row: np.ndarray) -> FKResult:
     world = plan.world_one(row)
     j = plan.skeleton.n_joints
     positions = np.empty((1, plan.n_points, 3))
-    positions[0, :j] = world[plan.where, :3, 3]
+    positions[0, :j] = world.reshape(-1).take(plan.translations).reshape(j, 3)
     if plan.ends is not None:
         positions[0, j:] = (world[plan.where[plan.ends]] @ plan.end_offsets)[..., :3, 0]
     return FKResult(positions, world[None, 0, :3, :3].copy(), plan.names)

@@ -219,7 +219,7 @@ class FeatureStage:
             prev = self.unwrap_prev
             if prev is not None:  # no jump of 180 degrees or more: the offset stays (unwrap_step)
                 step = np.subtract(raw[0], prev)
-                if np.abs(step, out=step).max() < 180.0:
+                if np.maximum.reduce(np.abs(step, out=step)) < 180.0:
                     self.unwrap_prev = raw[0]
                     return FeatureBlock(seq, time, channels, raw + self.unwrap_offset,
                                         self.skeleton, self.roles, self)
