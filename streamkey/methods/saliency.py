@@ -264,7 +264,8 @@ class Online(OnlineKeyframer):
 
     Running statistics replace the global ones (module docstring). Between basis updates a
     new frame costs one projection, one curvature row and one row of maps (a small matrix
-    product over the Gaussian windows); memory is a ring of `window` frames.
+    product over the Gaussian windows), computed when a classification next reads them, for
+    every frame since at once; memory is a ring of `window` frames.
 
     Timing: the maps of frame f need frames up to f + `radius` + 1. Frames are classified
     (candidate or not, with the statistics of that moment) in order and as late as allowed: a
