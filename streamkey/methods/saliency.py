@@ -70,8 +70,8 @@ makes the online result equal the offline one when every decision waits for `flu
   (stream start, at most `radius` final rows at that update), the Itti statistics come from
   the maps of that update (cut at its frame) instead. A cluster still open at its deadline is
   closed there; the run goes on in a new cluster on the same 2 sigma grid. Measured on the
-  shared clips at sigma = 10 (results/agreement_saliency_lookahead.md): mean F1 0.806 at 30
-  frames, 0.852 at 60, 0.894 at 121 (the default).
+  shared clips at sigma = 10 (results/agreement_saliency_lookahead.md): mean F1 0.804 at 30
+  frames, 0.851 at 60, 0.897 at 121 (the default).
 """
 
 from __future__ import annotations
