@@ -121,6 +121,12 @@ class _RotationPlan:
         self.template[:, :3, 3] = self.offsets[order]
         self.template[:, 3, 3] = 1.0
         self._subplans: dict[tuple[int, ...], _RotationPlan] = {}
+        # One-frame path (`world_one`): the same ufuncs and products on 1-D / (J, 4, 4) arrays.
+        # A level whose parents are consecutive rows reads them as a view, not a gather.
+        self.levels_one = [(lo, hi, _as_slice(par)) for lo, hi, par in self.levels]
+        self.root_template = self.template[0, self.root_axes, 3].copy()
+        # flat indices of each joint's translation in a (J, 4, 4) world, in joint order
+        self.translations = (self.where[:, None] * 16 + [3, 7, 11]).ravel()
 
     def subplan(self, joints: tuple[int, ...]) -> _RotationPlan:
         """The plan for some joints and their ancestors (cached)."""
@@ -143,6 +149,31 @@ class _RotationPlan:
             out = pre @ out @ pre.transpose(0, 2, 1)
         return out
 
+    def world_one(self, row: np.ndarray) -> np.ndarray:
+        """`world` of one channel row (C,) as (J, 4, 4): bit for bit the same products, with
+        a third of the numpy calls (one frame per push is the online case)."""
+        k3 = len(self.columns_flat)
+        rad = np.deg2rad(row[self.columns_flat])
+        vals = np.empty(2 + 3 * k3)
+        vals[0], vals[1] = 0.0, 1.0
+        np.cos(rad, out=vals[2 : 2 + k3])
+        sin = np.sin(rad, out=vals[2 + k3 : 2 + 2 * k3])
+        np.negative(sin, out=vals[2 + 2 * k3 :])
+        e = vals[self.gather_levels].reshape(-1, 3, 3, 3)
+        out = e[:, 0] @ e[:, 1] @ e[:, 2]
+        local = self.template.copy()
+        if self.pre_levels is None:
+            local[:, :3, :3] = out
+        else:
+            pre = self.pre_levels
+            local[:, :3, :3] = pre @ out @ pre.transpose(0, 2, 1)
+        local[0, self.root_axes, 3] = self.root_template + row[self.root_columns]
+        world = np.empty_like(local)
+        world[: self.n_roots] = local[: self.n_roots]
+        for lo, hi, par in self.levels_one:
+            np.matmul(world[par], local[lo:hi], out=world[lo:hi])
+        return world
+
     def world(self, block: np.ndarray) -> np.ndarray:
         """World transforms (n, J, 4, 4) of channel rows, joints in level order (`where`)."""
         local = np.repeat(self.template[None], len(block), axis=0)
@@ -159,6 +190,13 @@ class _RotationPlan:
             for lo, hi, par in self.levels:
                 np.matmul(w[:, par], loc[:, lo:hi], out=w[:, lo:hi])
         return world
+
+
+def _as_slice(index: np.ndarray) -> np.ndarray | slice:
+    """`index` as a slice when it is a run of consecutive integers (a view instead of a copy)."""
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index
 
 
 _PLANS: dict[int, tuple[Skeleton, _RotationPlan]] = {}
@@ -205,6 +243,8 @@ def forward_kinematics(skeleton: Skeleton, channels: np.ndarray, chunk: int = 40
     channels = np.atleast_2d(np.asarray(channels, dtype=np.float64))
     plan = _plan(skeleton)
     n = channels.shape[0]
+    if n == 1:
+        return _fk_one(plan, channels[0])
     positions = np.empty((n, plan.n_points, 3))
     root_rotation = np.empty((n, 3, 3))
     j = skeleton.n_joints
@@ -218,11 +258,25 @@ def forward_kinematics(skeleton: Skeleton, channels: np.ndarray, chunk: int = 40
     return FKResult(positions, root_rotation, plan.names)
 
 
+def _fk_one(plan: _RotationPlan, row: np.ndarray) -> FKResult:
+    """`forward_kinematics` of one frame (the same bits, fewer numpy calls)."""
+    world = plan.world_one(row)
+    j = plan.skeleton.n_joints
+    positions = np.empty((1, plan.n_points, 3))
+    positions[0, :j] = world.reshape(-1).take(plan.translations).reshape(j, 3)
+    if plan.ends is not None:
+        positions[0, j:] = (world[plan.where[plan.ends]] @ plan.end_offsets)[..., :3, 0]
+    return FKResult(positions, world[None, 0, :3, :3].copy(), plan.names)
+
+
 def joint_heights(skeleton: Skeleton, channels: np.ndarray, joints: tuple[int, ...]) -> np.ndarray:
     """World Y (n, len(joints)) of some joints, composing only their ancestors: the same bits
     as `forward_kinematics` (the same product per joint), for less work."""
     sub = _plan(skeleton).subplan(joints)
-    world = sub.world(np.atleast_2d(np.asarray(channels, dtype=np.float64)))
+    channels = np.atleast_2d(np.asarray(channels, dtype=np.float64))
+    if len(channels) == 1:
+        return sub.world_one(channels[0])[None, sub.where[list(joints)], 1, 3]
+    world = sub.world(channels)
     return world[:, sub.where[list(joints)], 1, 3]
 
 

@@ -230,6 +230,14 @@ class FeatureStage:
             f = frames[0]
             channels = np.array(f.channels, dtype=np.float64).reshape(1, -1)
             seq, time = np.array([f.seq], dtype=np.int64), np.array([f.time], dtype=np.float64)
+            raw = channels[:, self.rotation_columns]
+            prev = self.unwrap_prev
+            if prev is not None:  # no jump of 180 degrees or more: the offset stays (unwrap_step)
+                step = np.subtract(raw[0], prev)
+                if np.maximum.reduce(np.abs(step, out=step)) < 180.0:
+                    self.unwrap_prev = raw[0]
+                    return FeatureBlock(seq, time, channels, raw + self.unwrap_offset,
+                                        self.skeleton, self.roles, self)
         else:
             channels = np.array([f.channels for f in frames], dtype=np.float64).reshape(
                 len(frames), self.skeleton.n_channels)

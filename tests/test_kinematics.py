@@ -117,3 +117,28 @@ def test_unwrap_equals_numpy_for_any_layout_and_block_split():
             out, prev, off = unwrap_step(angles[lo:hi], prev, off)
             parts.append(out)
         np.testing.assert_array_equal(np.concatenate(parts), whole)
+
+
+def test_one_frame_fk_and_features_equal_the_whole_clip_bit_for_bit_on_every_clip():
+    """The one-frame path (online push) and the batched path (offline) give the same bits:
+    positions, end sites, root rotation, ankle heights and unwrapped rotations."""
+    from streamkey.amc import read_motion
+    from streamkey.features import compute_features
+    from streamkey.online import FeatureStage
+    from streamkey.signal import unwrap_degrees
+
+    for name in clips():
+        motion = read_motion(DATA / name)
+        feats = compute_features(motion)
+        first = motion.first_frame  # the stream starts at the first captured frame
+        rotations = unwrap_degrees(motion.channels[first:, motion.skeleton.rotation_columns()])
+        stage = FeatureStage(motion.skeleton, motion.fps)
+        for j, frame in enumerate(motion.frames()):
+            block = stage.compute([frame])
+            np.testing.assert_array_equal(block.rotations[0], rotations[j], err_msg=name)
+            i = j + first
+            if j % 97 == 0:
+                np.testing.assert_array_equal(block.foot_heights[0], feats.foot_heights[i])
+                np.testing.assert_array_equal(block.positions[0], feats.fk.positions[i])
+                np.testing.assert_array_equal(block.pelvis_positions[0],
+                                              feats.pelvis_positions[i])

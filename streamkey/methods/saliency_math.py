@@ -17,7 +17,7 @@ __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapSta
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
-           "cluster_size", "support_radius"]
+           "cluster_size", "support_radius", "row_terms"]
 
 FOOT_SIGMA = 3.0  # Halit §3.3
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
@@ -348,16 +348,26 @@ class Clusterer:
     def add(self, row: int, cand: np.ndarray, weights: np.ndarray, footmask: np.ndarray,
             rel: np.ndarray) -> list[tuple[int, float]]:
         """Classify `row` (candidate flags per curve); returns the clusters it closed."""
+        if not cand.any():
+            return self.add_row(row, False, 0.0, False, 0.0)
+        return self.add_row(row, True, float(cand.astype(np.float64) @ weights),
+                            bool(cand[footmask].any()),
+                            float(np.where(cand, rel, 0.0) @ weights) / float(weights.sum()))
+
+    def add_row(self, row: int, hit: bool, wrow: float, foot: bool, score: float
+                ) -> list[tuple[int, float]]:
+        """`add` with its per-row terms computed by the caller (for a block of rows at once:
+        `row_terms`): candidate on any curve, weight, foot flag, score term."""
         closed = []
-        if self.rows and (not cand.any() or row != self.rows[-1] + 1):
+        if self.rows and (not hit or row != self.rows[-1] + 1):
             closed.append(self.close())
-        if cand.any():
+        if hit:
             self.run = self.run + 1 if row == self.last + 1 else 1
             self.last = row
             self.rows.append(row)
-            self.wrow.append(float(cand.astype(np.float64) @ weights))
-            self.foot.append(bool(cand[footmask].any()))
-            self.score += float(np.where(cand, rel, 0.0) @ weights) / float(weights.sum())
+            self.wrow.append(wrow)
+            self.foot.append(foot)
+            self.score += score
             if self.run % self.cmax == 0:
                 closed.append(self.close())
         return closed
@@ -367,6 +377,15 @@ class Clusterer:
         out = (pick_keyframe(self.rows, self.wrow, self.foot), self.score)
         self.rows, self.wrow, self.foot, self.score = [], [], [], 0.0
         return out
+
+
+def row_terms(cand: np.ndarray, rel: np.ndarray, weights: np.ndarray, footmask: np.ndarray
+              ) -> tuple[list[bool], list[float], list[bool], list[float]]:
+    """`Clusterer.add_row` terms of classified rows (n, k) at once: any candidate, weight
+    (as `cluster_keyframes`), foot flag, score term."""
+    return (cand.any(axis=1).tolist(), (cand.astype(np.float64) @ weights).tolist(),
+            cand[:, footmask].any(axis=1).tolist(),
+            ((np.where(cand, rel, 0.0) @ weights) / float(weights.sum())).tolist())
 
 
 def kernel_bank(sigma: float, radius: int) -> np.ndarray:
