@@ -481,8 +481,8 @@ class Online(OnlineKeyframer):
         ring moving), for all frames since the last time at once: the same values as frame
         by frame (the statistics are summed in the same order), for fewer numpy calls."""
         p = self.inc_t + 1
-        if self.basis is None or upto < p:
-            return
+        if self.basis is None or upto < p or p == 0:  # p == 0: a window restarted with the
+            return  # basis kept, before its first analysis (`_update` makes every row)
         self.inc_t = upto
         R = self.radius
         if p <= 2 * R + 1:  # stream start: the edge rules, frame by frame
@@ -490,20 +490,7 @@ class Online(OnlineKeyframer):
                 self._incremental(t)
             return
         b, base = self.buf, self.base
-        a0, a1 = p - base, upto - base + 1
-        keep, mean, sd, vec = self._proj
-        d = b["d"]
-        d[a0:a1, : vec.shape[1]] = ((b["xs"][a0:a1][:, keep] - mean) / sd) @ vec
-        if self.contact:
-            d[a0:a1, -2:] = b["ft"][a0:a1]
-        dm, d0, dp = d[a0 - 2 : a1 - 2], d[a0 - 1 : a1 - 1], d[a0:a1]
-        d1 = np.subtract(dp, dm)
-        d1 /= 2.0
-        num = dp - 2.0 * d0
-        num += dm
-        den = np.multiply(d1, d1, out=d1)
-        den += 1.0
-        np.divide(np.abs(num, out=num), np.power(den, 1.5, out=den), out=b["c"][a0 - 1 : a1 - 1])
+        self._curve_rows(p, upto)
         f0, f1 = max(self.s_ready, p - R - 1), upto - R - 1
         if f1 < f0:
             return
@@ -528,6 +515,37 @@ class Online(OnlineKeyframer):
         np.maximum(st.lm_top, peak.max(axis=0), out=st.lm_top)
         self.s_ready = f1 + 1
         self._norm = None
+
+    def _curve_rows(self, p: int, upto: int) -> None:
+        """Curve rows of frames p..upto and curvature rows of frames p-1..upto-1."""
+        b, base = self.buf, self.base
+        a0, a1 = p - base, upto - base + 1
+        keep, mean, sd, vec = self._proj
+        d = b["d"]
+        d[a0:a1, : vec.shape[1]] = ((b["xs"][a0:a1][:, keep] - mean) / sd) @ vec
+        if self.contact:
+            d[a0:a1, -2:] = b["ft"][a0:a1]
+        dm, d0, dp = d[a0 - 2 : a1 - 2], d[a0 - 1 : a1 - 1], d[a0:a1]
+        d1 = np.subtract(dp, dm)
+        d1 /= 2.0
+        num = dp - 2.0 * d0
+        num += dm
+        den = np.multiply(d1, d1, out=d1)
+        den += 1.0
+        np.divide(np.abs(num, out=num), np.power(den, 1.5, out=den), out=b["c"][a0 - 1 : a1 - 1])
+
+    def _peek(self, upto: int) -> None:
+        """Curve rows up to `upto` for the provisional candidates only, without catching up:
+        `_catch_up` writes the same rows again in its own blocks (a matrix product's last bit
+        depends on the block), so decisions and scores never depend on who read when."""
+        p = self.inc_t + 1
+        if self.basis is None or upto < p or p == 0:  # p == 0: a restarted window, no rows yet
+            return
+        if p <= 2 * self.radius + 1:  # stream start: `_catch_up` goes frame by frame
+            for t in range(p, upto + 1):
+                self._curve_row(t)
+        else:
+            self._curve_rows(p, upto)
 
     def _classify_due(self, t: int) -> list[KeyframeEvent]:
         """Classify the frames whose deadline has come: a cluster starting at c0 (or a frame
@@ -645,6 +663,14 @@ class Online(OnlineKeyframer):
 
     def _incremental(self, t: int) -> None:
         """One new frame between basis updates: its curve row, one curvature, one map row."""
+        self._curve_row(t)
+        f = t - self.radius - 1
+        if f < self.s_ready:
+            return
+        self._map_row(f)
+
+    def _curve_row(self, t: int) -> None:
+        """Frame t's curve row and frame t-1's curvature (frame by frame)."""
         b, r = self.buf, t - self.base
         keep, mean, sd, vec = self._proj
         row = b["d"][r]
@@ -662,10 +688,6 @@ class Online(OnlineKeyframer):
         if t == 2:  # first frame: D' one-sided, D'' copied from frame 1 (as `curvature`)
             d1 = dd[1] - dd[0]
             b["c"][0] = np.abs(dd[2] - 2.0 * dd[1] + dd[0]) / (1.0 + d1 * d1) ** 1.5
-        f = t - self.radius - 1
-        if f < self.s_ready:
-            return
-        self._map_row(f)
 
     def _map_row(self, f: int) -> None:
         """Maps S_i of frame f from the curvatures f-radius..f+radius (start-truncated)."""
@@ -703,12 +725,7 @@ class Online(OnlineKeyframer):
         `s` their maps when not the stored ones. With `due` (the newest frame), stop before
         the first frame not yet due (the open cluster's start, or the frame itself, plus the
         lookahead after `due`)."""
-        if self._norm is None:
-            warm = self.warm
-            a, thr = normalisation(warm if warm is not None and self.st.n < warm.n
-                                   else self.st)
-            self._norm = (a, thr, np.where(thr > 0, thr, 1.0))
-        a, thr, thr_safe = self._norm
+        a, thr, thr_safe = self._normal()
         if s is None:
             s = self.buf["s"][g0 - self.base : g1 - self.base + 1]
         sal = combine(s, a)
@@ -739,8 +756,9 @@ class Online(OnlineKeyframer):
         point to, with the statistics of this moment (nothing decided): frames with final
         maps, then frames with early maps (`_early_maps`). Re-derived every
         `CANDIDATE_EVERY` frames (the clustering runs in Python over ~100 frames)."""
-        if self.basis is None:
+        if self.basis is None or self.inc_t < 0:  # no analysis in this window yet
             return []
+        self._peek(self.t)
         early = self._early_maps(max(self.n_class, self.s_ready))  # one new row a frame
         slot, basis, cached = getattr(self, "_cand", (None, None, []))
         if slot == self.t // CANDIDATE_EVERY and basis is self.basis:
@@ -750,12 +768,18 @@ class Online(OnlineKeyframer):
         self._cand = (self.t // CANDIDATE_EVERY, self.basis, self._candidates(early))
         return self._cand[2]
 
-    def _candidates(self, early: np.ndarray) -> list[tuple[int, float, float]]:
-        if self._norm is None:  # the cache `_classify` fills, with the same statistics
+    def _normal(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(a, thr, thr with its zeros as 1): the map normalisation of the current
+        statistics (the warm-up's while they hold fewer frames), cached until they change."""
+        if self._norm is None:
             warm = self.warm
-            self._norm = normalisation(warm if warm is not None and self.st.n < warm.n
-                                       else self.st)
-        a, thr = self._norm
+            a, thr = normalisation(warm if warm is not None and self.st.n < warm.n
+                                   else self.st)
+            self._norm = (a, thr, np.where(thr > 0, thr, 1.0))
+        return self._norm
+
+    def _candidates(self, early: np.ndarray) -> list[tuple[int, float, float]]:
+        a, thr, thr_safe = self._normal()
         sim = copy.copy(self.clusterer)
         sim.rows, sim.wrow, sim.foot = list(sim.rows), list(sim.wrow), list(sim.foot)
         closed: list[tuple[int, float]] = []
@@ -764,7 +788,7 @@ class Online(OnlineKeyframer):
         hi = lo + len(maps[0]) + len(maps[1])
         if hi > lo:
             sal = combine(np.concatenate(maps), a)
-            rel = sal / np.where(thr > 0, thr, 1.0)
+            rel = sal / thr_safe
             cand = sal > thr
             for i in np.flatnonzero(cand.any(axis=1)):  # other rows only close clusters
                 closed.extend(sim.add(lo + int(i), cand[i], self.weights, self.footmask,

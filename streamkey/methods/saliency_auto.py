@@ -94,10 +94,11 @@ class AutoOnline(OnlineKeyframer):
         self.held, self.last, self.cut = [], -1, -1
 
     def candidates(self) -> list[tuple[int, float, float]]:
-        """Provisional hook: the running keyframer's candidates ("low" until the decision,
-        whose events are the ones sent), none at or before a switch's cut."""
-        kf = self.active or self.inners["low"]
-        return [c for c in kf.candidates() if c[0] > self.cut]
+        """Provisional hook: the running keyframer's candidates, none at or before a switch's
+        cut; before the decision both presets' (either may be the one kept)."""
+        if self.active is None:
+            return sorted(self.inners["low"].candidates() + self.inners["high"].candidates())
+        return [c for c in self.active.candidates() if c[0] > self.cut]
 
     @property
     def trace(self) -> Any:
