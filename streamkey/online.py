@@ -296,6 +296,19 @@ class OnlineKeyframer:
         """Forget the window and running state; keep parameters (subclass hook)."""
         raise NotImplementedError
 
+    def snapshot(self) -> bytes:
+        """Versioned snapshot of the whole state, without derived caches (`snapshot.py`)."""
+        from .snapshot import snapshot
+
+        return snapshot(self)
+
+    @classmethod
+    def restore(cls, data: bytes, params: str | None = None) -> OnlineKeyframer:
+        """A new keyframer from `snapshot()` bytes; `params`: the digest it must carry."""
+        from .snapshot import restore
+
+        return restore(data, cls, params)  # type: ignore[no-any-return]
+
 
 def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
            frames: Iterable[Frame], defer_idle: bool = False) -> list[Event]:
@@ -363,6 +376,19 @@ class Pipeline:
     def push_block(self, frames: Iterable[Frame]) -> list[Event]:
         """Feed many frames; same events as pushing them one by one."""
         return self.idle() + _drive(self.guard, self.features, self.keyframers, frames)
+
+    def snapshot(self) -> bytes:
+        """Versioned snapshot of every keyframer, the guard and the features (`snapshot.py`)."""
+        from .snapshot import snapshot
+
+        return snapshot(self)
+
+    @classmethod
+    def restore(cls, data: bytes, params: str | None = None) -> Pipeline:
+        """A new pipeline from `snapshot()` bytes; `params`: the digest it must carry."""
+        from .snapshot import restore
+
+        return restore(data, cls, params)  # type: ignore[no-any-return]
 
     def flush(self) -> list[Event]:
         """End of stream for every keyframer."""
