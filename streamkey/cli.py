@@ -190,7 +190,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                          " slow (at least 0.1 frames/s; give --rate or --speed)")
     result = replay(motion, args.to, rate=args.rate, speed=args.speed, loop=args.loop,
                     start=args.start, end=args.end, listen=args.listen,
-                    wait_subscribers=args.wait, count=args.frames)
+                    wait_subscribers=args.wait, count=args.frames, stream=args.stream)
     print(f"sent {result['frames']} frames", file=sys.stderr)
     return 0
 
@@ -223,10 +223,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.dashboard is not None:
         return _dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                           stream=args.stream)
+    _check_streams(args)
     summary = asyncio.run(run_live(source, methods, args.to or ["-"], _online_params(args),
                                    args.lookahead, args.listen, args.stream,
                                    rate=0.0 if args.fast else None,
-                                   idle_exit=args.idle_exit))
+                                   idle_exit=args.idle_exit, max_streams=args.max_streams,
+                                   stream_idle=args.stream_idle))
     print(summary.text(), file=sys.stderr)
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
@@ -234,6 +236,17 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"error: {args.source}: {summary.source_error}", file=sys.stderr)
         return 2
     return 0
+
+
+def _check_streams(args: argparse.Namespace) -> None:
+    """`run --max-streams / --stream-idle` in range, or a usage error."""
+    from .errors import UsageError
+
+    if not 1 <= args.max_streams <= 10_000:
+        raise UsageError(f"run --max-streams must lie in 1..10000, got {args.max_streams}")
+    if args.stream_idle is not None and not 0.01 <= args.stream_idle <= 86_400:
+        raise UsageError(f"run --stream-idle must lie in 0.01..86400 seconds, got "
+                         f"{args.stream_idle:g}")
 
 
 def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace) -> None:
@@ -406,6 +419,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", help="bind publishers to this host instead of 127.0.0.1")
     p.add_argument("--wait", type=float, default=2.0,
                    help="ZeroMQ: seconds to wait for a subscriber before sending")
+    p.add_argument("--stream", metavar="NAME",
+                   help="stream id on the wire (OSC /streamkey/NAME/frame, ZeroMQ topic "
+                        "NAME/frame, JSON Lines \"stream\"); default: the unnamed stream")
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("run", help="live keyframes: a source -> keyframers -> sinks")
@@ -422,7 +438,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
     p.add_argument("--listen", help="let listeners bind to this host instead of 127.0.0.1")
     p.add_argument("--lookahead", type=int, help="lookahead in frames (default: method's)")
-    p.add_argument("--stream", default="default", help="stream name carried by every event")
+    p.add_argument("--stream", default="default",
+                   help="name of the unnamed stream (frames without a stream id)")
+    p.add_argument("--max-streams", type=int, default=64, metavar="N",
+                   help="serve at most N streams at once; frames of more are refused and "
+                        "counted (default 64)")
+    p.add_argument("--stream-idle", type=float, metavar="SECONDS",
+                   help="retire a stream (flush its keyframers) after SECONDS without a "
+                        "frame; it starts afresh if it comes back (default: never)")
     p.add_argument("--summary", help="also write the run summary as JSON to this file")
     p.add_argument("--fast", action="store_true", help="file source: as fast as possible")
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",
