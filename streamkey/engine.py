@@ -330,14 +330,15 @@ class Engine:
             stats = self.summary.streams.setdefault(name, StreamStats())
         return stats
 
-    def _open(self, name: str, tag: str | None) -> _Stream | None:
+    def _open(self, name: str, tag: str | None, frame: bool = True) -> _Stream | None:
         """The live stream `name`, built now if its skeleton is known; None if it waits for
-        its skeleton or is refused (counted either way)."""
+        its skeleton or is refused (counted either way; `frame`: a frame asked for it)."""
         state = self.streams.get(name)
         if state is not None:
             return state
         if len(self.streams) + len(self._waiting) - (name in self._waiting) >= self.max_streams:
-            self._refuse(name)
+            self._refuse(name, frame)
+            self.source.forget_stream(tag)
             return None
         known = self.source.skeleton_for(tag)
         if known is None:
@@ -364,8 +365,8 @@ class Engine:
             self._push(state, frame, arrival_ns)
         return state
 
-    def _refuse(self, name: str) -> None:
-        self.summary.refused_frames += 1
+    def _refuse(self, name: str, frame: bool) -> None:
+        self.summary.refused_frames += frame
         if name in self._said_refused:
             return
         self.summary.refused_streams += 1
@@ -457,7 +458,7 @@ class Engine:
         name = self.stream if tag is None else tag
         if frame is None:  # a skeleton was announced: build the pipeline before its frames
             if name not in self.streams:
-                self._open(name, tag)
+                self._open(name, tag, frame=False)
             return
         self.summary.frames_in += 1
         now = self._last_frame = time.monotonic()
