@@ -170,6 +170,8 @@ class RunSummary:
         for name, st in self.sinks.items():
             lines.append(f"sink {name}: sent {st['sent']}, dropped {st['dropped']}"
                          + (f", errors {st['errors']}" if st.get("errors") else "")
+                         + (f", duplicates skipped {st['duplicates']}" if st.get("duplicates")
+                            else "")
                          + (" (disabled)" if st.get("disabled") else "")
                          + (f", last error: {st['last_error']}" if st.get("last_error") else "")
                          + (f"; not counted: {st['unseen_drops']}" if st.get("unseen_drops")

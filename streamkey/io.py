@@ -121,6 +121,7 @@ class SinkStats:
     last_error: str = ""
     disabled: bool = False
     unseen_drops: str = ""   # drops this sink cannot count, and why (empty: it counts all)
+    duplicates: int = 0      # events skipped because their id was delivered before
 
     def as_dict(self) -> dict[str, Any]:
         """Counters as a plain dict."""
