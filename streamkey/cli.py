@@ -280,6 +280,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     kinds = [k for k in ("offline", "online", "agreement", "perf") if getattr(args, k)]
     kinds += [k for k in ("memory", "latency", "ws_clients") if getattr(args, k)]
+    kinds += ["streams"] if getattr(args, "streams", False) else []
     kinds = kinds or ["offline", "online"]
     for path in run_bench(kinds, Path(args.output), frames=args.frames, data=args.data,
                           quick=args.quick):
@@ -512,6 +513,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "an external receiver, OSC and ZeroMQ at 120 Hz, all methods")
     p.add_argument("--ws-clients", dest="ws_clients", action="store_true",
                    help="live: event latency with 0, 100 and 300 WebSocket clients")
+    p.add_argument("--streams", action="store_true", help="live: due-event latency for 1-16 "
+                   "streams in one process, due-first scheduling on and off")
     p.add_argument("--quick", action="store_true", help="live benches: shorter runs")
     p.add_argument("--perf", action="store_true",
                    help="per-frame CPU time on a long stream and offline growth exponents")
