@@ -414,6 +414,26 @@ class Engine:
         spare.flush()
         self._warm = True
 
+    def snapshot_stream(self, name: str) -> bytes:
+        """Snapshot of live stream `name`'s pipeline (`snapshot.py`); KeyError if not live."""
+        return self.streams[name].pipeline.snapshot()
+
+    def restore_stream(self, name: str, data: bytes, params: str | None = None) -> None:
+        """Serve stream `name` from a snapshot from now on (a worker taking over a stream);
+        a live pipeline of that name is replaced unflushed. `SnapshotError` if it does not
+        fit (`params`: the digest it must carry)."""
+        pipeline = Pipeline.restore(data, params)
+        self._deferred.pop(name, None)
+        self._waiting.pop(name, None)
+        self._waiting_seen.pop(name, None)
+        tag = None if name == self.stream else name
+        state = self.streams[name] = _Stream(name, tag, pipeline, self._stats(name))
+        state.stats.sessions += 1
+        if pipeline.guard.last is not None:
+            state.seq = pipeline.guard.last.seq
+        if pipeline._idle_due:  # the re-analysis of its last frame had not run yet
+            self._deferred[name] = state
+
     # ------------------------------------------------------------------ the loop
 
     async def _loop(self) -> None:
