@@ -73,3 +73,16 @@ async def until(predicate, seconds: float = 10.0) -> None:
     while not predicate():
         assert asyncio.get_running_loop().time() < deadline, "condition not reached in time"
         await asyncio.sleep(0.002)
+
+
+def run_with_handler(coro):
+    """asyncio.run, failing on any exception that reached the loop (a traceback)."""
+    problems = []
+
+    async def main():
+        asyncio.get_running_loop().set_exception_handler(lambda loop, ctx: problems.append(ctx))
+        return await coro
+
+    result = asyncio.run(main())
+    assert not problems, problems
+    return result

@@ -16,7 +16,7 @@ import pytest
 from cmu import DATA
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from live_helpers import MS, free_port, keyframes_of, until
+from live_helpers import MS, free_port, keyframes_of, run_with_handler, until
 
 from streamkey.adapters import parse_address
 from streamkey.adapters.osc import OscSource, encode_frame, encode_skeleton
@@ -51,18 +51,6 @@ HOSTILE_IDS = ["", "/", "a/b", "..", "x" * 65, "ü", "a b", "-a", "a\x00b", "%s"
                "frame", "skeleton", "s1", "s2", "s3", "s4", "s5", "s6"]
 stream_ids = st.one_of(st.sampled_from(HOSTILE_IDS), st.text(max_size=70),
                        st.from_regex(VALID_ID, fullmatch=True)).filter(lambda s: s != "default")
-
-
-def _run_with_handler(coro):
-    problems = []
-
-    async def main():
-        asyncio.get_running_loop().set_exception_handler(lambda loop, ctx: problems.append(ctx))
-        return await coro
-
-    result = asyncio.run(main())
-    assert not problems, problems
-    return result
 
 
 async def _live(source, ready, send_frame, send_hostile, schedule, connected=None):
@@ -166,7 +154,7 @@ def test_hostile_stream_ids_and_too_many_streams_during_a_live_run(transport, da
                                          st.sampled_from(["frame", "frame", "skeleton"])),
                                min_size=1, max_size=40))
     run = _osc_run if transport == "osc" else _zmq_run
-    summary, events, sent = _run_with_handler(run(_schedule(draws)))
+    summary, events, sent = run_with_handler(run(_schedule(draws)))
     bad = [s for _, s, _ in draws if not VALID_ID.fullmatch(s)]
     malformed = summary.source["malformed"]
     # every frame or skeleton with a hostile id is counted as such, nothing else is lost
