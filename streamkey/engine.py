@@ -1,6 +1,13 @@
-"""The asyncio engine: one source -> N online keyframers -> M sinks (DESIGN §2).
+"""The asyncio engine: one source -> a pipeline of N online keyframers per stream -> M sinks
+(DESIGN §2).
 
 The path is one-way, as between `websockets`' sans-I/O protocol and its connection:
+
+- Frames carry a stream tag; each stream gets its own `Pipeline`, built from its skeleton,
+  up to `max_streams` (more are refused and counted), retired after `stream_idle` seconds
+  without a frame. Due decisions first: every queued frame's `push`, of every stream, runs
+  before any stream's deferred `idle`, so one stream's re-analysis burst does not delay
+  another stream's due event; a stream's own order (and so its events) is unchanged.
 
 - Frames come from the source's bounded queue (network sources drop the oldest frame when
   the engine falls behind, and count it), each stamped with its arrival time (the kernel's
@@ -282,7 +289,6 @@ class Engine:
         self._next_retire = 0.0
         self._sink_failures: dict[int, int] = {}
         self._stopping = False
-        self._stop_event = asyncio.Event()
 
     @property
     def pipeline(self) -> Pipeline | None:
@@ -293,7 +299,6 @@ class Engine:
     def stop(self) -> None:
         """Ask the run to end: the source stops, keyframers flush, sinks drain."""
         self._stopping = True
-        self._stop_event.set()
         self.source.frames.put(None)
 
     async def run(self) -> RunSummary:

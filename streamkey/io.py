@@ -1,7 +1,10 @@
 """The engine's edges: the `Source` and `Sink` interfaces, their counters and the frame queue.
 
-A source delivers `(Frame, arrival_ns)` pairs from `get()` (None at end of stream) and may
-learn its skeleton from the wire (`skeleton_ready`). Every task a source runs goes through
+A source delivers `(Frame, arrival_ns)` pairs, or `(Frame, arrival_ns, stream)` for a
+named stream, from `get()` (None at end of stream) and may learn skeletons from the wire
+(`skeleton_ready` for the unnamed stream, `named` for the others, each announced to the
+engine through the queue). Stream ids follow `stream_id_problem`; `stream_tag` maps the
+name `default` to the unnamed stream. Every task a source runs goes through
 `spawn`: an exception inside it is counted and, if the task ends, the source `die`s, which
 ends the stream with a reason (`fatal`) instead of leaving the engine waiting forever.
 
