@@ -18,11 +18,14 @@ from streamkey.io import (
     fps_problem,
     frame_numbers_problem,
     put_drop_oldest,
+    stream_id_problem,
+    stream_tag,
 )
 
 __all__ = ["Address", "parse_address", "FrameQueue", "Source", "Sink", "SourceStats",
            "SinkStats", "put_drop_oldest", "LOOPBACK", "bind_host", "MAX_CHANNELS",
-           "MAX_MESSAGE_BYTES", "frame_numbers_problem", "fps_problem", "is_loopback"]
+           "MAX_MESSAGE_BYTES", "frame_numbers_problem", "fps_problem", "is_loopback",
+           "stream_id_problem", "stream_tag"]
 
 LOOPBACK = "127.0.0.1"
 MAX_CHANNELS = 1024          # more channels than any skeleton we know of (CMU: 96)

@@ -5,7 +5,10 @@ One JSON object a line (UTF-8)::
     {"type": "skeleton", "bvh": "HIERARCHY ... MOTION ...", "fps": 120}   (first, unless --skeleton)
     {"seq": 12, "time": 0.1, "channels": [0.0, 93.2, ...]}                  (one frame)
 
-`time` is optional (default `seq / fps`). Blank lines are skipped. A line that is not such an
+`time` is optional (default `seq / fps`). Blank lines are skipped. An optional `"stream":
+"ID"` on a frame line names its stream (none: the unnamed stream, `default`); a later
+skeleton line with a `stream` gives that stream its own skeleton (before its first frame),
+else the first skeleton serves every stream. A line that is not such an
 object (bad JSON, missing or mistyped field, longer than `MAX_LINE_BYTES`) is dropped and
 counted in the source's `malformed` counters; frames with the wrong channel count or non-finite
 values are dropped and counted by the stream guard. Reading blocks when the engine falls
@@ -28,9 +31,17 @@ import numpy as np
 from streamkey.errors import BVHError, InputError
 from streamkey.motion import Frame, Skeleton
 
-from .base import MAX_CHANNELS, Source, fps_problem, frame_numbers_problem
+from .base import (
+    MAX_CHANNELS,
+    Source,
+    fps_problem,
+    frame_numbers_problem,
+    stream_id_problem,
+    stream_tag,
+)
 
-__all__ = ["StdinSource", "read_skeleton_line", "decode_frame_line", "MAX_LINE_BYTES",
+__all__ = ["StdinSource", "read_skeleton_line", "decode_frame_line", "decode_stream_line",
+           "MAX_LINE_BYTES",
            "POSITIONS_ONLY"]
 
 MAX_LINE_BYTES = 1 << 20  # a skeleton header of a few hundred joints fits easily
@@ -42,6 +53,10 @@ _POSITION_KEYS = ("positions", "joints", "landmarks", "keypoints", "points")
 
 class PositionsOnlyError(ValueError):
     """A frame that carries joint positions instead of rotation channels."""
+
+
+class StreamIdError(ValueError):
+    """A line whose `stream` is not a usable stream id."""
 
 
 def _positions_only(obj: Any) -> bool:
@@ -81,16 +96,26 @@ def read_skeleton_line(stream: IO[bytes], where: str = "stdin") -> tuple[Skeleto
 
 def decode_frame_line(line: bytes, fps: float) -> Frame | dict[str, Any] | None:
     """A frame, a skeleton announcement (dict), or None for a blank line; ValueError if bad."""
+    return decode_stream_line(line, fps)[0]
+
+
+def decode_stream_line(line: bytes, fps: float
+                       ) -> tuple[Frame | dict[str, Any] | None, str | None]:
+    """`decode_frame_line` and the line's stream tag (None: the unnamed stream)."""
     if not line.strip():
-        return None
+        return None, None
     try:
         obj = json.loads(line)
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise ValueError(f"not JSON: {type(exc).__name__}: {exc}") from None
     if not isinstance(obj, dict):
         raise ValueError("expected a JSON object")
+    stream = obj.get("stream")
+    if stream is not None and (problem := stream_id_problem(stream)) is not None:
+        raise StreamIdError(problem)
+    stream = stream_tag(stream)
     if obj.get("type") == "skeleton":
-        return obj
+        return obj, stream
     if _positions_only(obj):
         raise PositionsOnlyError(POSITIONS_ONLY)
     seq, channels = obj.get("seq"), obj.get("channels")
@@ -106,7 +131,7 @@ def decode_frame_line(line: bytes, fps: float) -> Frame | dict[str, Any] | None:
     problem = frame_numbers_problem(seq, time)
     if problem is not None:
         raise ValueError(problem)
-    return Frame(seq, float(time), np.array(channels, dtype=np.float64))
+    return Frame(seq, float(time), np.array(channels, dtype=np.float64)), stream
 
 
 class StdinSource(Source):
@@ -161,15 +186,36 @@ class StdinSource(Source):
             return
         assert self.fps is not None
         try:
-            item = decode_frame_line(line, self.fps)
+            item, stream = decode_stream_line(line, self.fps)
         except ValueError as exc:
-            kind = "positions_only" if isinstance(exc, PositionsOnlyError) else "malformed"
+            kind = ("positions_only" if isinstance(exc, PositionsOnlyError) else
+                    "stream_id" if isinstance(exc, StreamIdError) else "malformed")
             self.stats.reject(kind, f"stdin:{self.line}: {exc}")
             return
-        if item is None or isinstance(item, dict):
-            return  # blank line, or the skeleton repeated
+        if item is None:
+            return  # blank line
+        if isinstance(item, dict):  # a skeleton: the first one repeated, or a stream's own
+            if stream is not None:
+                self._stream_skeleton(item, stream)
+            return
         self.stats.received += 1
-        await self.frames.queue.put((item, time.monotonic_ns()))
+        entry = (item, time.monotonic_ns()) if stream is None else (
+            item, time.monotonic_ns(), stream)
+        await self.frames.queue.put(entry)
+
+    def _stream_skeleton(self, info: dict[str, Any], stream: str) -> None:
+        from streamkey.bvh import parse_bvh
+
+        try:
+            fps = info.get("fps", 120.0)
+            if (problem := fps_problem(fps)) is not None:
+                raise ValueError(problem)
+            skeleton = parse_bvh(str(info["bvh"]), source=f"stdin:{self.line} skeleton").skeleton
+        except Exception as exc:  # any failure of a hostile skeleton: counted, ignored
+            self.stats.reject("skeleton", f"stdin:{self.line}: skeleton of stream {stream!r} "
+                              f"ignored: {type(exc).__name__}: {str(exc)[:200]}")
+            return
+        self.set_skeleton(skeleton, float(fps), stream)
 
     async def close(self) -> None:
         self.closed = True

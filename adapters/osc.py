@@ -1,6 +1,9 @@
 """OSC over UDP: frames in (`/streamkey/frame`), skeletons in (`/streamkey/skeleton`),
 events out.
 
+Streams: `/streamkey/<stream>/frame` and `/streamkey/<stream>/skeleton` carry stream
+<stream> (same arguments); `/streamkey/frame` is the unnamed stream (`default`).
+
 Layouts in (DESIGN §7; friendly to Pd, SuperCollider, Max):
 
     /streamkey/frame     i seq, d time, f... channels      (seq may be i/h/f, time d/f,
@@ -55,6 +58,7 @@ from pythonosc.osc_message_builder import OscMessageBuilder
 
 from streamkey.bvh import parse_bvh
 from streamkey.errors import BVHError, InputError, UsageError
+from streamkey.io import stream_id_problem, stream_tag
 from streamkey.keyframes import Event, KeyframeEvent
 from streamkey.motion import Frame, Skeleton
 
@@ -77,7 +81,8 @@ __all__ = ["FRAME_ADDRESS", "SKELETON_ADDRESS", "KEYFRAME_ADDRESS", "encode_fram
            "decode_frame", "encode_skeleton", "encode_event", "OscDecodeError", "OscSource",
            "OscFrameSender", "OscEventSink", "skeleton_header", "OSC_LAYOUTS", "NUMERIC_LAYOUT",
            "osc_name", "event_messages", "encode_message", "encode_bundle", "decode_bundle",
-           "ntp_timetag", "timetag_seconds", "with_layout"]
+           "ntp_timetag", "timetag_seconds", "with_layout", "stream_address",
+           "stream_of_address"]
 
 FRAME_ADDRESS = "/streamkey/frame"
 SKELETON_ADDRESS = "/streamkey/skeleton"
@@ -97,15 +102,25 @@ def _osc_string(text: str) -> bytes:
     return raw + b"\0" * (-len(raw) % 4)
 
 
-_FRAME_PREFIX: dict[int, bytes] = {}
+_FRAME_PREFIX: dict[tuple[str, int], bytes] = {}
 
 
-def encode_frame(seq: int, time: float, channels: np.ndarray) -> bytes:
+def stream_address(kind: str, stream: str | None = None) -> str:
+    """`/streamkey/<stream>/frame` or `/skeleton` (None or `default`: `/streamkey/<kind>`)."""
+    tag = stream_tag(stream)
+    return f"/streamkey/{kind}" if tag is None else f"/streamkey/{tag}/{kind}"
+
+
+def encode_frame(seq: int, time: float, channels: np.ndarray,
+                 address: str = FRAME_ADDRESS) -> bytes:
     """`/streamkey/frame i seq, d time, f...` as bytes (fixed layout, no python-osc)."""
     n = len(channels)
-    prefix = _FRAME_PREFIX.get(n)
+    prefix = _FRAME_PREFIX.get((address, n))
     if prefix is None:
-        prefix = _FRAME_PREFIX[n] = _osc_string(FRAME_ADDRESS) + _osc_string(",id" + "f" * n)
+        if len(_FRAME_PREFIX) > 256:
+            _FRAME_PREFIX.clear()
+        prefix = _FRAME_PREFIX[(address, n)] = (_osc_string(address)
+                                                + _osc_string(",id" + "f" * n))
     return prefix + struct.pack(">id", seq, time) + np.asarray(channels, ">f4").tobytes()
 
 
@@ -117,9 +132,9 @@ def skeleton_header(skeleton: Skeleton, fps: float) -> str:
     return format_bvh(Motion(skeleton, np.zeros((0, skeleton.n_channels)), fps))
 
 
-def encode_skeleton(skeleton: Skeleton, fps: float) -> bytes:
+def encode_skeleton(skeleton: Skeleton, fps: float, address: str = SKELETON_ADDRESS) -> bytes:
     """`/streamkey/skeleton s bvh, d fps`."""
-    builder = OscMessageBuilder(SKELETON_ADDRESS)
+    builder = OscMessageBuilder(address)
     builder.add_arg(skeleton_header(skeleton, fps), "s")
     builder.add_arg(float(fps), "d")
     return builder.build().dgram
@@ -279,13 +294,29 @@ def _address_of(data: bytes) -> str:
     return data[:end].decode("ascii", "replace")
 
 
-def decode_frame(data: bytes) -> tuple[int, float, np.ndarray]:
-    """Decode a `/streamkey/frame` packet exactly (every byte accounted for); raises
-    `OscDecodeError` with a kind: parse, address, types, arity, oversize, truncated,
-    trailing, nan, range."""
-    if not data.startswith(_FRAME_HEAD):
+def stream_of_address(address: str) -> tuple[str, str | None]:
+    """(kind, stream tag) of `/streamkey/frame`, `/streamkey/skeleton` or
+    `/streamkey/<stream>/frame|skeleton`; `OscDecodeError` (address or stream_id) if not."""
+    if address in (FRAME_ADDRESS, SKELETON_ADDRESS):
+        return address.rsplit("/", 1)[1], None
+    parts = address.split("/")
+    if len(parts) != 4 or parts[:2] != ["", "streamkey"] or parts[3] not in ("frame",
+                                                                              "skeleton"):
+        raise OscDecodeError("address", f"unexpected OSC address {address[:80]!r}")
+    problem = stream_id_problem(parts[2])
+    if problem is not None:
+        raise OscDecodeError("stream_id", f"{address[:80]!r}: {problem}")
+    return parts[3], stream_tag(parts[2])
+
+
+def decode_frame(data: bytes, address: str = FRAME_ADDRESS) -> tuple[int, float, np.ndarray]:
+    """Decode a `/streamkey/frame` packet (or one to `address`, a stream's frame address)
+    exactly (every byte accounted for); raises `OscDecodeError` with a kind: parse,
+    address, types, arity, oversize, truncated, trailing, nan, range."""
+    frame_head = _FRAME_HEAD if address == FRAME_ADDRESS else _osc_string(address)
+    if not data.startswith(frame_head):
         raise OscDecodeError("address", f"unexpected OSC address {_address_of(data)!r}")
-    head = len(_FRAME_HEAD)
+    head = len(frame_head)
     tags_end = data.find(b"\0", head)
     if tags_end < 0 or data[head : head + 1] != b",":
         raise OscDecodeError("parse", f"{FRAME_ADDRESS}: no type tag string")
@@ -332,9 +363,9 @@ def _message(data: bytes, address: str | None = None) -> OscMessage:
     return message
 
 
-def decode_skeleton(data: bytes) -> tuple[Skeleton, float]:
+def decode_skeleton(data: bytes, address: str = SKELETON_ADDRESS) -> tuple[Skeleton, float]:
     """Decode `/streamkey/skeleton s bvh [, d fps]`; any failure is an `OscDecodeError`."""
-    params = _message(data, SKELETON_ADDRESS).params
+    params = _message(data, address).params
     if not params or not isinstance(params[0], str):
         raise OscDecodeError("types", f"{SKELETON_ADDRESS}: expected s bvh_header [, d fps]")
     fps = params[1] if len(params) > 1 and isinstance(params[1], (int, float)) else 120.0
@@ -444,7 +475,16 @@ class OscSource(Source):
             if data.startswith(_osc_string(SKELETON_ADDRESS)):
                 self.set_skeleton(*decode_skeleton(data))
                 return
-            seq, time_s, channels = decode_frame(data)
+            stream = None
+            if not data.startswith(_FRAME_HEAD):  # a stream's own address, or garbage
+                address = _address_of(data)
+                kind, stream = stream_of_address(address)
+                if kind == "skeleton":
+                    self.set_skeleton(*decode_skeleton(data, address), stream)
+                    return
+                seq, time_s, channels = decode_frame(data, address)
+            else:
+                seq, time_s, channels = decode_frame(data)
         except OscDecodeError as exc:
             self.stats.reject(exc.kind, str(exc))
             return
@@ -452,7 +492,7 @@ class OscSource(Source):
             self.stats.reject("internal", f"{type(exc).__name__}: {str(exc)[:200]}")
             return
         self.stats.received += 1
-        self.frames.put(Frame(seq, time_s, channels), arrival_ns)
+        self.frames.put(Frame(seq, time_s, channels), arrival_ns, stream)
 
     def counters(self) -> SourceStats:
         """Counters, with the kernel's drop count for this socket from /proc/net/udp (the
@@ -589,23 +629,28 @@ class OscFrameSender:
 
     name = "osc"
 
-    def __init__(self, address: Address, listen: str | None = None) -> None:
+    def __init__(self, address: Address, listen: str | None = None,
+                 stream: str | None = None) -> None:
         from .base import SinkStats
 
         self.address = address
         self.stats = SinkStats()
         self.sender = _UdpSender(address, self.stats, listen)
         self.skeleton_message: tuple[Skeleton, bytes] | None = None
+        self.frame_address = stream_address("frame", stream)
+        self.skeleton_address = stream_address("skeleton", stream)
 
     def send_skeleton(self, skeleton: Skeleton, fps: float) -> None:
         """Announce the skeleton (receivers without `--skeleton` wait for it)."""
         if self.skeleton_message is None or self.skeleton_message[0] is not skeleton:
-            self.skeleton_message = (skeleton, encode_skeleton(skeleton, fps))
+            self.skeleton_message = (skeleton, encode_skeleton(skeleton, fps,
+                                                               self.skeleton_address))
         self.sender.send(self.skeleton_message[1])
 
     def send_frame(self, frame: Frame) -> None:
         """Send one frame (never blocks)."""
-        self.sender.send(encode_frame(frame.seq, frame.time, frame.channels))
+        self.sender.send(encode_frame(frame.seq, frame.time, frame.channels,
+                                      self.frame_address))
 
     def close(self) -> None:
         """Close the socket."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+from collections import deque
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -13,7 +14,48 @@ from streamkey.keyframes import Event
 
 from .base import Address, Sink
 
-__all__ = ["JsonlSink", "StdoutSink"]
+__all__ = ["JsonlSink", "StdoutSink", "event_id", "DEDUPE_TAIL"]
+
+DEDUPE_TAIL = 100_000  # ids of the last events of an existing log checked against on restart
+
+
+def event_id(event: Event | dict[str, Any]) -> str | None:
+    """The idempotent id of an event (schema v2 `id`): keyframes
+    `stream/method/frame/params-digest`, gaps `stream/gap/<first seq>`, status
+    `stream/status/<name>/<seq>`; None for an event without one (a status without a seq).
+    Uses the event's own `id` when it has one; computes the same string otherwise."""
+    own = getattr(event, "id", None)
+    if isinstance(own, str):
+        return own
+    record = event if isinstance(event, dict) else event.to_dict()
+    if isinstance(record.get("id"), str):
+        return str(record["id"])
+    kind, stream = record.get("type"), record.get("stream")
+    if kind == "keyframe":
+        return f"{stream}/{record.get('method')}/{record.get('frame')}/{record.get('params')}"
+    if kind == "gap":
+        return f"{stream}/gap/{record.get('first')}"
+    detail = record.get("detail")
+    if kind == "status" and isinstance(detail, dict) and detail.get("seq") is not None:
+        return f"{stream}/status/{record.get('status')}/{detail['seq']}"
+    return None
+
+
+def _ids_in(path: Path) -> set[str]:
+    """Ids of the last `DEDUPE_TAIL` events already in a log (unreadable lines skipped)."""
+    tail: deque[str] = deque(maxlen=DEDUPE_TAIL)
+    try:
+        with open(path, "rb") as fh:
+            for line in fh:
+                try:
+                    record = json.loads(line)
+                except ValueError:
+                    continue
+                if isinstance(record, dict) and (key := event_id(record)) is not None:
+                    tail.append(key)
+    except OSError:
+        return set()
+    return set(tail)
 
 
 class JsonlSink(Sink):
@@ -22,6 +64,10 @@ class JsonlSink(Sink):
     The file is fsynced on close. It never drops by itself; a write error (disk full) raises,
     and the engine counts it against this sink (and disables it after repeated failures)
     without touching the keyframers or the other sinks.
+
+    Appending to an existing log (a restarted run, a stream restored from a snapshot and
+    replayed) skips the events whose id is already in it (the last `DEDUPE_TAIL`), counted
+    as `duplicates`; events of this run are never skipped.
     """
 
     name = "jsonl"
@@ -30,6 +76,7 @@ class JsonlSink(Sink):
     def __init__(self, address: Address) -> None:
         super().__init__()
         self.path = Path(address.path)
+        self.logged = _ids_in(self.path) if self.path.is_file() else set()
         try:
             self.file: TextIO = open(self.path, "a", encoding="utf-8")  # noqa: SIM115
         except OSError as exc:
@@ -40,7 +87,11 @@ class JsonlSink(Sink):
         return f"jsonl:{self.path}"
 
     def offer(self, event: Event) -> None:
-        self.write(event.to_dict())
+        record = event.to_dict()
+        if self.logged and event_id(record) in self.logged:
+            self.stats.duplicates += 1
+            return
+        self.write(record)
 
     def write(self, record: dict[str, Any]) -> None:
         """Append one JSON record (an event, or an operator annotation) and flush."""

@@ -6,9 +6,14 @@ channel values (float32 by default, as DESIGN §7; "<f8" keeps BVH values bit-ex
 The skeleton is `[b"skeleton", JSON {"bvh": header text, "fps": float}]`, re-sent every
 second by the replay so late subscribers get it. Events are `[b"event", JSON event]`.
 
+Stream ids: the topic starts with the stream id. `b"STREAM/frame"` and `b"STREAM/skeleton"`
+carry stream STREAM (`replay --stream STREAM`); the bare `b"frame"` / `b"skeleton"` are the
+unnamed stream (`default`). A subscriber of one stream subscribes to `b"STREAM/"`.
+
 Address options: `zmq+tcp://127.0.0.1:5555?pattern=pull` makes a source bind a PULL socket
 (many PUSH senders connect); the default source pattern `sub` connects a SUB socket to a
-publisher, reconnecting by itself when the publisher restarts.
+publisher, reconnecting by itself when the publisher restarts, and takes every stream
+(`?streams=a,b` subscribes to those streams only).
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import zmq
 
 from streamkey.bvh import parse_bvh
 from streamkey.errors import InputError, UsageError
+from streamkey.io import MAX_STREAM_ID, stream_id_problem, stream_tag
 from streamkey.keyframes import Event
 from streamkey.motion import Frame, Skeleton
 
@@ -42,16 +48,36 @@ from .base import (
 )
 
 __all__ = ["ZmqSource", "ZmqEventSink", "ZmqFrameSender", "encode_frame_parts",
-           "decode_frame_parts", "decode_skeleton_parts"]
+           "decode_frame_parts", "decode_skeleton_parts", "topic", "parse_topic"]
 
 _DTYPES = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
 
 
-def encode_frame_parts(frame: Frame, dtype: str = "<f4") -> list[bytes]:
-    """Multipart message of one frame."""
+def topic(kind: str, stream: str | None = None) -> bytes:
+    """The topic of a `frame` or `skeleton` message of `stream` (None: the unnamed one)."""
+    tag = stream_tag(stream)
+    return kind.encode() if tag is None else f"{tag}/{kind}".encode()
+
+
+def parse_topic(raw: bytes) -> tuple[str, str | None]:
+    """(kind, stream tag) of a topic; ValueError naming what is wrong."""
+    if raw in (b"frame", b"skeleton"):
+        return raw.decode(), None
+    name, sep, kind = raw[:MAX_STREAM_ID + 16].decode("ascii", "replace").rpartition("/")
+    if not sep or kind not in ("frame", "skeleton"):
+        raise LookupError(f"unknown topic {raw[:32]!r}")
+    problem = stream_id_problem(name)
+    if problem is not None:
+        raise ValueError(f"topic {raw[:32]!r}: {problem}")
+    return kind, stream_tag(name)
+
+
+def encode_frame_parts(frame: Frame, dtype: str = "<f4", stream: str | None = None
+                       ) -> list[bytes]:
+    """Multipart message of one frame (of `stream`; None: the unnamed stream)."""
     values = np.asarray(frame.channels, dtype=_DTYPES[dtype])
     header = {"seq": int(frame.seq), "time": float(frame.time), "n": len(values), "dtype": dtype}
-    return [b"frame", json.dumps(header).encode(), values.tobytes()]
+    return [topic("frame", stream), json.dumps(header).encode(), values.tobytes()]
 
 
 MAX_HEADER_BYTES = 4096
@@ -115,6 +141,13 @@ class ZmqSource(Source):
             raise UsageError(f"{address}: pattern must be sub or pull, got {self.pattern!r}")
         if self.pattern == "pull" and address.scheme == "zmq+tcp":
             bind_host(address, listen)
+        wanted = [n for n in address.options.get("streams", "").split(",") if n]
+        for name in wanted:
+            if (problem := stream_id_problem(name)) is not None:
+                raise UsageError(f"{address}: streams: {problem}")
+        self.subscriptions = [b""] if not wanted else [
+            t for n in wanted for t in ((b"frame", b"skeleton") if stream_tag(n) is None
+                                        else (f"{n}/".encode(),))]
         self.listen = listen
         self.socket: zmq.Socket[bytes] | None = None
         self.thread: threading.Thread | None = None
@@ -132,8 +165,8 @@ class ZmqSource(Source):
         sock.setsockopt(zmq.RCVHWM, 256)
         endpoint = self.address.zmq_endpoint
         if self.pattern == "sub":
-            sock.setsockopt(zmq.SUBSCRIBE, b"frame")
-            sock.setsockopt(zmq.SUBSCRIBE, b"skeleton")
+            for prefix in self.subscriptions:
+                sock.setsockopt(zmq.SUBSCRIBE, prefix)
             sock.connect(endpoint)
         else:
             if self.listen and self.address.scheme == "zmq+tcp":
@@ -184,12 +217,19 @@ class ZmqSource(Source):
     def handle(self, parts: list[bytes], arrival_ns: int | None = None) -> None:
         """Decode one multipart message; never raises (every failure counted by kind)."""
         try:
-            if parts and parts[0] == b"skeleton":
-                self._skeleton(parts)
+            if not parts:
+                self.stats.reject("topic", "zmq: empty message")
                 return
-            if not parts or parts[0] != b"frame":
-                self.stats.reject("topic", "zmq: " + (f"unknown topic {parts[0][:32]!r}"
-                                                      if parts else "empty message"))
+            try:
+                kind, stream = parse_topic(parts[0])
+            except LookupError as exc:
+                self.stats.reject("topic", f"zmq: {exc}")
+                return
+            except ValueError as exc:
+                self.stats.reject("stream_id", f"zmq: {exc}")
+                return
+            if kind == "skeleton":
+                self._skeleton(parts, stream)
                 return
             frame = decode_frame_parts(parts)
         except (ValueError, KeyError, IndexError, TypeError, RecursionError) as exc:
@@ -199,16 +239,16 @@ class ZmqSource(Source):
             self.stats.reject("internal", f"zmq: {type(exc).__name__}: {str(exc)[:200]}")
             return
         self.stats.received += 1
-        self.frames.put(frame, arrival_ns)
+        self.frames.put(frame, arrival_ns, stream)
 
-    def _skeleton(self, parts: list[bytes]) -> None:
+    def _skeleton(self, parts: list[bytes], stream: str | None = None) -> None:
         try:
             skeleton, fps, _ = decode_skeleton_parts(parts)
         except Exception as exc:  # any failure of a hostile skeleton: counted, ignored
             self.stats.reject("skeleton", f"zmq skeleton ignored: {type(exc).__name__}: "
                               f"{str(exc)[:200]}")
             return
-        self.set_skeleton(skeleton, float(fps))
+        self.set_skeleton(skeleton, float(fps), stream)
 
     def counters(self) -> SourceStats:
         fresh = self.inbox_drops - self._inbox_counted  # the reader thread only ever adds
@@ -293,8 +333,10 @@ class ZmqFrameSender:
 
     name = "zmq"
 
-    def __init__(self, address: Address, listen: str | None = None) -> None:
+    def __init__(self, address: Address, listen: str | None = None,
+                 stream: str | None = None) -> None:
         self.address = address
+        self.stream = stream
         self.stats = SinkStats()
         self.dtype = address.options.get("dtype", "<f4")
         if self.dtype not in _DTYPES:
@@ -320,12 +362,12 @@ class ZmqFrameSender:
 
         if self.skeleton_message is None or self.skeleton_message[0] is not skeleton:
             body = json.dumps({"bvh": skeleton_header(skeleton, fps), "fps": fps}).encode()
-            self.skeleton_message = (skeleton, [b"skeleton", body])
+            self.skeleton_message = (skeleton, [topic("skeleton", self.stream), body])
         self._send(self.skeleton_message[1])
 
     def send_frame(self, frame: Frame) -> None:
         """Publish one frame (never blocks; a full queue counts a drop)."""
-        self._send(encode_frame_parts(frame, self.dtype))
+        self._send(encode_frame_parts(frame, self.dtype, self.stream))
 
     def _send(self, parts: list[bytes]) -> None:
         try:

@@ -336,6 +336,10 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
                 continue
             if kind in LIVE_KINDS:  # live engine benches (memory, latency, ws_clients)
                 result = run_live_bench(kind, data_dir, quick)
+            elif kind == "streams":  # many streams in one engine, due-first on and off
+                from .bench_streams import bench_streams
+
+                result = bench_streams(data_dir, quick)
             elif kind == "offline":
                 result = bench_offline(frames, data_dir, rows, say)
             elif kind == "perf":

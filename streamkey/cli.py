@@ -321,7 +321,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                          " slow (at least 0.1 frames/s; give --rate or --speed)")
     result = replay(motion, args.to, rate=args.rate, speed=args.speed, loop=args.loop,
                     start=args.start, end=args.end, listen=args.listen,
-                    wait_subscribers=args.wait, count=args.frames)
+                    wait_subscribers=args.wait, count=args.frames, stream=args.stream)
     print(f"sent {result['frames']} frames", file=sys.stderr)
     return 0
 
@@ -356,11 +356,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.dashboard is not None:
         return _dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                           stream=args.stream)
+    _check_streams(args)
     summary = asyncio.run(run_live(source, methods, args.to or ["-"], _online_params(args),
                                    None, args.listen, args.stream,
                                    rate=0.0 if args.fast else None,
                                    idle_exit=args.idle_exit,
-                                   reset_on_gap=args.reset_on_gap))
+                                   reset_on_gap=args.reset_on_gap, max_streams=args.max_streams,
+                                   stream_idle=args.stream_idle))
     print(summary.text(), file=sys.stderr)
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
@@ -375,6 +377,17 @@ def cmd_cluster(args: argparse.Namespace) -> int:
     from .cluster.command import cmd_cluster_run
 
     return cmd_cluster_run(args, _online_params(args), _roles(args))
+
+
+def _check_streams(args: argparse.Namespace) -> None:
+    """`run --max-streams / --stream-idle` in range, or a usage error."""
+    from .errors import UsageError
+
+    if not 1 <= args.max_streams <= 10_000:
+        raise UsageError(f"run --max-streams must lie in 1..10000, got {args.max_streams}")
+    if args.stream_idle is not None and not 0.01 <= args.stream_idle <= 86_400:
+        raise UsageError(f"run --stream-idle must lie in 0.01..86400 seconds, got "
+                         f"{args.stream_idle:g}")
 
 
 def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace) -> None:
@@ -414,6 +427,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 0
     kinds = [k for k in ("offline", "online", "agreement", "perf") if getattr(args, k)]
     kinds += [k for k in ("memory", "latency", "ws_clients") if getattr(args, k)]
+    kinds += ["streams"] if getattr(args, "streams", False) else []
     if getattr(args, "engines", False):  # extract on local / Ray / Dask (issue 14 §6)
         from .cluster.bench import bench_engines
 
@@ -667,6 +681,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", help="bind publishers to this host instead of 127.0.0.1")
     p.add_argument("--wait", type=float, default=2.0,
                    help="ZeroMQ: seconds to wait for a subscriber before sending")
+    p.add_argument("--stream", metavar="NAME",
+                   help="stream id on the wire (OSC /streamkey/NAME/frame, ZeroMQ topic "
+                        "NAME/frame, JSON Lines \"stream\"); default: the unnamed stream")
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("run", help="live keyframes: a source -> keyframers -> sinks")
@@ -682,7 +699,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--to", action="append", metavar="ADDR",
                    help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
     p.add_argument("--listen", help="let listeners bind to this host instead of 127.0.0.1")
-    p.add_argument("--stream", default="default", help="stream name carried by every event")
+    p.add_argument("--stream", default="default",
+                   help="name of the unnamed stream (frames without a stream id)")
+    p.add_argument("--max-streams", type=int, default=64, metavar="N",
+                   help="serve at most N streams at once; frames of more are refused and "
+                        "counted (default 64)")
+    p.add_argument("--stream-idle", type=float, metavar="SECONDS",
+                   help="retire a stream (flush its keyframers) after SECONDS without a "
+                        "frame; it starts afresh if it comes back (default: never)")
     p.add_argument("--osc-layout", choices=("numeric", "compact"),
                    help="osc:// sinks: numeric (default: /streamkey/STREAM/METHOD/keyframe "
                         "i f f i, one bundle per frame) or compact (/streamkey/keyframe "
@@ -760,6 +784,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "an external receiver, OSC and ZeroMQ at 120 Hz, all methods")
     p.add_argument("--ws-clients", dest="ws_clients", action="store_true",
                    help="live: event latency with 0, 100 and 300 WebSocket clients")
+    p.add_argument("--streams", action="store_true", help="live: due-event latency for 1-16 "
+                   "streams in one process, due-first scheduling on and off")
     p.add_argument("--quick", action="store_true",
                    help="shorter runs: 20,000-frame motion and stream (default benches under "
                         "2 minutes), shorter live benches")

@@ -1,6 +1,13 @@
-"""The asyncio engine: one source -> N online keyframers -> M sinks (DESIGN §2).
+"""The asyncio engine: one source -> a pipeline of N online keyframers per stream -> M sinks
+(DESIGN §2).
 
 The path is one-way, as between `websockets`' sans-I/O protocol and its connection:
+
+- Frames carry a stream tag; each stream gets its own `Pipeline`, built from its skeleton,
+  up to `max_streams` (more are refused and counted), retired after `stream_idle` seconds
+  without a frame. Due decisions first: every queued frame's `push`, of every stream, runs
+  before any stream's deferred `idle`, so one stream's re-analysis burst does not delay
+  another stream's due event; a stream's own order (and so its events) is unchanged.
 
 - Frames come from the source's bounded queue (network sources drop the oldest frame when
   the engine falls behind, and count it), each stamped with its arrival time (the kernel's
@@ -26,7 +33,7 @@ import asyncio
 import dataclasses
 import math
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -34,12 +41,12 @@ from typing import Any
 import numpy as np
 
 from .errors import StreamkeyError
-from .io import SINK_FAILURE_LIMIT, Sink, Source
+from .io import DEFAULT_MAX_STREAMS, SINK_FAILURE_LIMIT, Sink, Source, StreamSpec
 from .keyframes import Event, KeyframeEvent, StatusEvent
 from .motion import Frame
-from .online import OnlineKeyframer, Pipeline
+from .online import GuardCounters, OnlineKeyframer, Pipeline
 
-__all__ = ["Engine", "RunSummary", "LatencyHistogram", "MAX_ERRORS_KEPT"]
+__all__ = ["Engine", "RunSummary", "StreamStats", "LatencyHistogram", "MAX_ERRORS_KEPT"]
 
 MAX_ERRORS_KEPT = 20
 
@@ -101,6 +108,12 @@ class RunSummary:
     error_count: int = 0
     source_error: str | None = None
     left_in_queue: int = 0
+    streams: dict[str, StreamStats] = field(default_factory=dict)
+    max_streams: int = DEFAULT_MAX_STREAMS
+    refused_streams: int = 0
+    refused_frames: int = 0
+    waiting_at_stop: int = 0
+    due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
 
     def latency_percentiles(self) -> dict[str, float | None]:
         """p50 / p99 / max of the wall latency (ms), None before the first event."""
@@ -117,7 +130,9 @@ class RunSummary:
             "invalid": g.get("invalid", 0), "processed": g.get("accepted", 0),
             "never_arrived": g.get("lost", 0), "bridged": g.get("bridged_frames", 0),
             "gaps": g.get("gaps", 0), "restarts": g.get("restarts", 0),
-            "kernel_drops": s.get("kernel_drops")}
+            "kernel_drops": s.get("kernel_drops"), "refused_streams": self.refused_frames,
+            "waiting_for_skeleton": self.waiting_at_stop + sum(
+                st.waiting_drops for st in self.streams.values())}
 
     def as_dict(self) -> dict[str, Any]:
         """The summary as a JSON-ready dict."""
@@ -128,7 +143,11 @@ class RunSummary:
                 "wall_latency_by_method": {m: h.summary()
                                            for m, h in self.method_latency.items()},
                 "accounting": self.accounting(), "keyframer_errors": self.errors,
-                "keyframer_error_count": self.error_count, "source_error": self.source_error}
+                "keyframer_error_count": self.error_count, "source_error": self.source_error,
+                "due_latency_ms": self.due_latency.summary(),
+                "streams": {n: st.as_dict() for n, st in self.streams.items()},
+                "max_streams": self.max_streams, "refused_streams": self.refused_streams,
+                "refused_frames": self.refused_frames, "waiting_at_stop": self.waiting_at_stop}
 
     def text(self) -> str:
         """A few human-readable lines for the end of a run."""
@@ -149,7 +168,10 @@ class RunSummary:
             f"{sum(a['malformed'].values())} malformed + {a['queue_drops']} queue drops + "
             f"{a['left_in_queue']} unread at stop + {a['duplicates']} duplicate + "
             f"{a['out_of_order']} out of order + {a['invalid']} invalid + "
-            f"{a['processed']} processed; {a['never_arrived']} frames never arrived "
+            + (f"{a['refused_streams']} of refused streams + " if a["refused_streams"] else "")
+            + (f"{a['waiting_for_skeleton']} waiting for a skeleton + "
+               if a["waiting_for_skeleton"] else "")
+            + f"{a['processed']} processed; {a['never_arrived']} frames never arrived "
             f"(seq holes); kernel receive drops: {kernel}",
             "events: " + (", ".join(f"{k} {v}" for k, v in sorted(self.events.items()))
                           or "none"),
@@ -157,10 +179,24 @@ class RunSummary:
         for name, st in self.sinks.items():
             lines.append(f"sink {name}: sent {st['sent']}, dropped {st['dropped']}"
                          + (f", errors {st['errors']}" if st.get("errors") else "")
+                         + (f", duplicates skipped {st['duplicates']}" if st.get("duplicates")
+                            else "")
                          + (" (disabled)" if st.get("disabled") else "")
                          + (f", last error: {st['last_error']}" if st.get("last_error") else "")
                          + (f"; not counted: {st['unseen_drops']}" if st.get("unseen_drops")
                             else ""))
+        if len(self.streams) > 1 or self.refused_streams:
+            lines.append(f"streams: {len(self.streams)} served, {self.refused_streams} refused "
+                         f"({self.refused_frames} frames; --max-streams {self.max_streams})")
+            for name, st in list(self.streams.items())[:16]:
+                lines.append(f"stream {name}: frames in {st.frames_in}, events "
+                             + (", ".join(f"{k} {v}" for k, v in sorted(st.events.items()))
+                                or "none")
+                             + f", gaps {st.guard.get('gaps', 0)}, sessions {st.sessions}"
+                             + (f", {st.waiting_drops} dropped waiting for its skeleton"
+                                if st.waiting_drops else ""))
+            if len(self.streams) > 16:
+                lines.append(f"... {len(self.streams) - 16} more streams (see --summary)")
         for error in self.errors[:5]:
             lines.append(f"keyframer error (window restarted): {error}")
         if self.error_count > 5:
@@ -174,11 +210,54 @@ class RunSummary:
         return "\n".join(lines)
 
 
-KeyframerFactory = Callable[[Source], list[OnlineKeyframer]]
+KeyframerFactory = Callable[[Any], list[OnlineKeyframer]]
+"""Builds a stream's keyframers from a `StreamSpec` (`.stream`, `.skeleton`, `.fps`)."""
+
+MAX_WAITING_FRAMES = 256     # frames a stream may hold while its skeleton has not come
+MAX_STREAM_STATS = 256       # streams named in the summary; the rest are summed in "(other)"
+MAX_REFUSALS_SAID = 20       # refused stream ids said on the ready channel (all are counted)
+
+
+@dataclass
+class StreamStats:
+    """Counters of one stream over the run (all its sessions: a retired stream may return)."""
+
+    frames_in: int = 0
+    sessions: int = 0
+    retired: int = 0
+    waiting_drops: int = 0
+    events: Counter[str] = field(default_factory=Counter)
+    guard: Counter[str] = field(default_factory=Counter)
+    due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Counters as a plain dict (latency: the due events' p50 / p99 / max, ms)."""
+        return {"frames_in": self.frames_in, "sessions": self.sessions,
+                "retired": self.retired, "waiting_drops": self.waiting_drops,
+                "events": dict(self.events), "guard": dict(self.guard),
+                "due_latency_ms": self.due_latency.summary()}
+
+
+class _Stream:
+    """A live stream: its pipeline and where its frames and deferred work stand."""
+
+    def __init__(self, name: str, tag: str | None, pipeline: Pipeline,
+                 stats: StreamStats) -> None:
+        self.name, self.tag, self.pipeline, self.stats = name, tag, pipeline, stats
+        self.last_frame = time.monotonic()
+        self.last_arrival_ns = 0
+        self.seq: int | None = None
 
 
 class Engine:
-    """Wire a source to keyframers and sinks; `await run()` until the source ends or `stop()`."""
+    """Wire a source to keyframers and sinks; `await run()` until the source ends or `stop()`.
+
+    One engine serves any number of streams (up to `max_streams`): frames carry a stream tag
+    from the source (None: the unnamed stream, called `stream`); a stream's pipeline is built
+    from its skeleton (or the shared one) and retired after `stream_idle` seconds without a
+    frame. With `due_first` the deferred re-analysis (`Pipeline.idle`) of every stream waits
+    until no frame is queued, so one stream's burst never delays another stream's due event.
+    """
 
     def __init__(self, source: Source, make_keyframers: KeyframerFactory, sinks: list[Sink],
                  stream: str = "default",
@@ -186,7 +265,8 @@ class Engine:
                  on_event: Callable[[dict[str, Any]], None] | None = None,
                  idle_exit: float | None = None,
                  on_frame: Callable[[Frame], None] | None = None,
-                 reset_on_gap: bool = False) -> None:
+                 reset_on_gap: bool = False, max_streams: int = DEFAULT_MAX_STREAMS,
+                 stream_idle: float | None = None, due_first: bool = True) -> None:
         self.source = source
         self.reset_on_gap = reset_on_gap  # a long gap forgets running statistics too
         self.idle_exit = idle_exit
@@ -197,17 +277,31 @@ class Engine:
         self.on_ready = on_ready or (lambda line: None)
         self.on_event = on_event
         self.on_frame = on_frame  # called after each frame's events (the dashboard's pose view)
-        self.summary = RunSummary()
-        self.pipeline: Pipeline | None = None
-        self._skeleton_given = source.skeleton is not None
+        self.max_streams = max_streams
+        self.stream_idle = stream_idle
+        self.due_first = due_first
+        source.max_streams = max_streams
+        self.summary = RunSummary(max_streams=max_streams)
+        self.streams: dict[str, _Stream] = {}
+        self._waiting: dict[str, deque[tuple[Frame, int]]] = {}  # streams without skeleton
+        self._waiting_seen: dict[str, float] = {}
+        self._deferred: dict[str, _Stream] = {}  # streams whose re-analysis is pending
+        self._said_refused: set[str] = set()
+        self._warm = False
+        self._last_frame = time.monotonic()
+        self._next_retire = 0.0
         self._sink_failures: dict[int, int] = {}
         self._stopping = False
-        self._stop_event = asyncio.Event()
+
+    @property
+    def pipeline(self) -> Pipeline | None:
+        """The pipeline of the unnamed stream (else the first live one); None before any."""
+        state = self.streams.get(self.stream) or next(iter(self.streams.values()), None)
+        return None if state is None else state.pipeline
 
     def stop(self) -> None:
         """Ask the run to end: the source stops, keyframers flush, sinks drain."""
         self._stopping = True
-        self._stop_event.set()
         self.source.frames.put(None)
 
     async def run(self) -> RunSummary:
@@ -216,16 +310,18 @@ class Engine:
         for sink in self.sinks:
             self.on_ready(f"sending to {await sink.start()}")
         try:
-            if self.source.skeleton_ready.is_set():  # known skeleton: ready before frames flow
-                self._make_pipeline()
+            known = self.source.skeleton_for(None)
+            if known is not None:  # known skeleton: ready (and warm) before frames flow
+                self._warm_up(StreamSpec(self.stream, *known))
+                if not self.source.shared_skeleton:
+                    self._open(self.stream, None)
             self.on_ready(f"listening on {await self.source.start()}")
-            await self._wait_skeleton()
-            if not self._stopping and self.pipeline is not None:
+            if not self._stopping:
                 await self._loop()
         finally:
             await self.source.close()
-            if self.pipeline is not None:
-                self._deliver(self._step(None, self.pipeline.flush), time.monotonic_ns())
+            for state in list(self.streams.values()):
+                self._retire(state)
             for sink in self.sinks:
                 try:
                     await sink.close()
@@ -234,83 +330,226 @@ class Engine:
             self._finish_summary(started)
         return self.summary
 
-    async def _wait_skeleton(self) -> None:
-        """Wait for a usable skeleton (a bad one is counted and the next awaited), `stop()`
-        or the source dying."""
-        while self.pipeline is None and not self._stopping and self.source.fatal is None:
-            waits = [asyncio.ensure_future(self._stop_event.wait()),
-                     asyncio.ensure_future(self.source.skeleton_ready.wait()),
-                     asyncio.ensure_future(self.source.dead.wait())]
-            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
-            for w in waits:
-                w.cancel()
-            if self.source.skeleton_ready.is_set() and not self._stopping:
-                self._make_pipeline()
+    # ------------------------------------------------------------------ streams
 
-    def _make_pipeline(self) -> None:
+    def _stats(self, name: str) -> StreamStats:
+        stats = self.summary.streams.get(name)
+        if stats is None:
+            if len(self.summary.streams) >= MAX_STREAM_STATS:
+                name = "(other)"
+            stats = self.summary.streams.setdefault(name, StreamStats())
+        return stats
+
+    def _open(self, name: str, tag: str | None, frame: bool = True) -> _Stream | None:
+        """The live stream `name`, built now if its skeleton is known; None if it waits for
+        its skeleton or is refused (counted either way; `frame`: a frame asked for it)."""
+        state = self.streams.get(name)
+        if state is not None:
+            return state
+        if len(self.streams) + len(self._waiting) - (name in self._waiting) >= self.max_streams:
+            self._refuse(name, frame)
+            self.source.forget_stream(tag)
+            return None
+        known = self.source.skeleton_for(tag)
+        if known is None:
+            self._waiting.setdefault(name, deque())
+            self._waiting_seen.setdefault(name, time.monotonic())
+            return None
+        spec = StreamSpec(name, *known)
         try:
-            self.pipeline = Pipeline(self.make_keyframers(self.source), stream=self.stream,
-                                     reset_on_gap=self.reset_on_gap)
-            self._warm_up()
+            if not self._warm:
+                self._warm_up(spec)
+            pipeline = Pipeline(self.make_keyframers(spec), stream=name,
+                                reset_on_gap=self.reset_on_gap)
         except Exception as exc:
-            self.pipeline = None
-            if self._skeleton_given or not isinstance(exc, (StreamkeyError, ArithmeticError,
-                                                            ValueError, IndexError)):
+            if self.source.shared_skeleton or not isinstance(
+                    exc, (StreamkeyError, ArithmeticError, ValueError, IndexError)):
                 raise
-            self.source.refuse_skeleton(f"{type(exc).__name__}: {exc}")
+            self.source.refuse_skeleton(f"{type(exc).__name__}: {exc}", tag)
+            self._waiting.setdefault(name, deque())
+            self._waiting_seen.setdefault(name, time.monotonic())
+            return None
+        state = self.streams[name] = _Stream(name, tag, pipeline, self._stats(name))
+        state.stats.sessions += 1
+        self._waiting_seen.pop(name, None)
+        for frame, arrival_ns in self._waiting.pop(name, ()):
+            self._push(state, frame, arrival_ns)
+        return state
 
-    def _warm_up(self) -> None:
+    def _refuse(self, name: str, frame: bool) -> None:
+        self.summary.refused_frames += frame
+        if name in self._said_refused:
+            return
+        self.summary.refused_streams += 1
+        if len(self._said_refused) < MAX_REFUSALS_SAID:
+            self._said_refused.add(name)
+            self.on_ready(f"stream {name!r} refused: this run already serves "
+                          f"{self.max_streams} streams (--max-streams); its frames are "
+                          "dropped and counted")
+
+    def _retire(self, state: _Stream) -> None:
+        """End a stream: flush its pipeline, keep its counters, free its place."""
+        self._deferred.pop(state.name, None)
+        self._deliver(self._step(state, None, state.pipeline.flush), time.monotonic_ns(),
+                      state, due=False)
+        for key, value in state.pipeline.guard.counters.as_dict().items():
+            state.stats.guard[key] += value
+        state.stats.retired += 1
+        del self.streams[state.name]
+        self.source.forget_stream(state.tag)
+
+    def _retire_idle(self, now: float) -> None:
+        if self.stream_idle is None or now < self._next_retire:
+            return
+        self._next_retire = now + min(0.25, self.stream_idle / 4)
+        for state in [s for s in self.streams.values()
+                      if now - s.last_frame > self.stream_idle]:
+            self._retire(state)
+            self.on_ready(f"stream {state.name!r} retired after {self.stream_idle:g} s "
+                          "without a frame")
+        for name in [n for n, seen in self._waiting_seen.items()
+                     if now - seen > self.stream_idle]:
+            self._stats(name).waiting_drops += len(self._waiting.pop(name, ()))
+            del self._waiting_seen[name]
+
+    def _warm_up(self, spec: StreamSpec) -> None:
         """Push a few rest-pose frames through a throwaway copy of the keyframers, so that
         first-call costs (lazy imports, FK plans, BLAS start-up) are not paid by the first
         real decision's latency."""
-        assert self.source.skeleton is not None
-        spare = Pipeline(self.make_keyframers(self.source), stream=self.stream)
-        rest = np.zeros(self.source.skeleton.n_channels)
-        fps = self.source.fps or 120.0
+        spare = Pipeline(self.make_keyframers(spec), stream=spec.stream)
+        rest = np.zeros(spec.skeleton.n_channels)
         for seq in range(3):
-            spare.push(Frame(seq, seq / fps, rest))
+            spare.push(Frame(seq, seq / spec.fps, rest))
         spare.flush()
+        self._warm = True
 
-    async def _next(self) -> tuple[Frame, int] | None:
-        if self.idle_exit is not None and self.summary.frames_in:
-            try:
-                return await asyncio.wait_for(self.source.get(), self.idle_exit)
-            except TimeoutError:
-                return None
-        return await self.source.get()
+    def snapshot_stream(self, name: str) -> bytes:
+        """Snapshot of live stream `name`'s pipeline (`snapshot.py`); KeyError if not live."""
+        return self.streams[name].pipeline.snapshot()
+
+    def restore_stream(self, name: str, data: bytes, params: str | None = None) -> None:
+        """Serve stream `name` from a snapshot from now on (a worker taking over a stream);
+        a live pipeline of that name is replaced unflushed. `SnapshotError` if it does not
+        fit (`params`: the digest it must carry)."""
+        pipeline = Pipeline.restore(data, params)
+        self._deferred.pop(name, None)
+        self._waiting.pop(name, None)
+        self._waiting_seen.pop(name, None)
+        tag = None if name == self.stream else name
+        state = self.streams[name] = _Stream(name, tag, pipeline, self._stats(name))
+        state.stats.sessions += 1
+        if pipeline.guard.last is not None:
+            state.seq = pipeline.guard.last.seq
+        if pipeline._idle_due:  # the re-analysis of its last frame had not run yet
+            self._deferred[name] = state
+
+    # ------------------------------------------------------------------ the loop
 
     async def _loop(self) -> None:
-        assert self.pipeline is not None
-        while (item := await self._next()) is not None:
-            frame, arrival_ns = item
-            self.summary.frames_in += 1
-            self._deliver(self._step(frame.seq, self.pipeline.push, frame), arrival_ns)
-            self._deliver(self._step(frame.seq, self.pipeline.idle), arrival_ns)
-            if self.on_frame is not None:
-                self.on_frame(frame)
+        queue = self.source.frames.queue
+        while True:
+            if queue.empty():
+                if self._deferred:  # every due decision is out: one stream's re-analysis
+                    state = self._deferred.pop(next(iter(self._deferred)))
+                    self._deliver(self._step(state, state.seq, state.pipeline.idle),
+                                  state.last_arrival_ns, state, due=False)
+                    await asyncio.sleep(0)  # let the sources queue what came meanwhile
+                    continue
+                item = await self._wait()
+                if item is _TIMEOUT:
+                    if self.idle_exit is not None and self.summary.frames_in and (
+                            time.monotonic() - self._last_frame >= self.idle_exit):
+                        return
+                    self._retire_idle(time.monotonic())
+                    continue
+            else:
+                item = queue.get_nowait()
+            if item is None:
+                return
+            self._handle(item)
 
-    def _step(self, seq: int | None, call: Callable[..., list[Event]], *args: Any
-              ) -> list[Event]:
-        """One keyframer call; a fault is reported and the windows restarted."""
+    async def _wait(self) -> Any:
+        """The next queue item, or `_TIMEOUT` when a stream may be due for retirement or
+        the run for its idle exit."""
+        waits = []
+        if self.idle_exit is not None and self.summary.frames_in:
+            waits.append(self._last_frame + self.idle_exit - time.monotonic())
+        if self.stream_idle is not None and (self.streams or self._waiting):
+            waits.append(min(0.25, self.stream_idle / 4))
+        if not waits:
+            return await self.source.get()
+        try:
+            return await asyncio.wait_for(self.source.get(), max(0.0, min(waits)))
+        except TimeoutError:
+            return _TIMEOUT
+
+    def _handle(self, item: tuple[Any, ...]) -> None:
+        frame, arrival_ns = item[0], item[1]
+        tag = item[2] if len(item) > 2 else None
+        name = self.stream if tag is None else tag
+        if frame is None:  # a skeleton was announced: build the pipeline before its frames
+            if name not in self.streams:
+                self._open(name, tag, frame=False)
+            return
+        self.summary.frames_in += 1
+        now = self._last_frame = time.monotonic()
+        state = self.streams.get(name) or self._open(name, tag)
+        if state is None:
+            waiting = self._waiting.get(name)
+            if waiting is not None:
+                self._waiting_seen[name] = now
+                if len(waiting) >= MAX_WAITING_FRAMES:
+                    waiting.popleft()
+                    self._stats(name).waiting_drops += 1
+                waiting.append((frame, arrival_ns))
+            self._retire_idle(now)
+            return
+        state.last_frame = now
+        self._push(state, frame, arrival_ns)
+        if self.on_frame is not None:
+            self.on_frame(frame)
+        self._retire_idle(now)
+
+    def _push(self, state: _Stream, frame: Frame, arrival_ns: int) -> None:
+        """One frame of a stream: the pending re-analysis of its previous frame first (the
+        stream's own order), then the due decisions; this frame's re-analysis is deferred."""
+        if self._deferred.pop(state.name, None) is not None:
+            self._deliver(self._step(state, state.seq, state.pipeline.idle),
+                          state.last_arrival_ns, state, due=False)
+        state.stats.frames_in += 1
+        state.seq, state.last_arrival_ns = frame.seq, arrival_ns
+        self._deliver(self._step(state, frame.seq, state.pipeline.push, frame), arrival_ns,
+                      state, due=True)
+        if self.due_first:
+            self._deferred[state.name] = state
+        else:
+            self._deliver(self._step(state, frame.seq, state.pipeline.idle), arrival_ns,
+                          state, due=False)
+
+    def _step(self, state: _Stream, seq: int | None, call: Callable[..., list[Event]],
+              *args: Any) -> list[Event]:
+        """One keyframer call; a fault is reported and the stream's windows restarted."""
         try:
             return call(*args)
         except Exception as exc:  # a keyframer bug must not end the session or lose the log
-            return self._contain(exc, seq)
+            return self._contain(state, exc, seq)
 
-    def _contain(self, exc: Exception, seq: int | None) -> list[Event]:
-        """Report a keyframer failure as a status event and restart the window."""
-        assert self.pipeline is not None
+    def _contain(self, state: _Stream, exc: Exception, seq: int | None) -> list[Event]:
+        """Report a keyframer failure as a status event and restart the stream's window."""
         self.summary.error_count += 1
         if len(self.summary.errors) < MAX_ERRORS_KEPT:
-            self.summary.errors.append(f"{type(exc).__name__}: {exc} (at seq {seq})")
-        for kf in self.pipeline.keyframers:
+            where = "" if len(self.summary.streams) < 2 else f" in stream {state.name!r}"
+            self.summary.errors.append(f"{type(exc).__name__}: {exc} (at seq {seq}){where}")
+        pipeline = state.pipeline
+        for kf in pipeline.keyframers:
             kf.reset()
-        self.pipeline.guard.reset()
-        self.pipeline.features.reset()
-        return [StatusEvent(self.stream, "*", "error",
+        pipeline.guard.reset()
+        pipeline.features.reset()
+        return [StatusEvent(state.name, "*", "error",
                             {"error": f"{type(exc).__name__}: {exc}", "seq": seq})]
 
-    def _deliver(self, events: list[Event], arrival_ns: int) -> None:
+    def _deliver(self, events: list[Event], arrival_ns: int, state: _Stream | None = None,
+                 due: bool = False) -> None:
         """Stamp wall latency on keyframe events and hand every event to every sink."""
         for event in events:
             if isinstance(event, KeyframeEvent):
@@ -322,6 +561,12 @@ class Engine:
                     per_method = self.summary.method_latency[event.method] = LatencyHistogram()
                 per_method.add(latency)
                 self.summary.events[event.method] += 1
+                if due:
+                    self.summary.due_latency.add(latency)
+                if state is not None:
+                    state.stats.events[event.method] += 1
+                    if due:
+                        state.stats.due_latency.add(latency)
             else:  # status, gap, provisional, cancel, signal
                 self.summary.events[type(event).__name__.removesuffix("Event").lower()] += 1
             for sink in self.sinks:
@@ -356,15 +601,22 @@ class Engine:
 
     def _finish_summary(self, started: float) -> None:
         self.summary.seconds = time.monotonic() - started
-        if self.pipeline is not None:
-            self.summary.guard = self.pipeline.guard.counters.as_dict()
+        guard: Counter[str] = Counter()
+        for stats in self.summary.streams.values():
+            guard.update(stats.guard)
+        if self.summary.streams:
+            self.summary.guard = {k: guard.get(k, 0) for k in GuardCounters().as_dict()}
         self.summary.source = self.source.counters().as_dict()
         self.summary.source_error = None if self._stopping else self.source.fatal
         self.summary.left_in_queue = sum(1 for item in self.source.frames.queue._queue
-                                         if item is not None)
+                                         if item is not None and item[0] is not None)
+        self.summary.waiting_at_stop = sum(len(q) for q in self._waiting.values())
         for sink in self.sinks:
             key = sink.name
             n = 2
             while key in self.summary.sinks:
                 key, n = f"{sink.name}#{n}", n + 1
             self.summary.sinks[key] = sink.stats.as_dict()
+
+
+_TIMEOUT = object()

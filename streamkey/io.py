@@ -1,7 +1,10 @@
 """The engine's edges: the `Source` and `Sink` interfaces, their counters and the frame queue.
 
-A source delivers `(Frame, arrival_ns)` pairs from `get()` (None at end of stream) and may
-learn its skeleton from the wire (`skeleton_ready`). Every task a source runs goes through
+A source delivers `(Frame, arrival_ns)` pairs, or `(Frame, arrival_ns, stream)` for a
+named stream, from `get()` (None at end of stream) and may learn skeletons from the wire
+(`skeleton_ready` for the unnamed stream, `named` for the others, each announced to the
+engine through the queue). Stream ids follow `stream_id_problem`; `stream_tag` maps the
+name `default` to the unnamed stream. Every task a source runs goes through
 `spawn`: an exception inside it is counted and, if the task ends, the source `die`s, which
 ends the stream with a reason (`fatal`) instead of leaving the engine waiting forever.
 
@@ -16,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import re
 import time
 from collections import Counter
 from collections.abc import Coroutine
@@ -27,12 +31,41 @@ from .motion import Frame, Skeleton
 
 __all__ = ["Source", "Sink", "SourceStats", "SinkStats", "FrameQueue", "put_drop_oldest",
            "frame_numbers_problem", "fps_problem", "MAX_SEQ", "MAX_TIME", "MIN_FPS", "MAX_FPS",
-           "SINK_FAILURE_LIMIT"]
+           "SINK_FAILURE_LIMIT", "stream_id_problem", "stream_tag", "StreamSpec",
+           "DEFAULT_MAX_STREAMS", "MAX_STREAM_ID"]
 
 MAX_SEQ = 2**53 - 1          # exact in a float64 and an int64: JSON and NumPy agree on it
 MAX_TIME = 1e9               # seconds (31 years of stream)
 MIN_FPS, MAX_FPS = 0.1, 10_000.0   # frame time 1e-4 .. 10 s
 SINK_FAILURE_LIMIT = 10      # consecutive failures before a sink is disabled
+DEFAULT_MAX_STREAMS = 64     # streams one run serves at once (`run --max-streams`)
+MAX_STREAM_ID = 64           # characters of a stream id
+_STREAM_ID = re.compile(rf"[A-Za-z0-9][A-Za-z0-9_.-]{{0,{MAX_STREAM_ID - 1}}}", re.ASCII)
+
+
+def stream_id_problem(name: Any) -> str | None:
+    """Why `name` cannot be a stream id (None if it can): 1..64 ASCII letters, digits, `_`,
+    `.` or `-`, starting with a letter or digit (no `/`: it separates the id from the kind
+    in OSC addresses and ZeroMQ topics)."""
+    if isinstance(name, str) and _STREAM_ID.fullmatch(name):
+        return None
+    return (f"a stream id must be 1..{MAX_STREAM_ID} ASCII letters, digits, '_', '.' or '-' "
+            f"starting with a letter or digit, got {str(name)[:40]!r}")
+
+
+def stream_tag(name: str | None) -> str | None:
+    """The tag a source puts on a frame of stream `name`: None for the unnamed stream (the
+    legacy addresses, and the name `default`), which the engine calls by its `--stream`."""
+    return None if name in (None, "default") else name
+
+
+@dataclass(frozen=True)
+class StreamSpec:
+    """What a keyframer factory needs to know of one stream: its id, skeleton and rate."""
+
+    stream: str
+    skeleton: Skeleton
+    fps: float
 
 
 def frame_numbers_problem(seq: Any, time_s: Any) -> str | None:
@@ -91,6 +124,7 @@ class SinkStats:
     last_error: str = ""
     disabled: bool = False
     unseen_drops: str = ""   # drops this sink cannot count, and why (empty: it counts all)
+    duplicates: int = 0      # events skipped because their id was delivered before
 
     def as_dict(self) -> dict[str, Any]:
         """Counters as a plain dict."""
@@ -121,12 +155,20 @@ class FrameQueue:
         self.queue: asyncio.Queue[tuple[Frame, int] | None] = asyncio.Queue(maxsize)
         self.stats = stats
 
-    def put(self, frame: Frame | None, arrival_ns: int | None = None) -> None:
-        """Enqueue a frame stamped with its arrival (monotonic ns; now if not given), or the
-        end-of-stream marker."""
-        item = None if frame is None else (
-            frame, time.monotonic_ns() if arrival_ns is None else arrival_ns)
+    def put(self, frame: Frame | None, arrival_ns: int | None = None,
+            stream: str | None = None) -> None:
+        """Enqueue a frame stamped with its arrival (monotonic ns; now if not given) and its
+        stream tag (None: the unnamed stream), or the end-of-stream marker."""
+        item: Any = None
+        if frame is not None:
+            arrival = time.monotonic_ns() if arrival_ns is None else arrival_ns
+            item = (frame, arrival) if stream is None else (frame, arrival, stream)
         self.stats.queue_drops += put_drop_oldest(self.queue, item)
+
+    def announce(self, stream: str | None) -> None:
+        """Tell the engine that stream `stream` now has a skeleton (it builds the pipeline
+        before the stream's first frame)."""
+        put_drop_oldest(self.queue, (None, 0, stream))
 
     async def get(self) -> tuple[Frame, int] | None:
         """Next frame and its arrival time (ns, monotonic), or None at end of stream."""
@@ -147,29 +189,66 @@ class Source:
         self.fatal: str | None = None
         self.dead = asyncio.Event()
         self.tasks: set[asyncio.Task[Any]] = set()
+        # A skeleton given up front (`--skeleton`) serves every stream; one from the wire
+        # serves its own stream (`self.skeleton`: the unnamed one; `named`: the others).
+        self.shared_skeleton = skeleton is not None
+        self.named: dict[str, tuple[Skeleton, float]] = {}
+        self.max_streams = DEFAULT_MAX_STREAMS  # the engine sets its cap here
         if skeleton is not None:
             self.skeleton_ready.set()
 
-    def set_skeleton(self, skeleton: Skeleton, fps: float) -> None:
-        """Adopt a skeleton announced on the wire (first good one wins; a bad or changed one
-        is counted and ignored)."""
+    def set_skeleton(self, skeleton: Skeleton, fps: float, stream: str | None = None) -> None:
+        """Adopt a skeleton announced on the wire for `stream` (None: the unnamed stream;
+        first good one wins; a bad or changed one is counted and ignored)."""
         problem = fps_problem(fps)
         if problem is not None:
             self.stats.reject("skeleton", f"skeleton ignored: {problem}")
+            return
+        if stream is not None:
+            held = self.named.get(stream)
+            if held is None and len(self.named) >= self.max_streams:
+                self.stats.reject("stream_limit", f"skeleton of stream {stream!r} ignored: "
+                                  f"{self.max_streams} streams already announced")
+            elif held is None:
+                self.named[stream] = (skeleton, float(fps))
+                self.frames.announce(stream)
+            else:
+                self._mismatch(skeleton, held[0])
         elif self.skeleton is None:
             self.skeleton, self.fps = skeleton, float(fps)
             self.skeleton_ready.set()
-        elif (skeleton.names != self.skeleton.names
-              or skeleton.channels != self.skeleton.channels):
+            self.frames.announce(None)
+        else:
+            self._mismatch(skeleton, self.skeleton)
+
+    def _mismatch(self, skeleton: Skeleton, held: Skeleton) -> None:
+        if skeleton.names != held.names or skeleton.channels != held.channels:
             self.stats.reject("skeleton_mismatch",
                               f"another skeleton ({len(skeleton.names)} joints, "
                               f"{skeleton.n_channels} channels) ignored; the stream keeps its "
-                              f"first ({len(self.skeleton.names)} joints, "
-                              f"{self.skeleton.n_channels} channels)")
+                              f"first ({len(held.names)} joints, {held.n_channels} channels)")
 
-    def refuse_skeleton(self, why: str) -> None:
+    def skeleton_for(self, stream: str | None) -> tuple[Skeleton, float] | None:
+        """Skeleton and fps of a stream: its own, else the shared one; None if unknown yet."""
+        own = self.named.get(stream) if stream is not None else None
+        if own is not None:
+            return own
+        if (stream is None or self.shared_skeleton) and self.skeleton is not None:
+            return self.skeleton, float(self.fps or 120.0)
+        return None
+
+    def forget_stream(self, stream: str | None) -> None:
+        """A stream was retired: its skeleton no longer takes a place (it may come back with
+        its skeleton)."""
+        if stream is not None:
+            self.named.pop(stream, None)
+
+    def refuse_skeleton(self, why: str, stream: str | None = None) -> None:
         """The engine cannot use the adopted skeleton: count it and wait for another."""
         self.stats.reject("skeleton", f"skeleton ignored: {why}")
+        if stream is not None:
+            self.named.pop(stream, None)
+            return
         self.skeleton, self.fps = None, None
         self.skeleton_ready.clear()
 

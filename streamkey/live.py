@@ -16,6 +16,7 @@ from .adapters import make_sink, parse_address
 from .adapters.base import Sink, Source
 from .engine import Engine, RunSummary
 from .errors import UsageError
+from .io import DEFAULT_MAX_STREAMS, StreamSpec, stream_id_problem, stream_tag
 from .motion import Frame, Motion
 from .online import OnlineKeyframer
 from .replay.pacing import frame_stream, paced
@@ -38,18 +39,20 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
                  on_event: Callable[[dict[str, Any]], None] | None = None,
                  on_ready: Callable[[str], None] = _ready, idle_exit: float | None = None,
                  on_frame: Callable[[Frame], None] | None = None,
-                 reset_on_gap: bool = False) -> Engine:
-    """The engine for a source (a Motion is replayed at `rate`, default its fps; 0: unpaced)."""
+                 reset_on_gap: bool = False, max_streams: int = DEFAULT_MAX_STREAMS,
+                 stream_idle: float | None = None, due_first: bool = True) -> Engine:
+    """The engine for a source (a Motion is replayed at `rate`, default its fps; 0: unpaced);
+    every stream of the source gets its own keyframers (`Engine`)."""
     if isinstance(source, Motion):
         source = MotionSource(source, rate=rate, loop=loop)
 
-    def keyframers(src: Source) -> list[OnlineKeyframer]:
-        assert src.skeleton is not None and src.fps is not None
-        motion = Motion(src.skeleton, np.zeros((0, src.skeleton.n_channels)), src.fps)
-        return make_keyframers(motion, methods, params, lookahead, stream)
+    def keyframers(spec: StreamSpec) -> list[OnlineKeyframer]:
+        motion = Motion(spec.skeleton, np.zeros((0, spec.skeleton.n_channels)), spec.fps)
+        return make_keyframers(motion, methods, params, lookahead, spec.stream)
 
     return Engine(source, keyframers, sinks, stream, on_ready, on_event, idle_exit,
-                  on_frame=on_frame, reset_on_gap=reset_on_gap)
+                  on_frame=on_frame, reset_on_gap=reset_on_gap, max_streams=max_streams,
+                  stream_idle=stream_idle, due_first=due_first)
 
 
 async def run_engine(engine: Engine) -> RunSummary:
@@ -75,20 +78,25 @@ async def run_live(source: Source | Motion, methods: list[str], to: list[str],
                    stream: str = "default", rate: float | None = None,
                    on_event: Callable[[dict[str, Any]], None] | None = None,
                    on_ready: Callable[[str], None] = _ready,
-                   idle_exit: float | None = None,
-                   reset_on_gap: bool = False) -> RunSummary:
+                   idle_exit: float | None = None, reset_on_gap: bool = False,
+                   max_streams: int = DEFAULT_MAX_STREAMS,
+                   stream_idle: float | None = None) -> RunSummary:
     """Run the engine from `source` to the sinks at `to`; returns the summary."""
     sinks = [make_sink(parse_address(a), listen) for a in to]
     return await run_engine(build_engine(source, methods, sinks, params, lookahead, stream,
                                          rate, on_event=on_event, on_ready=on_ready,
-                                         idle_exit=idle_exit, reset_on_gap=reset_on_gap))
+                                         idle_exit=idle_exit, reset_on_gap=reset_on_gap,
+                                         max_streams=max_streams, stream_idle=stream_idle))
 
 
 def replay(motion: Motion, to: list[str], rate: float | None = None, speed: float = 1.0,
            loop: bool = False, start: int | None = None, end: int | None = None,
            listen: str | None = None, wait_subscribers: float = 2.0,
-           count: int | None = None) -> dict[str, Any]:
-    """Send a motion as a paced frame stream to OSC / ZeroMQ / stdout; returns counters."""
+           count: int | None = None, stream: str | None = None) -> dict[str, Any]:
+    """Send a motion as a paced frame stream to OSC / ZeroMQ / stdout; returns counters.
+    `stream`: the stream id on the wire (None: the unnamed stream, `default`)."""
+    if stream is not None and (problem := stream_id_problem(stream)) is not None:
+        raise UsageError(f"replay --stream: {problem}")
     targets = [parse_address(a) for a in to]
     bad = [str(a) for a in targets if a.scheme not in FRAME_TARGETS]
     if bad:
@@ -96,7 +104,7 @@ def replay(motion: Motion, to: list[str], rate: float | None = None, speed: floa
                          f"not {', '.join(bad)}")
     if speed <= 0 or (rate is not None and rate <= 0):
         raise UsageError("--rate and --speed must be positive")
-    senders = [_frame_sender(a, listen) for a in targets]
+    senders = [_frame_sender(a, listen, stream) for a in targets]
     fps = motion.fps
     for s in senders:
         if hasattr(s, "subscribers") and wait_subscribers > 0:
@@ -125,21 +133,22 @@ def replay(motion: Motion, to: list[str], rate: float | None = None, speed: floa
 class _StdoutFrames:
     name = "stdout"
 
-    def __init__(self) -> None:
+    def __init__(self, stream: str | None = None) -> None:
         from .adapters.base import SinkStats
 
         self.stats = SinkStats()
+        self.tag = {} if stream_tag(stream) is None else {"stream": stream}
 
     def send_skeleton(self, skeleton: Any, fps: float) -> None:
         if self.stats.sent == 0:  # once, first: what `run --from -` reads before any frame
             from .adapters.osc import skeleton_header
 
-            sys.stdout.write(json.dumps({"type": "skeleton", "fps": fps,
+            sys.stdout.write(json.dumps({"type": "skeleton", "fps": fps, **self.tag,
                                          "bvh": skeleton_header(skeleton, fps)}) + "\n")
 
     def send_frame(self, frame: Frame) -> None:
         # Full float precision: `replay --to - | run --from -` equals `run --from FILE`.
-        sys.stdout.write(json.dumps({"seq": frame.seq, "time": frame.time,
+        sys.stdout.write(json.dumps({"seq": frame.seq, "time": frame.time, **self.tag,
                                      "channels": frame.channels.tolist()}) + "\n")
         self.stats.sent += 1
 
@@ -147,13 +156,13 @@ class _StdoutFrames:
         sys.stdout.flush()
 
 
-def _frame_sender(address: Any, listen: str | None) -> Any:
+def _frame_sender(address: Any, listen: str | None, stream: str | None = None) -> Any:
     if address.scheme == "osc":
         from .adapters.osc import OscFrameSender
 
-        return OscFrameSender(address, listen)
+        return OscFrameSender(address, listen, stream=stream)
     if address.scheme in ("zmq+tcp", "zmq+ipc"):
         from .adapters.zmq import ZmqFrameSender
 
-        return ZmqFrameSender(address, listen)
-    return _StdoutFrames()
+        return ZmqFrameSender(address, listen, stream=stream)
+    return _StdoutFrames(stream)

@@ -339,6 +339,19 @@ class OnlineKeyframer:
         Without, or for a method that keeps none, this is `reset()`. (subclass hook)"""
         self.reset()
 
+    def snapshot(self) -> bytes:
+        """Versioned snapshot of the whole state, without derived caches (`snapshot.py`)."""
+        from .snapshot import snapshot
+
+        return snapshot(self)
+
+    @classmethod
+    def restore(cls, data: bytes, params: str | None = None) -> OnlineKeyframer:
+        """A new keyframer from `snapshot()` bytes; `params`: the digest it must carry."""
+        from .snapshot import restore
+
+        return restore(data, cls, params)  # type: ignore[no-any-return]
+
 
 def forget_scores(kf: OnlineKeyframer) -> None:
     """A new stream: the strength ranks start afresh (wrapped keyframers too). A restart
@@ -422,6 +435,19 @@ class Pipeline:
         """Feed many frames; same events as pushing them one by one."""
         return self.idle() + _drive(self.guard, self.features, self.keyframers, frames,
                                     reset_on_gap=self.reset_on_gap)
+
+    def snapshot(self) -> bytes:
+        """Versioned snapshot of every keyframer, the guard and the features (`snapshot.py`)."""
+        from .snapshot import snapshot
+
+        return snapshot(self)
+
+    @classmethod
+    def restore(cls, data: bytes, params: str | None = None) -> Pipeline:
+        """A new pipeline from `snapshot()` bytes; `params`: the digest it must carry."""
+        from .snapshot import restore
+
+        return restore(data, cls, params)  # type: ignore[no-any-return]
 
     def flush(self) -> list[Event]:
         """End of stream for every keyframer."""

@@ -84,3 +84,16 @@ def keys_sent_to_osc(clip: Path, port: int, log: Path) -> list[dict]:
     _, err = run.communicate(timeout=120 * MS)
     assert run.returncode == 0, err
     return [e for e in read_jsonl(log) if e["type"] == "keyframe"]
+
+
+def run_with_handler(coro):
+    """asyncio.run, failing on any exception that reached the loop (a traceback)."""
+    problems = []
+
+    async def main():
+        asyncio.get_running_loop().set_exception_handler(lambda loop, ctx: problems.append(ctx))
+        return await coro
+
+    result = asyncio.run(main())
+    assert not problems, problems
+    return result

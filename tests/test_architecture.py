@@ -17,6 +17,7 @@ import streamkey
 CORE = ["streamkey/signal.py", "streamkey/kinematics.py", "streamkey/features.py",
         "streamkey/online.py", "streamkey/motion.py", "streamkey/keyframes.py",
         "streamkey/playable.py", "streamkey/playable_online.py",
+        "streamkey/snapshot.py",
         *[str(p.relative_to(ROOT)) for p in (ROOT / "streamkey" / "methods").glob("*.py")]]
 FORBIDDEN = {"asyncio", "socket", "time", "zmq", "pythonosc", "websockets", "selectors",
              "threading", "subprocess", "os", "pathlib", "io"}

@@ -19,7 +19,7 @@ import pytest
 from cmu import DATA
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from live_helpers import MS, free_port, keyframes_of, until
+from live_helpers import MS, free_port, keyframes_of, run_with_handler, until
 from pythonosc.osc_message_builder import OscMessageBuilder
 
 from streamkey.adapters import parse_address
@@ -95,19 +95,6 @@ def _interleave(frames_and_packets):
     for position, packet in frames_and_packets:
         schedule.setdefault(position % len(FRAMES), []).append(packet)
     return schedule
-
-
-def _run_with_handler(coro):
-    """asyncio.run, failing on any exception that reached the loop (a traceback)."""
-    problems = []
-
-    async def main():
-        asyncio.get_running_loop().set_exception_handler(lambda loop, ctx: problems.append(ctx))
-        return await coro
-
-    result = asyncio.run(main())
-    assert not problems, problems
-    return result
 
 
 async def _live(source, ready, send_frame, send_hostile, schedule, connected=None):
@@ -215,6 +202,6 @@ def test_packet_fuzz_during_a_live_run(transport, data):
     packets = data.draw(st.lists(st.tuples(st.integers(0, 10_000), hostile), min_size=1,
                                  max_size=60))
     run = _osc_run if transport == "osc" else _zmq_run
-    summary, events, sent = _run_with_handler(run(_interleave(packets)))
+    summary, events, sent = run_with_handler(run(_interleave(packets)))
     _check(summary, events, sent)
     assert summary.source["kernel_drops"] in (0, None)  # None: not UDP (ZeroMQ)

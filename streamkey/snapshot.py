@@ -1,0 +1,196 @@
+"""Snapshots of online keyframers and pipelines: `snapshot(obj) -> bytes`, `restore(bytes)`.
+
+Sans-I/O: bytes in, bytes out; where they are kept (a file, Redis) is the caller's business.
+A snapshot is a small versioned header and a pickle of the keyframer's plain attributes::
+
+    b"SKSNAP" | u8 format version | u32 header length | header JSON | pickle payload
+
+The header names the kind (`keyframer` or `pipeline`), the class, the stream, the params
+digest (a pipeline's digest covers every keyframer's, in order), the last accepted `seq`
+(None before the first frame) and a SHA-256 of the payload. `restore` refuses, with a clear
+`SnapshotError`, another format version, a damaged payload, a different params digest than
+the caller expects, or a snapshot of another kind.
+
+Derived caches are not stored: speed's `HPBank` (Cholesky factors, ~29 MB of a pipeline) is
+replaced by its recipe (lambdas, capacity) and rebuilt on restore; the factors it rebuilds
+are bit-identical (see `HPBank`), so restored keyframers decide exactly as the original.
+Determinism contract (tested): the same frames give the same events after any snapshot /
+restore point.
+
+Only restore snapshots you made yourself: the payload is a pickle.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import pickle
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .errors import StreamkeyError
+from .keyframes import params_digest
+
+__all__ = ["SnapshotError", "SnapshotHeader", "snapshot", "restore", "read_header",
+           "SNAPSHOT_VERSION", "MAGIC"]
+
+MAGIC = b"SKSNAP"
+SNAPSHOT_VERSION = 1
+_PREFIX = struct.Struct(">6sBI")
+MAX_HEADER_BYTES = 1 << 16
+
+
+class SnapshotError(StreamkeyError):
+    """A snapshot that cannot be restored here (version, params, damage, kind)."""
+
+
+@dataclass(frozen=True)
+class SnapshotHeader:
+    """What a snapshot says about itself, readable without unpickling it."""
+
+    version: int
+    kind: str
+    cls: str
+    stream: str
+    params: str
+    last_seq: int | None
+    sha256: str
+
+    def as_dict(self) -> dict[str, Any]:
+        """The header as a JSON-ready dict."""
+        return dict(self.__dict__)
+
+
+def _digest_of(obj: Any) -> str:
+    """The params digest of a keyframer, or of a pipeline (its keyframers' digests)."""
+    if hasattr(obj, "keyframers"):
+        return params_digest({"pipeline": [kf.params_digest for kf in obj.keyframers]})
+    return str(obj.params_digest)
+
+
+def _describe(obj: Any) -> tuple[str, str, str, int | None]:
+    kind = "pipeline" if hasattr(obj, "keyframers") else "keyframer"
+    last = obj.guard.last
+    stream = obj.guard.stream
+    return kind, f"{type(obj).__module__}.{type(obj).__qualname__}", stream, (
+        None if last is None else int(last.seq))
+
+
+class _Writer:
+    """An in-memory file for the pickler (this module does no I/O)."""
+
+    def __init__(self) -> None:
+        self.parts: list[bytes] = []
+
+    def write(self, data: Any) -> int:
+        chunk = bytes(data)
+        self.parts.append(chunk)
+        return len(chunk)
+
+
+class _Reader:
+    """An in-memory file for the unpickler."""
+
+    def __init__(self, data: memoryview) -> None:
+        self.data, self.pos = bytes(data), 0
+
+    def read(self, n: int = -1) -> bytes:
+        end = len(self.data) if n < 0 else self.pos + n
+        out, self.pos = self.data[self.pos : end], min(end, len(self.data))
+        return out
+
+    def readinto(self, buf: Any) -> int:
+        data = self.read(len(buf))
+        buf[: len(data)] = data
+        return len(data)
+
+    def readline(self) -> bytes:
+        end = self.data.find(b"\n", self.pos)
+        return self.read(-1 if end < 0 else end + 1 - self.pos)
+
+
+class _Pickler(pickle.Pickler):
+    """Pickles derived caches by their recipe instead of their contents."""
+
+    def persistent_id(self, obj: Any) -> Any:
+        if type(obj).__name__ == "HPBank" and type(obj).__module__ == "streamkey.methods.speed":
+            return ("HPBank", np.asarray(obj.lams, dtype=np.float64).tobytes(),
+                    int(obj.capacity), bool(obj.keep))
+        return None
+
+
+class _Unpickler(pickle.Unpickler):
+    def persistent_load(self, pid: Any) -> Any:
+        if isinstance(pid, tuple) and len(pid) == 4 and pid[0] == "HPBank":
+            from .methods.speed import HPBank
+
+            lams = np.frombuffer(pid[1], dtype=np.float64).copy()
+            return HPBank(lams, pid[2], keep=pid[3])
+        raise SnapshotError(f"snapshot refers to an unknown derived object {str(pid)[:60]}")
+
+
+def snapshot(obj: Any) -> bytes:
+    """Snapshot of an `OnlineKeyframer` or a `Pipeline` (see the module docstring)."""
+    buf = _Writer()
+    _Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
+    payload = b"".join(buf.parts)
+    kind, cls, stream, last = _describe(obj)
+    header = json.dumps({"version": SNAPSHOT_VERSION, "kind": kind, "cls": cls,
+                         "stream": stream, "params": _digest_of(obj), "last_seq": last,
+                         "sha256": hashlib.sha256(payload).hexdigest()},
+                        sort_keys=True).encode()
+    return _PREFIX.pack(MAGIC, SNAPSHOT_VERSION, len(header)) + header + payload
+
+
+def read_header(data: bytes) -> tuple[SnapshotHeader, memoryview]:
+    """The header and the payload of a snapshot; `SnapshotError` if it is not one of ours."""
+    if not isinstance(data, (bytes, bytearray, memoryview)) or len(data) < _PREFIX.size:
+        raise SnapshotError("not a streamkey snapshot: too short")
+    magic, version, size = _PREFIX.unpack_from(data)
+    if magic != MAGIC:
+        raise SnapshotError("not a streamkey snapshot: bad magic bytes")
+    if version != SNAPSHOT_VERSION:
+        raise SnapshotError(f"snapshot format version {version}, this streamkey reads "
+                            f"version {SNAPSHOT_VERSION} only; replay the stream instead")
+    if size > MAX_HEADER_BYTES or _PREFIX.size + size > len(data):
+        raise SnapshotError("damaged snapshot: header length out of range")
+    try:
+        info = json.loads(bytes(data[_PREFIX.size : _PREFIX.size + size]))
+        header = SnapshotHeader(int(info["version"]), str(info["kind"]), str(info["cls"]),
+                                str(info["stream"]), str(info["params"]),
+                                None if info["last_seq"] is None else int(info["last_seq"]),
+                                str(info["sha256"]))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise SnapshotError(f"damaged snapshot header: {exc}") from None
+    if header.version != version:
+        raise SnapshotError("damaged snapshot: header and prefix disagree on the version")
+    return header, memoryview(data)[_PREFIX.size + size :]
+
+
+def restore(data: bytes, expected: type | None = None, params: str | None = None) -> Any:
+    """The keyframer or pipeline of a snapshot. `expected`: the class (or a base) it must be;
+    `params`: the params digest it must carry (a run restoring its own streams passes the
+    digest of the keyframers it would build, so changed parameters are refused)."""
+    header, payload = read_header(data)
+    if params is not None and header.params != params:
+        raise SnapshotError(f"snapshot of stream {header.stream!r} was taken with parameters "
+                            f"{header.params}, this run uses {params}; start the stream "
+                            "afresh or run with the snapshot's parameters")
+    if hashlib.sha256(payload).hexdigest() != header.sha256:
+        raise SnapshotError(f"damaged snapshot of stream {header.stream!r}: checksum mismatch")
+    try:
+        obj = _Unpickler(_Reader(payload)).load()
+    except SnapshotError:
+        raise
+    except Exception as exc:  # the code changed under the snapshot (a class moved, ...)
+        raise SnapshotError(f"snapshot of stream {header.stream!r} cannot be loaded by this "
+                            f"streamkey: {type(exc).__name__}: {exc}") from None
+    if expected is not None and not isinstance(obj, expected):
+        raise SnapshotError(f"snapshot holds a {header.kind} ({header.cls}), expected a "
+                            f"{expected.__name__}")
+    if _digest_of(obj) != header.params:
+        raise SnapshotError("damaged snapshot: its parameters disagree with its header")
+    return obj

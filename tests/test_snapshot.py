@@ -1,0 +1,111 @@
+"""Snapshots (issue 14 §3): versioned, refused when they do not fit, small, and a tested
+determinism contract: the same frames give the same events after any snapshot/restore point."""
+
+from __future__ import annotations
+
+import functools
+import struct
+
+import pytest
+from cmu import DATA
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from streamkey.bvh import read_bvh
+from streamkey.methods import ONLINE_METHODS, online_class
+from streamkey.online import OnlineKeyframer, Pipeline
+from streamkey.snapshot import SnapshotError, read_header
+from streamkey.streaming import make_keyframers
+
+MOTION = read_bvh(DATA / "07_01.bvh")
+FRAMES = MOTION.frames()
+THREE = ["saliency", "speed", "simplify"]
+
+
+def run_keyframer(kf, frames):
+    return [e for f in frames for e in kf.push(f)]
+
+
+@functools.cache
+def uninterrupted(method: str) -> list:
+    kf = online_class(method)(MOTION.skeleton, MOTION.fps)
+    return run_keyframer(kf, FRAMES) + kf.flush()
+
+
+@pytest.mark.parametrize("method", list(ONLINE_METHODS))
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cuts=st.lists(st.integers(0, len(FRAMES)), min_size=1, max_size=3))
+def test_every_keyframer_gives_the_same_events_after_any_snapshot_point(method, cuts):
+    kf = online_class(method)(MOTION.skeleton, MOTION.fps)
+    events, at = [], 0
+    for cut in sorted(cuts):
+        events += run_keyframer(kf, FRAMES[at:cut])
+        at = cut
+        data = kf.snapshot()
+        header, _ = read_header(data)
+        assert header.params == kf.params_digest and header.kind == "keyframer"
+        assert header.last_seq == (FRAMES[cut - 1].seq if cut else None)
+        kf = OnlineKeyframer.restore(data, params=kf.params_digest)
+    events += run_keyframer(kf, FRAMES[at:]) + kf.flush()
+    assert events == uninterrupted(method)
+
+
+@functools.cache
+def pipeline_reference() -> list:
+    pipe = Pipeline(make_keyframers(MOTION, list(ONLINE_METHODS)))
+    out = []
+    for f in FRAMES:
+        out += pipe.push(f)
+        out += pipe.idle()
+    return out + pipe.flush()
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cut=st.integers(0, len(FRAMES)), before_idle=st.booleans())
+def test_a_pipeline_restored_between_push_and_idle_decides_the_same(cut, before_idle):
+    pipe = Pipeline(make_keyframers(MOTION, list(ONLINE_METHODS)))
+    out = []
+    for i, f in enumerate(FRAMES):
+        out += pipe.push(f)
+        if i == cut and before_idle:  # the re-analysis of frame i is still pending
+            pipe = Pipeline.restore(pipe.snapshot())
+        out += pipe.idle()
+        if i == cut and not before_idle:
+            pipe = Pipeline.restore(pipe.snapshot())
+    assert out + pipe.flush() == pipeline_reference()
+
+
+def test_the_three_method_pipeline_snapshot_is_at_most_8_mb_after_30_seconds():
+    motion = read_bvh(DATA / "01_06.bvh")
+    pipe = Pipeline(make_keyframers(motion, THREE))
+    frames = motion.frames()[: int(30 * motion.fps)]
+    for f in frames:
+        pipe.push(f)
+        pipe.idle()
+    data = pipe.snapshot()
+    assert len(data) <= 8 * 2**20, f"{len(data) / 2**20:.2f} MB"
+    restored = Pipeline.restore(data)
+    speed = next(kf for kf in restored.keyframers if kf.method == "speed")
+    assert not speed._bank._cache  # the derived factors are rebuilt on demand, not stored
+    tail = motion.frames()[len(frames) : len(frames) + 600]
+    assert [e for f in tail for e in restored.push(f) + restored.idle()] == [
+        e for f in tail for e in pipe.push(f) + pipe.idle()]
+
+
+def test_snapshots_that_do_not_fit_are_refused_with_a_clear_error():
+    kf = online_class("simplify")(MOTION.skeleton, MOTION.fps)
+    run_keyframer(kf, FRAMES[:50])
+    data = kf.snapshot()
+    other = online_class("simplify")(MOTION.skeleton, MOTION.fps, tolerance=0.5)
+    with pytest.raises(SnapshotError, match="parameters"):
+        OnlineKeyframer.restore(data, params=other.params_digest)
+    with pytest.raises(SnapshotError, match="version 9"):
+        OnlineKeyframer.restore(data[:6] + struct.pack(">B", 9) + data[7:])
+    with pytest.raises(SnapshotError, match="checksum"):
+        OnlineKeyframer.restore(data[:-3] + bytes(3))
+    with pytest.raises(SnapshotError, match="expected a Pipeline"):
+        Pipeline.restore(data)
+    for junk in (b"", b"SKSNAP", b"x" * 100, data[:20]):
+        with pytest.raises(SnapshotError):
+            OnlineKeyframer.restore(junk)
+    assert OnlineKeyframer.restore(data, params=kf.params_digest).guard.last.seq == 50
