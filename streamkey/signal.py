@@ -5,7 +5,6 @@ Pure functions over numpy arrays; no I/O. Derivatives are with respect to the fr
 
 from __future__ import annotations
 
-import threading
 from collections import OrderedDict
 
 import numpy as np
@@ -67,23 +66,20 @@ def hp_settle(lams: np.ndarray | float) -> np.ndarray:
 
 _PREFIXES: OrderedDict[float, np.ndarray] = OrderedDict()  # lambda -> LAPACK's first columns
 _PREFIX_LIMIT = 1024
-_PREFIXES_LOCK = threading.Lock()
 
 
 def _prefix(lam: float) -> np.ndarray:
     """LAPACK's upper banded factor of I + lam D'D in its first `hp_settle(lam)` columns."""
-    with _PREFIXES_LOCK:  # shared by streams that may run in threads
-        got = _PREFIXES.get(lam)
-        if got is not None:
-            _PREFIXES.move_to_end(lam)
-            return got
+    got = _PREFIXES.get(lam)
+    if got is not None:
+        _PREFIXES.move_to_end(lam)
+        return got
     k = int(hp_settle(lam))
     got = cholesky_banded(hp_banded(k + 2, lam), check_finite=False)[:, :k].copy()
     got.setflags(write=False)
-    with _PREFIXES_LOCK:
-        _PREFIXES[lam] = got
-        if len(_PREFIXES) > _PREFIX_LIMIT:
-            _PREFIXES.popitem(last=False)
+    _PREFIXES[lam] = got
+    if len(_PREFIXES) > _PREFIX_LIMIT:
+        _PREFIXES.popitem(last=False)
     return got
 
 

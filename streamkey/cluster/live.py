@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import math
-import pickle
 import threading
 import time
 import zlib
@@ -32,7 +31,8 @@ from typing import Any
 
 import zmq
 
-from ..adapters.zmq import decode_frame_parts, decode_skeleton_parts
+from ..adapters.zmq import decode_frame_parts, decode_skeleton_parts, parse_topic, topic
+from ..io import stream_tag
 from ..keyframes import Event
 from ..motion import Frame, Skeleton
 from ..online import Pipeline
@@ -41,7 +41,6 @@ from ..streaming import make_keyframers
 __all__ = ["ClusterConfig", "ShardWorker", "FrameLogger", "shard_of", "split_topic",
            "stream_topic", "event_id", "snapshot_pipeline", "restore_pipeline", "RedisKeys"]
 
-MAX_STREAM_ID = 200  # bytes; a longer topic is refused (it becomes a Redis key)
 _LOG_BATCH = 512  # log entries per Redis round trip when replaying
 
 
@@ -70,25 +69,34 @@ def shard_of(stream: str, shards: int) -> int:
 
 
 def split_topic(parts: list[bytes]) -> tuple[str, list[bytes]]:
-    """(stream id, the message without its topic). The wire format of w14streams puts the
-    stream id as the first part (the topic); an untopped `[b"frame", ...]` is stream
-    `default`. Raises ValueError saying what is wrong."""
-    if parts and parts[0] in (b"frame", b"skeleton"):
-        return "default", parts
+    """(stream id, the message as an untagged one: `[b"frame" | b"skeleton", ...]`) of a
+    message on the ZeroMQ wire format (`adapters.zmq.topic`: `STREAM/frame`, bare `frame` for
+    stream `default`). Raises ValueError saying what is wrong."""
+    if not parts:
+        raise ValueError("empty message, expected a topic and a body")
     if len(parts) < 2:
         raise ValueError(f"message has {len(parts)} part(s), expected a topic and a body")
-    if not 0 < len(parts[0]) <= MAX_STREAM_ID:
-        raise ValueError(f"stream id of {len(parts[0])} bytes, expected 1..{MAX_STREAM_ID}")
     try:
-        stream = parts[0].decode("utf-8")
-    except UnicodeDecodeError:
-        raise ValueError("stream id is not UTF-8") from None
-    return stream, parts[1:]
+        kind, tag = parse_topic(parts[0])
+    except LookupError as exc:
+        raise ValueError(str(exc)) from None
+    return tag or "default", [kind.encode(), *parts[1:]]
 
 
 def stream_topic(stream: str, parts: list[bytes]) -> list[bytes]:
-    """The multipart message `parts` (a frame or skeleton) on the topic of `stream`."""
-    return [stream.encode("utf-8"), *parts]
+    """The untagged multipart message `parts` (a frame or skeleton) on the topic of `stream`."""
+    return [topic(parts[0].decode(), stream), *parts[1:]]
+
+
+def subscriptions(streams: list[str] | None) -> list[bytes]:
+    """ZeroMQ SUB prefixes for these stream ids (every topic without)."""
+    if not streams:
+        return [b""]
+    out: list[bytes] = []
+    for stream in streams:
+        out += [b"frame", b"skeleton"] if stream_tag(stream) is None else [
+            f"{stream}/".encode()]
+    return out
 
 
 def event_id(event: Event) -> str:
@@ -112,23 +120,13 @@ def event_id(event: Event) -> str:
 
 
 def snapshot_pipeline(pipeline: Pipeline) -> bytes:
-    """The pipeline's state as bytes: `Pipeline.snapshot()` where it exists (w14streams),
-    else a pickle. The one place to switch at merge time."""
-    own = getattr(pipeline, "snapshot", None)
-    if callable(own):
-        return bytes(own())
-    return pickle.dumps(pipeline, protocol=pickle.HIGHEST_PROTOCOL)
+    """The pipeline's state as versioned snapshot bytes (`Pipeline.snapshot`)."""
+    return pipeline.snapshot()
 
 
 def restore_pipeline(data: bytes) -> Pipeline:
-    """The pipeline of `snapshot_pipeline(...)` bytes (our own Redis data only)."""
-    own = getattr(Pipeline, "restore", None)
-    if callable(own):
-        return own(data)
-    pipeline = pickle.loads(data)  # noqa: S301 - written by our own workers to our Redis
-    if not isinstance(pipeline, Pipeline):
-        raise ValueError("snapshot is not a streamkey Pipeline")
-    return pipeline
+    """The pipeline of `snapshot_pipeline(...)` bytes (`Pipeline.restore`)."""
+    return Pipeline.restore(data)
 
 
 class RedisKeys:
@@ -236,8 +234,8 @@ class ShardWorker:
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVHWM, 100_000)  # frames wait here while the log is replayed
         wanted = [s for s in self.cfg.streams or [] if shard_of(s, self.cfg.shards) == self.shard]
-        for topic in wanted if self.cfg.streams else [""]:
-            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        for prefix in subscriptions(wanted) if self.cfg.streams else [b""]:
+            sock.setsockopt(zmq.SUBSCRIBE, prefix)
         sock.connect(self.cfg.endpoint)
         try:
             with self.lock:
@@ -529,8 +527,8 @@ class FrameLogger:
         sock = zmq.Context.instance().socket(zmq.SUB)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVHWM, 100_000)
-        for topic in self.cfg.streams or [""]:
-            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        for prefix in subscriptions(self.cfg.streams):
+            sock.setsockopt(zmq.SUBSCRIBE, prefix)
         sock.connect(self.cfg.endpoint)
         self.subscribed.set()
         poller = zmq.Poller()

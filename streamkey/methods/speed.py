@@ -65,7 +65,6 @@ cut-off sample (the candidates of `cutoff_history` frames); pickled after 30 s: 
 from __future__ import annotations
 
 import heapq
-import threading
 from collections import OrderedDict, deque
 from dataclasses import dataclass
 from typing import Any
@@ -116,8 +115,8 @@ def speed_signal(positions: np.ndarray, frame_time: float, f_c: float = 10.0) ->
 _FACTORS: OrderedDict[tuple[float, int], np.ndarray] = OrderedDict()  # (lambda, n) -> factor
 FACTOR_CACHE_BYTES = 32 * 2**20  # shared by every stream: ~3.8 MB per parameter set at 120 fps
 _cached_bytes = 0
-_FACTORS_LOCK = threading.Lock()
-
+# No locks (algorithm modules import no threading): the engine drives every keyframer from
+# one thread, and a race between threads could at worst build a factor twice.
 
 _TAILS: dict[tuple[float, int, int], np.ndarray] = {}  # (lambda, n, k) -> step operator
 
@@ -127,15 +126,13 @@ def speed_tail(positions: np.ndarray, frame_time: float, f_c: float, k: int) -> 
     the HP smoother's last k + 1 rows, differenced ((k, n), shared like the HP factors)."""
     n = len(positions)
     key = (hp_lambda(f_c, frame_time), n, k)
-    with _FACTORS_LOCK:
-        op = _TAILS.get(key)
+    op = _TAILS.get(key)
     if op is None:
         rows = hp_filter(np.eye(n), key[0])[n - k - 1 :]
         op = rows[1:] - rows[:-1]
-        with _FACTORS_LOCK:
-            if len(_TAILS) >= 64:
-                _TAILS.clear()
-            _TAILS[key] = op
+        if len(_TAILS) >= 64:
+            _TAILS.clear()
+        _TAILS[key] = op
     return np.linalg.norm(op @ positions, axis=1) / frame_time
 
 
@@ -159,20 +156,18 @@ class HPBank:
         """Upper banded Cholesky factor (3, n) of the length-n HP system for lambda i."""
         global _cached_bytes
         key = (float(self.lams[i]), int(n))
-        with _FACTORS_LOCK:  # streams may run in threads
-            got = _FACTORS.get(key)
-            if got is not None:
-                _FACTORS.move_to_end(key)
-                return got
+        got = _FACTORS.get(key)
+        if got is not None:
+            _FACTORS.move_to_end(key)
+            return got
         c = hp_factor(n, key[0])
         if keep:
             c.setflags(write=False)
-            with _FACTORS_LOCK:
-                if key not in _FACTORS:
-                    _FACTORS[key] = c
-                    _cached_bytes += c.nbytes
-                while _cached_bytes > FACTOR_CACHE_BYTES and len(_FACTORS) > 1:
-                    _cached_bytes -= _FACTORS.popitem(last=False)[1].nbytes
+            if key not in _FACTORS:
+                _FACTORS[key] = c
+                _cached_bytes += c.nbytes
+            while _cached_bytes > FACTOR_CACHE_BYTES and len(_FACTORS) > 1:
+                _cached_bytes -= _FACTORS.popitem(last=False)[1].nbytes
         return c
 
     def solve(self, v: np.ndarray, i: int, keep: bool = False, tail: int | None = None
