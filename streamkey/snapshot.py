@@ -11,9 +11,10 @@ digest (a pipeline's digest covers every keyframer's, in order), the last accept
 `SnapshotError`, another format version, a damaged payload, a different params digest than
 the caller expects, or a snapshot of another kind.
 
-Derived caches are not stored: speed's `HPBank` (Cholesky factors, ~29 MB of a pipeline) is
-replaced by its recipe (lambdas, capacity) and rebuilt on restore; the factors it rebuilds
-are bit-identical (see `HPBank`), so restored keyframers decide exactly as the original.
+Derived caches are not stored: speed's `HPBank` pickles as its lambdas only (its Cholesky
+factors live in a module-level cache shared by every stream with the same parameters and are
+re-derived on first use, bit-identical), so restored keyframers decide exactly as the
+original.
 Determinism contract (tested): the same frames give the same events after any snapshot /
 restore point.
 
@@ -28,8 +29,6 @@ import pickle
 import struct
 from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 from .errors import StreamkeyError
 from .keyframes import params_digest
@@ -113,22 +112,11 @@ class _Reader:
 
 
 class _Pickler(pickle.Pickler):
-    """Pickles derived caches by their recipe instead of their contents."""
-
-    def persistent_id(self, obj: Any) -> Any:
-        if type(obj).__name__ == "HPBank" and type(obj).__module__ == "streamkey.methods.speed":
-            return ("HPBank", np.asarray(obj.lams, dtype=np.float64).tobytes(),
-                    int(obj.capacity), bool(obj.keep))
-        return None
+    """The payload's pickler (derived caches leave themselves out: `HPBank.__reduce__`)."""
 
 
 class _Unpickler(pickle.Unpickler):
     def persistent_load(self, pid: Any) -> Any:
-        if isinstance(pid, tuple) and len(pid) == 4 and pid[0] == "HPBank":
-            from .methods.speed import HPBank
-
-            lams = np.frombuffer(pid[1], dtype=np.float64).copy()
-            return HPBank(lams, pid[2], keep=pid[3])
         raise SnapshotError(f"snapshot refers to an unknown derived object {str(pid)[:60]}")
 
 

@@ -17,7 +17,13 @@ from cluster_helpers import (
     wait_for,
 )
 
-from streamkey.cluster.live import ClusterConfig, FrameLogger, ShardWorker, split_topic
+from streamkey.cluster.live import (
+    ClusterConfig,
+    FrameLogger,
+    ShardWorker,
+    split_topic,
+    stream_topic,
+)
 from streamkey.methods import ONLINE_METHODS
 
 pytestmark = pytest.mark.cluster
@@ -82,13 +88,13 @@ def test_holes_in_the_live_stream_are_filled_from_the_log(redis_server, publishe
     worker.restore_all()
     publisher.wait_subscribers(1)
     publisher.send(clip.stream, clip.skeleton)
-    worker.handle([clip.stream.encode(), *clip.skeleton])
+    worker.handle(stream_topic(clip.stream, clip.skeleton))
     rng = random.Random(14)
     play(publisher, [clip], 0, None, period=0.0005)  # the logger gets everything
     wait_for(lambda: logger.logged >= len(clip.frames), "every frame logged")
     for i, parts in enumerate(clip.frames):
         if i < 5 or rng.random() > 0.1:  # the worker misses a tenth of them
-            worker.handle([clip.stream.encode(), *parts])
+            worker.handle(stream_topic(clip.stream, parts))
     worker.retire(clip.stream)
     logger.stop()
     assert worker.counters["holes"] > 20
@@ -102,35 +108,35 @@ def test_malformed_messages_are_counted_never_raised(redis_server, publisher):
     cfg = _config(publisher, redis_server, "fuzz", shards=1)
     clip = Clip(CLIPS[1], "fuzzed", publisher)
     worker = ShardWorker(cfg, 0)
-    topic = clip.stream.encode()
-    worker.handle([topic, *clip.skeleton])
+    worker.handle(stream_topic(clip.stream, clip.skeleton))
     logger = FrameLogger(cfg)  # the driver's input boundary: the same messages
     pipe = logger.redis.pipeline(transaction=False)
     rng = random.Random(7)
     sent_bad = 0
     for i, parts in enumerate(clip.frames[:200]):
-        worker.handle([topic, *parts])
-        logger.log([topic, *parts], pipe)
-        bad = [topic, *parts]
+        message = stream_topic(clip.stream, parts)  # [b"fuzzed/frame", header, data]
+        worker.handle(message)
+        logger.log(message, pipe)
+        bad = list(message)
         k = rng.randrange(5)
         if k == 0:
             bad = bad[:rng.randrange(1, 3)]
         elif k == 1:
-            bad[2] = bytes(rng.randrange(256) for _ in range(rng.randrange(40)))
+            bad[1] = bytes(rng.randrange(256) for _ in range(rng.randrange(40)))
         elif k == 2:
-            bad[3] = bad[3][: rng.randrange(len(bad[3]))]
+            bad[2] = bad[2][: rng.randrange(len(bad[2]))]
         elif k == 3:
-            bad[1] = b"nonsense"
+            bad[0] = b"fuzzed/nonsense"
         else:
             bad[0] = bytes([0xff, 0xfe])
         before = sum(worker.rejects.values())
         worker.handle(bad)
         logger.log(bad, pipe)
-        if len(bad) >= 2 and bad[0] == topic and bad[1:] == [*parts]:
+        if bad == message:
             continue  # the mutation happened to leave it valid
         sent_bad += 1
         assert sum(worker.rejects.values()) == before + 1, (i, k)
-    for parts in ([], [b""], [b"x" * 300, b"frame"], [topic, b"skeleton", b"{}"]):
+    for parts in ([], [b""], [b"x" * 300 + b"/frame", b"", b""], [b"fuzzed/skeleton", b"{}"]):
         worker.handle(parts)
         logger.log(parts, pipe)
         sent_bad += 1
