@@ -471,7 +471,8 @@ async def test_browser_keeps_the_dense_markers_of_a_dance_take_readable(
         try:
             driver.get(url)
             drawn = WebDriverWait(driver, 60 * MS, poll_frequency=0.05).until(
-                lambda d: d.execute_script("return state.frame >= 780 && state.drawn"))
+                lambda d: d.execute_script(  # the page's script may not have run yet
+                    "return typeof state !== 'undefined' && state.frame >= 780 && state.drawn"))
             if os.environ.get("STREAMKEY_UPDATE_DOCS"):
                 assert driver.save_screenshot(str(ROOT / "docs" / "dashboard_dance.png"))
             return drawn  # type: ignore[no-any-return]
