@@ -21,7 +21,7 @@ from live_helpers import MS, free_port
 from streamkey.adapters.osc import skeleton_header
 from streamkey.adapters.zmq import decode_frame_parts, encode_frame_parts
 from streamkey.batch import load_motion
-from streamkey.cluster.live import event_id, parse_skeleton_message, shard_of, stream_topic
+from streamkey.cluster.live import parse_skeleton_message, shard_of, stream_topic
 from streamkey.motion import Frame, Motion
 from streamkey.online import Pipeline
 from streamkey.streaming import make_keyframers
@@ -131,9 +131,7 @@ class Clip:
         events += pipeline.flush()
         out = {}
         for e in events:
-            d = e.to_dict()
-            d["id"] = event_id(e)
-            out[d["id"]] = d
+            out[e.id] = e.to_dict()
         assert len(out) == len(events), "event ids must be unique in one run"
         return out
 

@@ -39,7 +39,7 @@ from ..online import Pipeline
 from ..streaming import make_keyframers
 
 __all__ = ["ClusterConfig", "ShardWorker", "FrameLogger", "shard_of", "split_topic",
-           "stream_topic", "event_id", "snapshot_pipeline", "restore_pipeline", "RedisKeys"]
+           "stream_topic", "snapshot_pipeline", "restore_pipeline", "RedisKeys"]
 
 _LOG_BATCH = 512  # log entries per Redis round trip when replaying
 
@@ -97,26 +97,6 @@ def subscriptions(streams: list[str] | None) -> list[bytes]:
         out += [b"frame", b"skeleton"] if stream_tag(stream) is None else [
             f"{stream}/".encode()]
     return out
-
-
-def event_id(event: Event) -> str:
-    """The idempotent id of an event (schema v2: `stream/method/frame/params-digest` for
-    keyframes, `stream/gap/<first seq>`, `stream/status/<name>/<seq>`). Until the v2 events
-    carry `.id` themselves it is computed here, in this one place."""
-    own = getattr(event, "id", None)
-    if isinstance(own, str):
-        return own
-    d = event.to_dict()
-    kind, stream = d.get("type"), d.get("stream")
-    if kind == "keyframe":
-        return f"{stream}/{d['method']}/{d['frame']}/{d['params']}"
-    if kind == "gap":
-        return f"{stream}/gap/{d['first']}"
-    if kind == "status":
-        seq = d.get("detail", {}).get("seq", "")
-        return f"{stream}/status/{d['status']}/{seq}"
-    where = d.get("frame", d.get("seq", ""))
-    return f"{stream}/{kind}/{d.get('method', '')}/{where}/{d.get('pid', '')}"
 
 
 def snapshot_pipeline(pipeline: Pipeline) -> bytes:
@@ -457,9 +437,7 @@ class ShardWorker:
             return
         args: list[str] = []
         for e in events:
-            d = e.to_dict()
-            d.setdefault("id", event_id(e))
-            args += [d["id"], json.dumps(d)]
+            args += [e.id, json.dumps(e.to_dict())]
         added = int(self._emit(keys=[self.keys.events, self.keys.event_ids], args=args))
         self.counters["events"] += added
         self.counters["duplicates_dropped"] += len(events) - added
