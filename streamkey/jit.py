@@ -1,0 +1,85 @@
+"""Compiled inner loops: numba's `njit`, compiled on first call and cached on disk.
+
+Per-frame work in streamkey is many tiny loops (a banded solve per HP scale, a heap of Ward
+merges, a joint chain of 3x3 products) whose cost in numpy is call overhead, not arithmetic.
+`kernel` compiles such a loop with numba (no fastmath: IEEE results, the same on every call
+path) the first time it runs, so `import streamkey`, `--help` and error paths never import
+numba. Compiled code is cached beside the module (`__pycache__`, or `NUMBA_CACHE_DIR`), so a
+process pays the compilation once per machine, not per start.
+
+A live process must not compile on its first frame: `warm_up()` runs every registered
+warmer (`@warmer`: a function calling its module's kernels on tiny inputs) before the stream
+starts. Algorithm modules stay sans-I/O; this module only wraps functions.
+"""
+
+from __future__ import annotations
+
+import types
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+__all__ = ["kernel", "warmer", "warm_up"]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+_WARMERS: list[Callable[[], None]] = []
+
+
+class _Kernel:
+    """A function compiled by numba on its first call (then called directly)."""
+
+    def __init__(self, fn: Callable[..., Any], options: dict[str, Any]) -> None:
+        self.py_func = fn
+        self.options = options
+        self.compiled: Callable[..., Any] | None = None
+        self.__name__ = fn.__name__
+        self.__qualname__ = fn.__qualname__
+        self.__doc__ = fn.__doc__
+        self.__module__ = fn.__module__
+
+    def compile(self) -> Callable[..., Any]:
+        """The numba dispatcher (imports numba on first use)."""
+        if self.compiled is None:
+            import numba
+
+            fn = self.py_func
+            names = fn.__code__.co_names
+            if any(isinstance(fn.__globals__.get(name), _Kernel) for name in names):
+                scope = dict(fn.__globals__)  # other kernels it calls: their dispatchers
+                for name in names:
+                    if isinstance(scope.get(name), _Kernel):
+                        scope[name] = scope[name].compile()
+                fn = types.FunctionType(fn.__code__, scope, fn.__name__, fn.__defaults__,
+                                        fn.__closure__)
+                fn.__qualname__ = self.py_func.__qualname__
+            self.compiled = numba.njit(cache=True, nogil=True, **self.options)(fn)
+        return self.compiled
+
+    def __call__(self, *args: Any) -> Any:
+        fn = self.compiled or self.compile()
+        return fn(*args)
+
+    def __reduce__(self) -> str:  # pickled by reference (module-level name)
+        return self.__qualname__
+
+
+def kernel(fn: F | None = None, **options: Any) -> Any:
+    """Decorator: compile `fn` with numba (`cache=True`, `nogil=True`, no fastmath) on first
+    call. Kernels take and return numpy arrays, tuples and scalars; a kernel may call other
+    module-level kernels by name."""
+    if fn is None:
+        return lambda f: _Kernel(f, options)
+    return _Kernel(fn, options)
+
+
+def warmer(fn: Callable[[], None]) -> Callable[[], None]:
+    """Register `fn` (no arguments) to compile/load its module's kernels in `warm_up()`."""
+    _WARMERS.append(fn)
+    return fn
+
+
+def warm_up() -> None:
+    """Compile or load from the cache every kernel of the modules imported so far (call
+    before a live stream starts, so no frame waits for the compiler)."""
+    for fn in list(_WARMERS):
+        fn()
