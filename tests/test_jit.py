@@ -1,0 +1,56 @@
+"""streamkey.jit: kernels compile on first call (numba), call each other, pickle by name,
+and warm_up() runs every registered warmer."""
+
+from __future__ import annotations
+
+import pickle
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+
+from streamkey import jit
+
+
+def test_import_streamkey_does_not_import_numba():
+    code = "import streamkey, streamkey.cli, streamkey.jit, sys; print('numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_kernel_compiles_calls_other_kernels_and_pickles(tmp_path, monkeypatch):
+    module = tmp_path / "jit_sample_kernels.py"
+    module.write_text(textwrap.dedent('''
+        from streamkey.jit import kernel, warmer
+
+        @kernel
+        def step(x):
+            return 2.0 * x + 1.0
+
+        @kernel
+        def total(a):
+            s = 0.0
+            for v in a:
+                s += step(v)
+            return s
+
+        WARMED = []
+
+        @warmer
+        def warm():
+            WARMED.append(total(__import__("numpy").zeros(1)))
+    '''))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    import jit_sample_kernels as mod
+
+    a = np.arange(5.0)
+    assert mod.total.compiled is None  # nothing compiled before the first call
+    assert mod.total(a) == float(np.sum(2.0 * a + 1.0))
+    assert mod.total.compiled is not None and mod.step.compiled is not None
+    assert pickle.loads(pickle.dumps(mod.total)) is mod.total
+    jit.warm_up()
+    assert mod.WARMED == [1.0]
+    jit._WARMERS.remove(mod.warm)
