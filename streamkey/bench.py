@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import gc
 import json
+import os
 import platform
 import time
 import tracemalloc
@@ -370,7 +371,10 @@ def _write_result(output: Path, kind: str, result: dict[str, Any]) -> list[Path]
 
 PERF_ONLINE_GOALS = {"feature stage": (40.0, 1000.0), "saliency": (80.0, 1000.0),
                      "speed": (80.0, 1000.0), "simplify": (80.0, 1000.0),
-                     "optimal": (80.0, 1000.0), "all (one pipeline)": (150.0, 1000.0)}
+                     "optimal": (80.0, 1000.0),
+                     "saliency + speed + simplify (one pipeline)": (150.0, 1000.0),
+                     "all four (one pipeline)": (150.0, 1000.0)}
+PIPELINE_OF_THREE = ("saliency", "speed", "simplify")  # the issue's "pipeline of all three"
 PERF_OFFLINE_GOALS = {"features": 0.5, "saliency": 0.5, "speed": 1.0, "simplify": 0.5,
                       "decimate": 2.0, "isodata": 1.0, "curvefit": 10.0}
 
@@ -378,7 +382,10 @@ PERF_OFFLINE_GOALS = {"features": 0.5, "saliency": 0.5, "speed": 1.0, "simplify"
 def _cpu_push_costs(make: Callable[[], Any], frames: list[Any], push: str = "push"
                     ) -> dict[str, float]:
     """Per-push CPU time of the calling thread (µs): mean, p50, p99, max."""
+    from .jit import warm_up
+
     target = make()
+    warm_up()  # every kernel imported so far compiled (or loaded) before the clock runs
     step = getattr(target, push)
     costs = np.empty(len(frames))
     clock = time.thread_time_ns
@@ -411,18 +418,21 @@ def bench_perf_online(frames: int, data: Path | None, methods: list[str] | None 
 
     def add(target: str, costs: dict[str, float]) -> None:
         mean_goal, p99_goal = PERF_ONLINE_GOALS[target]
-        out.append({"target": target, **costs, "goal": f"mean <= {mean_goal:g}, p99 <= "
-                    f"{p99_goal:g}", "met": costs["mean_us"] <= mean_goal
-                    and costs["p99_us"] <= p99_goal})
+        out.append({"target": target, **costs, "streams_per_core": 1e6 / motion.fps
+                    / costs["mean_us"], "goal": f"mean <= {mean_goal:g}, p99 <= {p99_goal:g}",
+                    "met": costs["mean_us"] <= mean_goal and costs["p99_us"] <= p99_goal,
+                    "load_average": round(os.getloadavg()[0], 2)})
 
     add("feature stage", _cpu_push_costs(stage, stream, "__call__"))
     for name in names:
         cls = online_class(name)
         add(name, _cpu_push_costs(lambda cls=cls: cls(motion.skeleton, motion.fps), stream))
     if methods is None:
-        add("all (one pipeline)", _cpu_push_costs(
-            lambda: Pipeline([online_class(m)(motion.skeleton, motion.fps)
-                              for m in ONLINE_METHODS]), stream))
+        for target, group in (("saliency + speed + simplify (one pipeline)", PIPELINE_OF_THREE),
+                              ("all four (one pipeline)", ONLINE_METHODS)):
+            add(target, _cpu_push_costs(
+                lambda group=group: Pipeline([online_class(m)(motion.skeleton, motion.fps)
+                                              for m in group]), stream))
     return {"frames": len(stream), "source": source, "rows": out.rows}
 
 
@@ -438,7 +448,11 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
     names = methods or [m for m in PERF_OFFLINE_GOALS if m != "features"]
     motion, source = long_motion(max(sizes), data)
     times: dict[str, list[float]] = {m: [] for m in ["features", *names]}
-    compute_features(Motion(motion.skeleton, motion.channels[:100], motion.fps, 0, "warm-up"))
+    warm = Motion(motion.skeleton, motion.channels[:2_000], motion.fps, 0, "warm-up")
+    warm_feats = compute_features(warm)  # imports, plans and compiled kernels: not timed
+    for name in names:
+        offline_method(name)(warm, **({"count": 20} if name == "decimate"
+                                      else {"features": warm_feats}))
     for n in sizes:
         part = Motion(motion.skeleton, motion.channels[:n], motion.fps, 0, f"bench-{n}")
         t0 = time.process_time()

@@ -47,3 +47,22 @@ def test_ctrl_c_writes_the_rows_measured_so_far_and_exits_130(tmp_path):
     assert (tmp_path / "bench_online.md").exists()
     assert f"wrote {tmp_path / 'bench_online.json'}" in out
 
+
+
+def test_perf_rows_carry_goals_streams_per_core_and_load(tmp_path):
+    """`bench --perf`'s online part on a short stream: every issue-13 target is a row with
+    its goal, met flag, streams per core and the load average it was measured under (the
+    numbers themselves are the bench's business, not this test's)."""
+    from streamkey.bench import PERF_ONLINE_GOALS, bench_perf_offline, bench_perf_online
+
+    online = bench_perf_online(1_500, DATA)
+    targets = [row["target"] for row in online["rows"]]
+    assert targets == list(PERF_ONLINE_GOALS)
+    for row in online["rows"]:
+        assert 0 < row["p50_us"] <= row["p99_us"] <= row["max_us"]
+        assert row["streams_per_core"] > 0 and row["load_average"] >= 0
+        assert isinstance(row["met"], bool) and row["goal"].startswith("mean <= ")
+    offline = bench_perf_offline([500, 1_500], DATA, methods=["speed", "decimate"])
+    rows = {row["target"]: row for row in offline["rows"]}
+    assert set(rows) == {"features", "speed", "decimate"}
+    assert all(row["s@1500"] > 0 and row["met"] is False for row in rows.values())  # < 100k
