@@ -40,7 +40,8 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
                  on_ready: Callable[[str], None] = _ready, idle_exit: float | None = None,
                  on_frame: Callable[[Frame], None] | None = None,
                  reset_on_gap: bool = False, max_streams: int = DEFAULT_MAX_STREAMS,
-                 stream_idle: float | None = None, due_first: bool = True) -> Engine:
+                 stream_idle: float | None = None, due_first: bool = True,
+                 freeze_gc: bool = False) -> Engine:
     """The engine for a source (a Motion is replayed at `rate`, default its fps; 0: unpaced);
     every stream of the source gets its own keyframers (`Engine`)."""
     if isinstance(source, Motion):
@@ -52,7 +53,7 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
 
     return Engine(source, keyframers, sinks, stream, on_ready, on_event, idle_exit,
                   on_frame=on_frame, reset_on_gap=reset_on_gap, max_streams=max_streams,
-                  stream_idle=stream_idle, due_first=due_first)
+                  stream_idle=stream_idle, due_first=due_first, freeze_gc=freeze_gc)
 
 
 async def run_engine(engine: Engine) -> RunSummary:
@@ -80,13 +81,15 @@ async def run_live(source: Source | Motion, methods: list[str], to: list[str],
                    on_ready: Callable[[str], None] = _ready,
                    idle_exit: float | None = None, reset_on_gap: bool = False,
                    max_streams: int = DEFAULT_MAX_STREAMS,
-                   stream_idle: float | None = None) -> RunSummary:
-    """Run the engine from `source` to the sinks at `to`; returns the summary."""
+                   stream_idle: float | None = None, freeze_gc: bool = True) -> RunSummary:
+    """Run the engine from `source` to the sinks at `to`; returns the summary (`freeze_gc`:
+    see `Engine`)."""
     sinks = [make_sink(parse_address(a), listen) for a in to]
     return await run_engine(build_engine(source, methods, sinks, params, lookahead, stream,
                                          rate, on_event=on_event, on_ready=on_ready,
                                          idle_exit=idle_exit, reset_on_gap=reset_on_gap,
-                                         max_streams=max_streams, stream_idle=stream_idle))
+                                         max_streams=max_streams, stream_idle=stream_idle,
+                                         freeze_gc=freeze_gc))
 
 
 def replay(motion: Motion, to: list[str], rate: float | None = None, speed: float = 1.0,
