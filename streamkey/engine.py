@@ -117,6 +117,7 @@ class RunSummary:
     waiting_at_stop: int = 0
     due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
     frame_wait: LatencyHistogram = field(default_factory=LatencyHistogram)
+    untimed_events: int = 0  # keyframes decided by a stream's end, not by a frame
 
     def latency_percentiles(self) -> dict[str, float | None]:
         """p50 / p99 / max of the wall latency (ms), None before the first event."""
@@ -149,6 +150,7 @@ class RunSummary:
                 "keyframer_error_count": self.error_count, "source_error": self.source_error,
                 "due_latency_ms": self.due_latency.summary(),
                 "frame_wait_ms": self.frame_wait.summary(),
+                "keyframes_at_stream_end": self.untimed_events,
                 "streams": {n: st.as_dict() for n, st in self.streams.items()},
                 "max_streams": self.max_streams, "refused_streams": self.refused_streams,
                 "refused_frames": self.refused_frames, "waiting_at_stop": self.waiting_at_stop}
@@ -210,7 +212,9 @@ class RunSummary:
             lines.append(f"wall latency (from the deciding frame's arrival): "
                          f"p50 {lat['p50']:.3f} ms, p99 {lat['p99']:.3f} ms, "
                          f"max {lat['max']:.3f} ms; frames waited before their push: "
-                         f"p50 {wait['p50'] or 0:.3f} ms, p99 {wait['p99'] or 0:.3f} ms")
+                         f"p50 {wait['p50'] or 0:.3f} ms, p99 {wait['p99'] or 0:.3f} ms"
+                         + (f" ({self.untimed_events} keyframes decided by a stream's end "
+                            "not timed)" if self.untimed_events else ""))
         if self.source_error:
             lines.append(f"source died: {self.source_error}")
         return "\n".join(lines)
@@ -405,7 +409,7 @@ class Engine:
         """End a stream: flush its pipeline, keep its counters, free its place."""
         self._deferred.pop(state.name, None)
         self._deliver(self._step(state, None, state.pipeline.flush), time.monotonic_ns(),
-                      state, due=False)
+                      state, due=False, timed=False)
         for key, value in state.pipeline.guard.counters.as_dict().items():
             state.stats.guard[key] += value
         state.stats.retired += 1
@@ -576,37 +580,24 @@ class Engine:
                             {"error": f"{type(exc).__name__}: {exc}", "seq": seq})]
 
     def _deliver(self, events: list[Event], arrival_ns: int, state: _Stream | None = None,
-                 due: bool = False) -> None:
-        """Stamp wall latency on keyframe events and hand every event to every sink."""
+                 due: bool = False, timed: bool = True) -> None:
+        """Stamp wall latency on keyframe events and hand every event to every sink. Events
+        of a stream's end (`timed` False: no frame decided them, the flush did) are stamped
+        from the flush but kept out of the latency percentiles and counted apart."""
         for event in events:
             if isinstance(event, KeyframeEvent):
                 latency = (time.monotonic_ns() - arrival_ns) / 1e6
                 event = dataclasses.replace(event, wall_latency_ms=round(latency, 3))
-                self.summary.latency.add(latency)
-                per_method = self.summary.method_latency.get(event.method)
-                if per_method is None:
-                    per_method = self.summary.method_latency[event.method] = LatencyHistogram()
-                per_method.add(latency)
                 self.summary.events[event.method] += 1
-                if due:
-                    self.summary.due_latency.add(latency)
                 if state is not None:
                     state.stats.events[event.method] += 1
-                    if due:
-                        state.stats.due_latency.add(latency)
+                if timed:
+                    self._time(event.method, latency, state if due else None, due)
+                else:
+                    self.summary.untimed_events += 1
             else:  # status, gap, provisional, cancel, signal
                 self.summary.events[type(event).__name__.removesuffix("Event").lower()] += 1
-            for sink in self.sinks:
-                if sink.stats.disabled:
-                    sink.stats.dropped += 1
-                    continue
-                try:
-                    sink.offer(event)
-                    self._sink_failures[id(sink)] = 0
-                except Exception as exc:  # a sink's fault is that sink's
-                    self._sink_failed(sink, exc)
-            if self.on_event is not None:
-                self.on_event(event.to_dict())
+            self._offer(event)
         if events:
             for sink in self.sinks:
                 if not sink.stats.disabled:
@@ -614,6 +605,30 @@ class Engine:
                         sink.end_batch(arrival_ns)
                     except Exception as exc:  # a sink's fault is that sink's
                         self._sink_failed(sink, exc)
+
+    def _time(self, method: str, latency: float, state: _Stream | None, due: bool) -> None:
+        self.summary.latency.add(latency)
+        per_method = self.summary.method_latency.get(method)
+        if per_method is None:
+            per_method = self.summary.method_latency[method] = LatencyHistogram()
+        per_method.add(latency)
+        if due:
+            self.summary.due_latency.add(latency)
+        if state is not None:
+            state.stats.due_latency.add(latency)
+
+    def _offer(self, event: Event) -> None:
+        for sink in self.sinks:
+            if sink.stats.disabled:
+                sink.stats.dropped += 1
+                continue
+            try:
+                sink.offer(event)
+                self._sink_failures[id(sink)] = 0
+            except Exception as exc:  # a sink's fault is that sink's
+                self._sink_failed(sink, exc)
+        if self.on_event is not None:
+            self.on_event(event.to_dict())
 
     def _sink_failed(self, sink: Sink, exc: Exception) -> None:
         stats = sink.stats
