@@ -166,3 +166,17 @@ def test_realtime_priority_is_inherited_by_threads_started_later():
     assert done.returncode == 0, done.stderr
     assert done.stdout.split()[-1] == "True"
 
+
+
+async def test_keyframes_of_a_streams_end_are_stamped_but_not_timed():
+    seen = []
+    engine = build_engine(MotionSource(MOTION, rate=0.0), ["speed", "simplify"], [],
+                          on_ready=lambda line: None, on_event=seen.append)
+    summary = await engine.run()
+    keys = [e for e in seen if e["type"] == "keyframe"]
+    assert all(e["wall_latency_ms"] is not None for e in keys)
+    at_end = summary.as_dict()["keyframes_at_stream_end"]
+    assert at_end > 0 and summary.latency.count > 0  # speed decides its tail at the end
+    assert summary.latency.count + at_end == len(keys) == summary.events["speed"] + summary.events[
+        "simplify"]
+    assert "decided by a stream's end not timed" in summary.text()
