@@ -473,14 +473,16 @@ class OscSource(Source):
                     self.receive(item, arrival_ns, depth + 1)
                 return
             if data.startswith(_osc_string(SKELETON_ADDRESS)):
-                self.set_skeleton(*decode_skeleton(data))
+                if not self.repeated_skeleton(data):
+                    self.set_skeleton(*decode_skeleton(data), raw=data)
                 return
             stream = None
             if not data.startswith(_FRAME_HEAD):  # a stream's own address, or garbage
                 address = _address_of(data)
                 kind, stream = stream_of_address(address)
                 if kind == "skeleton":
-                    self.set_skeleton(*decode_skeleton(data, address), stream)
+                    if not self.repeated_skeleton(data, stream):
+                        self.set_skeleton(*decode_skeleton(data, address), stream, raw=data)
                     return
                 seq, time_s, channels = decode_frame(data, address)
             else:

@@ -242,13 +242,15 @@ class ZmqSource(Source):
         self.frames.put(frame, arrival_ns, stream)
 
     def _skeleton(self, parts: list[bytes], stream: str | None = None) -> None:
+        if len(parts) == 2 and self.repeated_skeleton(parts[1], stream):
+            return
         try:
             skeleton, fps, _ = decode_skeleton_parts(parts)
         except Exception as exc:  # any failure of a hostile skeleton: counted, ignored
             self.stats.reject("skeleton", f"zmq skeleton ignored: {type(exc).__name__}: "
                               f"{str(exc)[:200]}")
             return
-        self.set_skeleton(skeleton, float(fps), stream)
+        self.set_skeleton(skeleton, float(fps), stream, raw=parts[1])
 
     def counters(self) -> SourceStats:
         fresh = self.inbox_drops - self._inbox_counted  # the reader thread only ever adds

@@ -4,10 +4,12 @@
   pushed as fast as the engine takes them) through all methods and every kind of sink;
   growth after warm-up must stay within 5 MB. `quick`: 10 minutes of stream.
 - `latency`: replay and run as separate processes over OSC and over ZeroMQ at 120 Hz with
-  all methods; this process is the external receiver: it gets a copy of every frame and
-  every event, both stamped on arrival (kernel receive time for UDP), and reports p50/p99
-  of event arrival minus the arrival of its deciding frame (`decided_at`), next to what
-  the run's own summary says (arrival at its socket -> event leaves for the sinks).
+  all methods, at the run's normal priority and with `run --realtime`; this process is the
+  external receiver: it gets an OSC copy of every frame (kernel receive time,
+  `SO_TIMESTAMPNS`) and every event, and reports p50/p99 of event arrival minus the arrival
+  of its deciding frame's copy (`decided_at`), next to what the run's own summary says
+  (arrival at its socket -> event leaves for the sinks; the time frames waited before
+  their push). Every row carries the load average before and after it.
 - `ws_clients`: event wall latency inside the engine at 120 Hz with 0, 100 and 300
   WebSocket clients reading in another process (broadcast cost on the frame path).
 """
@@ -15,6 +17,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import signal
@@ -107,10 +110,16 @@ def bench_memory(data: Path | None, quick: bool = False) -> dict[str, Any]:
 class _Receiver:
     """Arrival stamps of frames (by seq) and events (by decided_at), in its own thread."""
 
-    def __init__(self) -> None:
+    def __init__(self, realtime: bool = False) -> None:
         self.frames: dict[int, int] = {}
         self.events: list[tuple[int, int, str]] = []  # (decided_at, arrival_ns, method)
         self.stop = threading.Event()
+        self.realtime = realtime
+
+    def _thread_priority(self) -> None:
+        """In the realtime rows the receiving threads run at the run's priority too."""
+        if self.realtime:
+            _realtime(0)
 
     def osc(self, frame_port: int, event_port: int) -> list[socket.socket]:
         socks = []
@@ -129,6 +138,7 @@ class _Receiver:
 
         from pythonosc.osc_message import OscMessage
 
+        self._thread_priority()
         sel = selectors.DefaultSelector()
         sel.register(frames, selectors.EVENT_READ)
         sel.register(events, selectors.EVENT_READ)
@@ -152,36 +162,42 @@ class _Receiver:
                     params = OscMessage(data).params
                     self.events.append((int(params[2]) + int(params[5]), stamp, params[1]))
 
-    def zmq(self, frame_endpoint: str, event_endpoint: str) -> None:
+    def zmq(self, event_endpoint: str) -> None:
+        """Events from the run's ZeroMQ publisher (frames come by OSC, see `_latency_one`)."""
+        connected = threading.Event()
+        threading.Thread(target=self._read_zmq, args=(event_endpoint, connected),
+                         daemon=True).start()
+        connected.wait(10.0)
+
+    def _read_zmq(self, endpoint: str, connected: threading.Event) -> None:
         import zmq
 
-        ctx = zmq.Context.instance()
-        frames, events = ctx.socket(zmq.SUB), ctx.socket(zmq.SUB)
-        frames.setsockopt(zmq.SUBSCRIBE, b"frame")
+        self._thread_priority()
+        ctx = zmq.Context()  # its I/O thread starts here, at this thread's priority
+        events = ctx.socket(zmq.SUB)
         events.setsockopt(zmq.SUBSCRIBE, b"event")
-        for s, e in ((frames, frame_endpoint), (events, event_endpoint)):
-            s.setsockopt(zmq.RCVHWM, 100_000)
-            s.connect(e)
-        threading.Thread(target=self._read_zmq, args=(frames, events), daemon=True).start()
-
-    def _read_zmq(self, frames: Any, events: Any) -> None:
-        import zmq
-
+        events.setsockopt(zmq.RCVHWM, 100_000)
+        events.connect(endpoint)
+        connected.set()
         poller = zmq.Poller()
-        poller.register(frames, zmq.POLLIN)
         poller.register(events, zmq.POLLIN)
         while not self.stop.is_set():
             for sock, _ in poller.poll(100):
                 parts = sock.recv_multipart()
                 stamp = time.monotonic_ns()
-                if sock is frames:
-                    self.frames[json.loads(parts[1])["seq"]] = stamp
-                else:
-                    e = json.loads(parts[1])
-                    if e.get("type") == "keyframe":
-                        self.events.append((e["decided_at"], stamp, e["method"]))
-        frames.close(linger=0)
+                e = json.loads(parts[1])
+                if e.get("type") == "keyframe":
+                    self.events.append((e["decided_at"], stamp, e["method"]))
         events.close(linger=0)
+        ctx.term()
+
+
+def _realtime(pid: int) -> None:
+    """SCHED_RR at `run --realtime`'s priority for a thread or process (0: this thread)."""
+    from .live import REALTIME_PRIORITY
+
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setscheduler(pid, os.SCHED_RR, os.sched_param(REALTIME_PRIORITY))
 
 
 def _streamkey(*args: str) -> subprocess.Popen[str]:
@@ -189,45 +205,70 @@ def _streamkey(*args: str) -> subprocess.Popen[str]:
                             stderr=subprocess.PIPE, text=True)
 
 
-def _wait_line(proc: subprocess.Popen[str], needle: str, timeout: float = 60.0) -> None:
+def _wait_line(proc: subprocess.Popen[str], needle: str, timeout: float = 60.0) -> list[str]:
+    """The process's stderr lines up to the one containing `needle`."""
     deadline = time.monotonic() + timeout
     assert proc.stderr is not None
+    lines = []
     while time.monotonic() < deadline:
         line = proc.stderr.readline()
         if not line:
             raise RuntimeError(f"process ended before {needle!r}")
+        lines.append(line)
         if needle in line:
-            return
+            return lines
     raise RuntimeError(f"no {needle!r} within {timeout} s")
 
 
-def _latency_one(transport: str, clip: Path, frames: int) -> dict[str, Any]:
-    receiver = _Receiver()
+def _load() -> float:
+    """The 1-minute load average (the machine's other work; NaN where unknown)."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except OSError:
+        return float("nan")
+
+
+def _latency_one(transport: str, clip: Path, frames: int, realtime: bool = False
+                 ) -> dict[str, Any]:
+    """One run: replay -> run (all methods) -> this process, over `transport`.
+
+    The receiver's copy of every frame comes over OSC in both cases, stamped by the kernel
+    when the replay sends it (right after the same frame went to the run), so each latency
+    runs from the frame leaving the replay to the event reaching the receiver: the
+    transport both ways is included, the receiver's own scheduling delays can only add.
+    """
+    receiver = _Receiver(realtime)
+    load_before = _load()
     with tempfile.TemporaryDirectory() as tmp:
         summary_path = Path(tmp) / "summary.json"
+        copy_port = _free_port()
+        extra = ["--realtime"] if realtime else []
         if transport == "osc":
-            run_port, copy_port, event_port = _free_port(), _free_port(), _free_port()
+            run_port, event_port = _free_port(), _free_port()
             socks = receiver.osc(copy_port, event_port)
             run = _streamkey("run", "--from", f"osc://127.0.0.1:{run_port}", "--skeleton",
                              str(clip), "--method", "all", "--to",
                              f"osc://127.0.0.1:{event_port}?layout=compact",  # parsed below
-                             "--summary", str(summary_path))
-            _wait_line(run, "listening on")
-            targets = ["--to", f"osc://127.0.0.1:{run_port}",
-                       "--to", f"osc://127.0.0.1:{copy_port}"]
+                             "--summary", str(summary_path), *extra)
+            said = _wait_line(run, "listening on")
+            targets = ["--to", f"osc://127.0.0.1:{run_port}"]
         else:
             pub, events = (_free_port(socket.SOCK_STREAM) for _ in range(2))
-            socks = []
+            socks = receiver.osc(copy_port, _free_port())
             run = _streamkey("run", "--from", f"zmq+tcp://127.0.0.1:{pub}", "--method", "all",
                              "--to", f"zmq+tcp://127.0.0.1:{events}", "--summary",
-                             str(summary_path))
-            _wait_line(run, "listening on")
-            receiver.zmq(f"tcp://127.0.0.1:{pub}", f"tcp://127.0.0.1:{events}")
+                             str(summary_path), *extra)
+            said = _wait_line(run, "listening on")
+            receiver.zmq(f"tcp://127.0.0.1:{events}")
             targets = ["--to", f"zmq+tcp://127.0.0.1:{pub}", "--wait", "10"]
+        targets += ["--to", f"osc://127.0.0.1:{copy_port}"]
         replay = _streamkey("replay", str(clip), "--loop", "--frames", str(frames), *targets)
+        if realtime:  # the sender too (its threads start later and inherit it)
+            _realtime(replay.pid)
         replay.wait(timeout=frames / 120 * 3 + 60)
         time.sleep(1.0)
         sent_until = time.monotonic_ns()
+        load_after = _load()
         run.send_signal(signal.SIGINT)
         run.communicate(timeout=60)
         receiver.stop.set()
@@ -237,24 +278,42 @@ def _latency_one(transport: str, clip: Path, frames: int) -> dict[str, Any]:
         own = json.loads(summary_path.read_text())
     lat = np.array([(t - receiver.frames[d]) / 1e6 for d, t, _ in receiver.events
                     if d in receiver.frames and t < sent_until])
-    return {"transport": transport, "frames_sent": frames,
+    priority = next((line.split(":", 1)[1].strip() for line in said
+                     if line.startswith("priority:")), "normal")
+
+    def pct(q: float) -> float | None:
+        return round(float(np.percentile(lat, q)), 3) if len(lat) else None
+
+    p99 = pct(99)
+    return {"transport": transport, "priority": priority, "load_1min_before": load_before,
+            "load_1min_after": load_after, "frames_sent": frames,
             "frames_seen_by_receiver": len(receiver.frames), "events": len(lat),
-            "p50_ms": round(float(np.percentile(lat, 50)), 3) if len(lat) else None,
-            "p99_ms": round(float(np.percentile(lat, 99)), 3) if len(lat) else None,
+            "p50_ms": pct(50), "p99_ms": p99,
             "max_ms": round(float(lat.max()), 3) if len(lat) else None,
+            "over_3ms": int((lat > 3.0).sum()),
             "run_summary_p50_ms": own["wall_latency_ms"]["p50"],
             "run_summary_p99_ms": own["wall_latency_ms"]["p99"],
-            "run_frames_in": own["frames_in"], "target_p99_ms": 3.0}
+            "run_frame_wait_p99_ms": own.get("frame_wait_ms", {}).get("p99"),
+            "run_frames_in": own["frames_in"], "target_p99_ms": 3.0,
+            "met": p99 is not None and p99 <= 3.0}
 
 
 def bench_latency(data: Path | None, quick: bool = False) -> dict[str, Any]:
-    """External-receiver latency over OSC and ZeroMQ (replay and run as processes)."""
+    """External-receiver latency over OSC and ZeroMQ (replay and run as processes), at the
+    run's normal priority and with `run --realtime`; each row says the load average."""
     clip = (data / _LATENCY_CLIP) if data is not None else None
     if clip is None or not clip.exists():
         raise RuntimeError("bench --latency needs the shared clips (--data)")
     frames = 2400 if quick else 7200  # 20 s or 60 s at 120 Hz
-    return {"rows": [_latency_one(t, clip, frames) for t in ("osc", "zmq")],
-            "clip": str(clip), "rate_hz": 120, "methods": "all"}
+    rows = [_latency_one(t, clip, frames, realtime) for realtime in (False, True)
+            for t in ("osc", "zmq")]
+    return {"rows": rows, "clip": str(clip), "rate_hz": 120, "methods": "all",
+            "cpus": os.cpu_count(),
+            "note": "latency: the frame leaving the replay (kernel stamp of its OSC copy) to "
+                    "the event reaching this process; load_1min: os.getloadavg() before and "
+                    "after each run (the machine's other work); priority: the run's "
+                    "(`run --realtime` rows: the replay and the receiving threads at the "
+                    "same SCHED_RR priority)"}
 
 
 # ------------------------------------------------------------------ WebSocket clients

@@ -100,7 +100,9 @@ def _one(motions: list[Motion], due_first: bool, seconds: float) -> dict[str, An
         motion = Motion(spec.skeleton, np.zeros((0, spec.skeleton.n_channels)), spec.fps)
         return make_keyframers(motion, METHODS, stream=spec.stream)
 
-    engine = Engine(source, factory, [], max_streams=len(named), due_first=due_first)
+    engine = Engine(source, factory, [], max_streams=len(named), due_first=due_first,
+                    freeze_gc=True)  # as `run` does
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     cpu, wall = time.process_time(), time.perf_counter()
     summary = asyncio.run(engine.run())
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
@@ -110,7 +112,8 @@ def _one(motions: list[Motion], due_first: bool, seconds: float) -> dict[str, An
             "due_p50_ms": round(due["p50"] or 0.0, 3), "due_p99_ms": round(due["p99"] or 0.0, 3),
             "all_p99_ms": round(every["p99"] or 0.0, 3),
             "frames": summary.frames_in, "queue_drops": summary.source["queue_drops"],
-            "late_ticks": source.late_ticks, "cpu_per_wall": round(cpu / wall, 2)}
+            "late_ticks": source.late_ticks, "cpu_per_wall": round(cpu / wall, 2),
+            "load_1min": round(load, 2)}
 
 
 def _trace(motion: Motion, frames: int) -> np.ndarray:

@@ -353,6 +353,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         source = make_source(parse_address(args.source), args.listen,
                              skeleton_motion.skeleton if skeleton_motion else None,
                              skeleton_motion.fps if skeleton_motion else None)
+    if args.realtime:
+        from .live import raise_priority
+
+        print(f"priority: {raise_priority()}", file=sys.stderr, flush=True)
     if args.dashboard is not None:
         return _dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                           stream=args.stream)
@@ -719,6 +723,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",
                    help="stop once frames have flowed and then none came for SECONDS "
                         "(default: run until Ctrl-C / SIGTERM)")
+    p.add_argument("--realtime", action="store_true",
+                   help="run ahead of ordinary processes (SCHED_RR 10 where allowed, else "
+                        "nice -10), so frames do not wait for a busy machine's other work")
     add_playable_options(p)
     _add_dashboard_options(p)
     _add_roles_option(p)

@@ -194,12 +194,20 @@ class Source:
         self.shared_skeleton = skeleton is not None
         self.named: dict[str, tuple[Skeleton, float]] = {}
         self.max_streams = DEFAULT_MAX_STREAMS  # the engine sets its cap here
+        self._skeleton_raw: dict[str | None, bytes] = {}  # wire form of each held skeleton
         if skeleton is not None:
             self.skeleton_ready.set()
 
-    def set_skeleton(self, skeleton: Skeleton, fps: float, stream: str | None = None) -> None:
+    def repeated_skeleton(self, raw: bytes, stream: str | None = None) -> bool:
+        """True if `raw` is the wire form of the skeleton `stream` holds now: senders repeat
+        it every second, and parsing it again (~1 ms) would delay the next frame."""
+        return self._skeleton_raw.get(stream) == raw and self.skeleton_for(stream) is not None
+
+    def set_skeleton(self, skeleton: Skeleton, fps: float, stream: str | None = None,
+                     raw: bytes | None = None) -> None:
         """Adopt a skeleton announced on the wire for `stream` (None: the unnamed stream;
-        first good one wins; a bad or changed one is counted and ignored)."""
+        first good one wins; a bad or changed one is counted and ignored). `raw`: its wire
+        form, remembered so that repeats are recognised (`repeated_skeleton`)."""
         problem = fps_problem(fps)
         if problem is not None:
             self.stats.reject("skeleton", f"skeleton ignored: {problem}")
@@ -211,18 +219,27 @@ class Source:
                                   f"{self.max_streams} streams already announced")
             elif held is None:
                 self.named[stream] = (skeleton, float(fps))
+                self._remember_raw(stream, raw)
                 self.frames.announce(stream)
             else:
-                self._mismatch(skeleton, held[0])
+                self._mismatch(skeleton, held[0], stream, raw)
         elif self.skeleton is None:
             self.skeleton, self.fps = skeleton, float(fps)
+            self._remember_raw(None, raw)
             self.skeleton_ready.set()
             self.frames.announce(None)
         else:
-            self._mismatch(skeleton, self.skeleton)
+            self._mismatch(skeleton, self.skeleton, None, raw)
 
-    def _mismatch(self, skeleton: Skeleton, held: Skeleton) -> None:
-        if skeleton.names != held.names or skeleton.channels != held.channels:
+    def _remember_raw(self, stream: str | None, raw: bytes | None) -> None:
+        if raw is not None:
+            self._skeleton_raw[stream] = raw
+
+    def _mismatch(self, skeleton: Skeleton, held: Skeleton, stream: str | None,
+                  raw: bytes | None) -> None:
+        if skeleton.names == held.names and skeleton.channels == held.channels:
+            self._remember_raw(stream, raw)  # the held skeleton again: repeats need no parse
+        else:
             self.stats.reject("skeleton_mismatch",
                               f"another skeleton ({len(skeleton.names)} joints, "
                               f"{skeleton.n_channels} channels) ignored; the stream keeps its "
@@ -242,10 +259,12 @@ class Source:
         its skeleton)."""
         if stream is not None:
             self.named.pop(stream, None)
+            self._skeleton_raw.pop(stream, None)
 
     def refuse_skeleton(self, why: str, stream: str | None = None) -> None:
         """The engine cannot use the adopted skeleton: count it and wait for another."""
         self.stats.reject("skeleton", f"skeleton ignored: {why}")
+        self._skeleton_raw.pop(stream, None)
         if stream is not None:
             self.named.pop(stream, None)
             return

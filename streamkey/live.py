@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import json
+import os
 import signal
 import sys
 from collections.abc import Callable
@@ -23,9 +24,29 @@ from .replay.pacing import frame_stream, paced
 from .replay.source import MotionSource
 from .streaming import make_keyframers
 
-__all__ = ["run_live", "build_engine", "run_engine", "replay", "FRAME_TARGETS"]
+__all__ = ["run_live", "build_engine", "run_engine", "replay", "FRAME_TARGETS",
+           "raise_priority", "REALTIME_PRIORITY"]
 
 FRAME_TARGETS = ("osc", "zmq+tcp", "zmq+ipc", "-")
+REALTIME_PRIORITY = 10  # SCHED_RR 1..99: above every ordinary process, below kernel threads
+
+
+def raise_priority() -> str:
+    """`run --realtime`: run this process, and the threads it starts afterwards (sources'
+    readers, libzmq's I/O threads), ahead of ordinary work: SCHED_RR at `REALTIME_PRIORITY`
+    where the OS grants it, else nice -10; returns what was granted. The engine is paced by
+    its input, and Linux keeps 5 % of each core for ordinary processes whatever happens
+    (`sched_rt_runtime_us`)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(REALTIME_PRIORITY))
+        return f"SCHED_RR {REALTIME_PRIORITY}"
+    except (AttributeError, OSError):
+        pass
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, -10)
+        return "nice -10"
+    except (AttributeError, OSError) as exc:
+        return f"normal (not granted: {getattr(exc, 'strerror', None) or exc})"
 
 
 def _ready(line: str) -> None:
@@ -40,7 +61,8 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
                  on_ready: Callable[[str], None] = _ready, idle_exit: float | None = None,
                  on_frame: Callable[[Frame], None] | None = None,
                  reset_on_gap: bool = False, max_streams: int = DEFAULT_MAX_STREAMS,
-                 stream_idle: float | None = None, due_first: bool = True) -> Engine:
+                 stream_idle: float | None = None, due_first: bool = True,
+                 freeze_gc: bool = False) -> Engine:
     """The engine for a source (a Motion is replayed at `rate`, default its fps; 0: unpaced);
     every stream of the source gets its own keyframers (`Engine`)."""
     if isinstance(source, Motion):
@@ -52,7 +74,7 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
 
     return Engine(source, keyframers, sinks, stream, on_ready, on_event, idle_exit,
                   on_frame=on_frame, reset_on_gap=reset_on_gap, max_streams=max_streams,
-                  stream_idle=stream_idle, due_first=due_first)
+                  stream_idle=stream_idle, due_first=due_first, freeze_gc=freeze_gc)
 
 
 async def run_engine(engine: Engine) -> RunSummary:
@@ -80,13 +102,15 @@ async def run_live(source: Source | Motion, methods: list[str], to: list[str],
                    on_ready: Callable[[str], None] = _ready,
                    idle_exit: float | None = None, reset_on_gap: bool = False,
                    max_streams: int = DEFAULT_MAX_STREAMS,
-                   stream_idle: float | None = None) -> RunSummary:
-    """Run the engine from `source` to the sinks at `to`; returns the summary."""
+                   stream_idle: float | None = None, freeze_gc: bool = True) -> RunSummary:
+    """Run the engine from `source` to the sinks at `to`; returns the summary (`freeze_gc`:
+    see `Engine`)."""
     sinks = [make_sink(parse_address(a), listen) for a in to]
     return await run_engine(build_engine(source, methods, sinks, params, lookahead, stream,
                                          rate, on_event=on_event, on_ready=on_ready,
                                          idle_exit=idle_exit, reset_on_gap=reset_on_gap,
-                                         max_streams=max_streams, stream_idle=stream_idle))
+                                         max_streams=max_streams, stream_idle=stream_idle,
+                                         freeze_gc=freeze_gc))
 
 
 def replay(motion: Motion, to: list[str], rate: float | None = None, speed: float = 1.0,

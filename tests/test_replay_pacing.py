@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -50,6 +51,11 @@ def test_replay_at_120_hz_over_loopback_has_no_drift(tmp_path):
     receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     receiver.bind(("127.0.0.1", 0))
     receiver.settimeout(5.0)
+    # the kernel's receive time (the send time on loopback), not this test's wake-up
+    kernel = getattr(socket, "SO_TIMESTAMPNS", 35 if sys.platform == "linux" else None)
+    if kernel is not None:
+        receiver.setsockopt(socket.SOL_SOCKET, kernel, 1)
+        receiver.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
     port = receiver.getsockname()[1]
     proc = subprocess.Popen([sys.executable, "-m", "streamkey", "replay", str(DATA / "07_01.bvh"),
                              "--loop", "--frames", "1200", "--to", f"osc://127.0.0.1:{port}"],
@@ -57,16 +63,21 @@ def test_replay_at_120_hz_over_loopback_has_no_drift(tmp_path):
     arrivals, seqs = [], []
     try:
         while len(seqs) < 1200:
-            data = receiver.recv(65536)
+            data, ancillary, _, _ = receiver.recvmsg(65536, 64)
+            stamp = time.monotonic_ns()
+            for level, kind, value in ancillary:
+                if (level, kind) == (socket.SOL_SOCKET, kernel):
+                    sec, nsec = struct.unpack_from("qq", value)
+                    stamp = sec * 10**9 + nsec + time.monotonic_ns() - time.time_ns()
             if data.startswith(b"/streamkey/frame"):
-                arrivals.append(time.monotonic())
+                arrivals.append(stamp)
                 seqs.append(decode_frame(data)[0])
     finally:
         proc.communicate(timeout=30)
         receiver.close()
     assert proc.returncode == 0
     assert seqs == list(range(1, 1201))
-    t = np.array(arrivals)
+    t = np.array(arrivals) / 1e9
     mean_interval = (t[-1] - t[0]) / (len(t) - 1)
     assert abs(mean_interval - 1 / 120) / (1 / 120) < 0.005
     assert abs(t[-1] - (t[0] + 1199 / 120)) < 0.010
