@@ -12,7 +12,7 @@ from .motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 
 __all__ = ["euler_matrices", "local_rotations", "forward_kinematics", "FKResult", "body_height",
            "pelvis_frame", "point_names", "skeleton_defect", "MAX_DEPTH", "MIN_BODY_HEIGHT",
-           "root_relative_joints", "to_pelvis", "joint_heights", "fk_points"]
+           "root_relative_joints", "to_pelvis", "joint_heights", "fk_points", "warm_kinematics"]
 
 MAX_DEPTH = 256  # joints from the root to the deepest leaf; real skeletons stay under 40
 MIN_BODY_HEIGHT = 1e-3  # file units; methods divide positions by the body height
@@ -394,7 +394,8 @@ assert set(_AXIS) == set(ROTATION_CHANNELS)
 
 
 @warmer
-def _warm() -> None:
+def warm_kinematics() -> None:
+    """Compile (or load from the cache) the FK and pelvis-frame kernels."""
     from .motion import Skeleton
 
     skel = Skeleton(["root", "leg"], [-1, 0], np.array([[0.0, 0.0, 0.0], [0.0, -1.0, 0.0]]),

@@ -45,10 +45,17 @@ from .keyframes import (
     params_digest,
     rank_strength,
 )
-from .kinematics import FKResult, body_height, fk_points, forward_kinematics, pelvis_frame
+from .kinematics import (
+    FKResult,
+    body_height,
+    fk_points,
+    forward_kinematics,
+    pelvis_frame,
+    warm_kinematics,
+)
 from .motion import Frame, Skeleton
 from .roles import resolve_roles
-from .signal import unwrap_into, unwrap_state
+from .signal import unwrap_into, unwrap_state, warm_unwrap
 
 __all__ = ["StreamGuard", "GuardCounters", "FeatureStage", "FeatureBlock", "OnlineKeyframer",
            "Pipeline", "DEFAULT_MAX_BRIDGE_FRAMES", "DEFAULT_MAX_REORDER_FRAMES"]
@@ -244,6 +251,8 @@ class FeatureStage:
         self.unwrap_prev: np.ndarray | None = None
         self.unwrap_offset: np.ndarray | None = None
         self.fk_points: frozenset[int] | None = frozenset()
+        warm_kinematics()  # the first frame must not wait for the compiler (or its cache)
+        warm_unwrap()
 
     def compute(self, frames: Sequence[Frame]) -> FeatureBlock:
         """Features of consecutive clean frames (unwrapped rotations now; FK on demand)."""

@@ -15,7 +15,7 @@ from .jit import kernel, warmer
 
 __all__ = ["hp_lambda", "hp_filter", "hp_banded", "hp_settle", "hp_factor", "unwrap_degrees",
            "unwrap_step", "unwrap_state", "unwrap_columns", "unwrap_into", "local_minima",
-           "local_maxima"]
+           "local_maxima", "warm_unwrap"]
 
 
 def hp_lambda(cutoff_hz: float, frame_time: float) -> float:
@@ -187,7 +187,8 @@ def unwrap_columns(channels: np.ndarray, cols: np.ndarray) -> np.ndarray:
 
 
 @warmer
-def _warm() -> None:
+def warm_unwrap() -> None:
+    """Compile (or load from the cache) the unwrap kernel."""
     unwrap_columns(np.array([[0.0, 170.0], [0.0, -170.0]]), np.array([1]))
 
 
