@@ -253,6 +253,10 @@ def _plan(skeleton: Skeleton) -> _Plan:
 
 
 def _rows(channels: np.ndarray) -> np.ndarray:
+    """Channel rows as the kernels take them: 2-D, float64, C order (a copy only if not)."""
+    if (type(channels) is np.ndarray and channels.ndim == 2 and channels.dtype == np.float64
+            and channels.flags.c_contiguous):
+        return channels
     return np.ascontiguousarray(np.atleast_2d(np.asarray(channels, dtype=np.float64)))
 
 
@@ -295,9 +299,13 @@ def forward_kinematics(skeleton: Skeleton, channels: np.ndarray, chunk: int = 40
     n = len(channels)
     positions = np.empty((n, plan.n_points, 3))
     root_rotation = np.empty((n, 3, 3))
-    for lo in range(0, n, max(int(chunk), 1)):
-        hi = lo + chunk
-        _fk_kernel(channels[lo:hi], plan.ip, plan.fp, positions[lo:hi], root_rotation[lo:hi])
+    if n <= chunk:
+        _fk_kernel(channels, plan.ip, plan.fp, positions, root_rotation)
+    else:  # the same bits whatever the split (frames are independent)
+        for lo in range(0, n, max(int(chunk), 1)):
+            hi = lo + chunk
+            _fk_kernel(channels[lo:hi], plan.ip, plan.fp, positions[lo:hi],
+                       root_rotation[lo:hi])
     return FKResult(positions, root_rotation, plan.names)
 
 
@@ -324,12 +332,18 @@ def joint_heights(skeleton: Skeleton, channels: np.ndarray, joints: tuple[int, .
 def pelvis_frame(fk: FKResult, pelvis: int = 0, points: np.ndarray | None = None) -> np.ndarray:
     """Positions in the pelvis-fixed frame: R_pelvis^T (p - p_pelvis), (n, points, 3); every
     FK point, or only `points` (the same bits for each)."""
-    if points is None:
-        points = np.arange(fk.positions.shape[1])
-    points = np.asarray(points, dtype=np.int64)
+    points = _every_point(fk.positions.shape[1]) if points is None else np.asarray(
+        points, dtype=np.int64)
     out = np.empty((fk.positions.shape[0], len(points), 3))
     _pelvis_kernel(fk.positions, fk.root_rotation, int(pelvis), points, out)
     return out
+
+
+def _every_point(n: int, _cache: dict[int, np.ndarray] = {}) -> np.ndarray:  # noqa: B006
+    got = _cache.get(n)
+    if got is None:
+        got = _cache[n] = np.arange(n, dtype=np.int64)  # writable: one kernel signature
+    return got
 
 
 def to_pelvis(points: np.ndarray, pelvis: np.ndarray, root_rotation: np.ndarray) -> np.ndarray:

@@ -255,10 +255,25 @@ def test_body_height_from_offsets_equals_the_fk_zero_pose():
 def test_warm_up_compiles_the_feature_kernels():
     from streamkey import jit, kinematics, signal
 
+    from streamkey.online import FeatureStage
+
     jit.warm_up()
-    for k in (kinematics._fk_kernel, kinematics._pelvis_kernel, kinematics._local_kernel,
-              signal.unwrap_into):
-        assert k.compiled is not None and k.compiled.signatures
+    kernels = (kinematics._fk_kernel, kinematics._pelvis_kernel, kinematics._local_kernel,
+               signal.unwrap_into)
+    assert all(k.compiled is not None and len(k.compiled.signatures) == 1 for k in kernels)
+    # Every path of the offline and online features calls them with the warmed-up types:
+    # nothing compiles on a stream's first frame.
+    motion = read_bvh(DATA / "05_06.bvh")
+    feats = compute_features(motion)
+    feats.pelvis_positions  # noqa: B018
+    feats.role_positions(("head", "left_ankle"))
+    stage = FeatureStage(motion.skeleton, motion.fps)
+    for frames in (motion.frames()[:1], motion.frames()[1:5]):
+        block = stage.compute(frames)
+        block.foot_heights  # noqa: B018
+        block.pelvis_points([3, 4])
+        block.slice(0, 1).materialise()
+    assert all(len(k.compiled.signatures) == 1 for k in kernels)
 
 
 def test_feature_block_composes_only_what_the_stream_reads():
