@@ -4,6 +4,7 @@ frame (online), a block and a whole clip (offline) give the same bits."""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -102,14 +103,15 @@ class _Plan:
         self.n_points = j + len(ends)
         self.names = point_names(skeleton)
         self.skeleton = skeleton
-        self.joints = frozenset(order)
-        self._subplans: dict[tuple[int, ...], _Plan] = {}
+        # the FK points this plan sets: its joints and end sites
+        self.valid = frozenset(order) | frozenset(j + e for e in kept_ends)
+        self._subplans: dict[frozenset[int], _Plan] = {}
 
-    def subplan(self, points: tuple[int, ...]) -> _Plan:
-        """The plan for some FK points and their ancestors only (cached)."""
+    def subplan(self, points: frozenset[int]) -> _Plan:
+        """The plan for some FK points, their ancestors and the root only (cached)."""
         got = self._subplans.get(points)
         if got is None:
-            got = self._subplans[points] = _Plan(self.skeleton, points)
+            got = self._subplans[points] = _Plan(self.skeleton, tuple(sorted({*points, 0})))
         return got
 
 
@@ -309,18 +311,17 @@ def forward_kinematics(skeleton: Skeleton, channels: np.ndarray, chunk: int = 40
     return FKResult(positions, root_rotation, plan.names)
 
 
-def fk_points(skeleton: Skeleton, channels: np.ndarray, points: tuple[int, ...]) -> FKResult:
+def fk_points(skeleton: Skeleton, channels: np.ndarray, points: Iterable[int]) -> FKResult:
     """`forward_kinematics` of some FK points only, composing just their ancestors (and the
     root, for `root_rotation`): the same bits for those points. The result has every point's
     row; only `valid` ones (the points and their ancestors) are set."""
     channels = _rows(channels)
-    plan = _plan(skeleton).subplan(tuple(sorted({*points, 0})))
+    plan = _plan(skeleton).subplan(points if isinstance(points, frozenset) else frozenset(
+        int(p) for p in points))
     positions = np.empty((len(channels), plan.n_points, 3))
     root_rotation = np.empty((len(channels), 3, 3))
     _fk_kernel(channels, plan.ip, plan.fp, positions, root_rotation)
-    ends = plan.ip[7 + 10 * int(plan.ip[0]) :: 2]
-    return FKResult(positions, root_rotation, plan.names,
-                    frozenset(plan.joints) | frozenset(int(e) for e in ends))
+    return FKResult(positions, root_rotation, plan.names, plan.valid)
 
 
 def joint_heights(skeleton: Skeleton, channels: np.ndarray, joints: tuple[int, ...]) -> np.ndarray:

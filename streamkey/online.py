@@ -166,24 +166,31 @@ class FeatureBlock:
     def __len__(self) -> int:
         return int(len(self.seq))
 
-    def _kinematics(self, points: tuple[int, ...] | None = None, keep: bool = True) -> FKResult:
+    def _kinematics(self, points: frozenset[int] | None = None, keep: bool = True) -> FKResult:
         """FK holding at least `points` (None: every point). With `keep`, the stream's later
-        blocks compute these points too in their one FK pass."""
+        blocks compute these points too, in their one FK pass."""
         fk, stage = self._fk, self.stage
         if fk is not None and (fk.valid is None or (points is not None
                                                     and fk.valid.issuperset(points))):
             return fk
-        need = None if points is None else frozenset(points)
+        need = points
         if stage is not None and need is not None:
-            need = None if stage.fk_points is None else need | stage.fk_points
+            if stage.fk_points is None:
+                need = None
+            elif not stage.fk_points.issuperset(need):
+                need = stage.fk_points | need
+                if keep:
+                    stage.fk_points = need
+            else:
+                need = stage.fk_points
+        elif stage is not None and keep:
+            stage.fk_points = None
         if need is not None and fk is not None:
             need = need | fk.valid  # type: ignore[operator]
         if need is None or len(need) >= self.skeleton.n_joints:
             fk = forward_kinematics(self.skeleton, self.channels)
         else:
-            fk = fk_points(self.skeleton, self.channels, tuple(sorted(need)))
-        if stage is not None and keep and stage.fk_points is not None:
-            stage.fk_points = None if points is None else stage.fk_points | frozenset(points)
+            fk = fk_points(self.skeleton, self.channels, need)
         self._fk = fk
         return fk
 
@@ -203,18 +210,27 @@ class FeatureBlock:
         """Some FK points in the pelvis-fixed frame (n, len(points), 3): the bits of
         `pelvis_positions[:, points]`, composing only the joints needed. `keep=False`: a
         one-off read, later blocks do not compute these points for it."""
-        idx = np.asarray(points, dtype=np.int64).reshape(-1)
+        idx, need = self._request(points)
         if self._pelvis is not None:
             return self._pelvis[:, idx]
-        pelvis = self.roles["pelvis"]
-        fk = self._kinematics(tuple(int(p) for p in idx) + (pelvis,), keep)
-        return pelvis_frame(fk, pelvis, idx)
+        return pelvis_frame(self._kinematics(need, keep), self.roles["pelvis"], idx)
+
+    def _request(self, points: Sequence[int]) -> tuple[np.ndarray, frozenset[int]]:
+        """`points` as an index array, and the FK points their pelvis frame reads (cached
+        on the stage: a keyframer asks for the same points every frame)."""
+        key = tuple(points)
+        cache = self.stage._requests if self.stage is not None else {}
+        got = cache.get(key)
+        if got is None:
+            idx = np.array(key, dtype=np.int64).reshape(-1)
+            got = cache[key] = (idx, frozenset(int(p) for p in idx) | {self.roles["pelvis"]})
+        return got
 
     @property
     def foot_heights(self) -> np.ndarray:
         """World Y of the left and right ankle (n, 2)."""
-        feet = (self.roles["left_ankle"], self.roles["right_ankle"])
-        return self._kinematics(feet).positions[:, list(feet), 1]
+        feet = [self.roles["left_ankle"], self.roles["right_ankle"]]
+        return self._kinematics(frozenset(feet)).positions[:, feet, 1]
 
     def materialise(self) -> FeatureBlock:
         """Compute every lazy feature now (benchmarks)."""
@@ -251,6 +267,7 @@ class FeatureStage:
         self.unwrap_prev: np.ndarray | None = None
         self.unwrap_offset: np.ndarray | None = None
         self.fk_points: frozenset[int] | None = frozenset()
+        self._requests: dict[tuple[int, ...], tuple[np.ndarray, frozenset[int]]] = {}
         warm_kinematics()  # the first frame must not wait for the compiler (or its cache)
         warm_unwrap()
 
@@ -279,6 +296,13 @@ class FeatureStage:
         """Start a new stream (after a long gap): forget the unwrap state."""
         self.unwrap_prev = None
         self.unwrap_offset = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k != "_requests"}  # a derived cache
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._requests = {}
 
 
 class OnlineKeyframer:

@@ -254,7 +254,6 @@ def test_body_height_from_offsets_equals_the_fk_zero_pose():
 
 def test_warm_up_compiles_the_feature_kernels():
     from streamkey import jit, kinematics, signal
-
     from streamkey.online import FeatureStage
 
     jit.warm_up()
