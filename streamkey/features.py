@@ -1,33 +1,50 @@
 """Derived signals of a motion, computed once and shared by every method (DESIGN §2).
 
 Offline: `compute_features(motion)`. Every array is indexed by the motion's own frame numbers
-(reference frame included); methods slice from `motion.first_frame`.
+(reference frame included); methods slice from `motion.first_frame`. FK and the unwrapped
+rotations are computed up front (compiled kernels writing straight into the results); the
+pelvis frame on demand, for the points a method asks for (`role_positions`, `pelvis_points`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import numpy as np
 
 from .kinematics import FKResult, body_height, forward_kinematics, pelvis_frame
 from .motion import Motion
 from .roles import resolve_roles
-from .signal import unwrap_degrees
+from .signal import unwrap_columns
 
 __all__ = ["Features", "compute_features"]
 
 
-@dataclass
 class Features:
     """FK positions, pelvis-frame positions, foot heights, unwrapped rotations, body height."""
 
-    motion: Motion
-    fk: FKResult
-    pelvis_positions: np.ndarray
-    roles: dict[str, int]
-    body_height: float
-    rotations: np.ndarray
+    def __init__(self, motion: Motion, fk: FKResult, roles: dict[str, int], body_height: float,
+                 rotations: np.ndarray) -> None:
+        self.motion = motion
+        self.fk = fk
+        self.roles = roles
+        self.body_height = body_height
+        self.rotations = rotations
+        self._pelvis: np.ndarray | None = None
+
+    @property
+    def pelvis_positions(self) -> np.ndarray:
+        """Every FK point in the pelvis-fixed frame, (n_frames, n_points, 3) (on first use)."""
+        if self._pelvis is None:
+            self._pelvis = pelvis_frame(self.fk, self.roles["pelvis"])
+        return self._pelvis
+
+    def pelvis_points(self, points: Sequence[int]) -> np.ndarray:
+        """Some FK points in the pelvis-fixed frame (the bits of `pelvis_positions`)."""
+        idx = np.asarray(points, dtype=np.int64).reshape(-1)
+        if self._pelvis is not None:
+            return self._pelvis[:, idx]
+        return pelvis_frame(self.fk, self.roles["pelvis"], idx)
 
     @property
     def foot_heights(self) -> np.ndarray:
@@ -38,8 +55,8 @@ class Features:
 
     def role_positions(self, roles: tuple[str, ...], pelvis: bool = True) -> np.ndarray:
         """Positions of the joints playing `roles`, (n_frames, len(roles), 3)."""
-        src = self.pelvis_positions if pelvis else self.fk.positions
-        return src[:, [self.roles[r] for r in roles]]
+        idx = [self.roles[r] for r in roles]
+        return self.pelvis_points(idx) if pelvis else self.fk.positions[:, idx]
 
 
 def compute_features(motion: Motion, role_mapping: dict[str, str] | None = None) -> Features:
@@ -47,7 +64,5 @@ def compute_features(motion: Motion, role_mapping: dict[str, str] | None = None)
     skel = motion.skeleton
     fk = forward_kinematics(skel, motion.channels)
     roles = resolve_roles(skel, role_mapping)
-    rot_cols = skel.rotation_columns()
-    rotations = unwrap_degrees(motion.channels[:, rot_cols])
-    return Features(motion, fk, pelvis_frame(fk, roles["pelvis"]), roles, body_height(skel),
-                    rotations)
+    rotations = unwrap_columns(motion.channels, skel.rotation_columns())
+    return Features(motion, fk, roles, body_height(skel), rotations)

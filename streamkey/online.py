@@ -45,10 +45,17 @@ from .keyframes import (
     params_digest,
     rank_strength,
 )
-from .kinematics import FKResult, body_height, forward_kinematics, joint_heights, pelvis_frame
+from .kinematics import (
+    FKResult,
+    body_height,
+    fk_points,
+    forward_kinematics,
+    pelvis_frame,
+    warm_kinematics,
+)
 from .motion import Frame, Skeleton
 from .roles import resolve_roles
-from .signal import unwrap_step
+from .signal import unwrap_into, unwrap_state, warm_unwrap
 
 __all__ = ["StreamGuard", "GuardCounters", "FeatureStage", "FeatureBlock", "OnlineKeyframer",
            "Pipeline", "DEFAULT_MAX_BRIDGE_FRAMES", "DEFAULT_MAX_REORDER_FRAMES"]
@@ -142,8 +149,10 @@ class FeatureBlock:
 
     `rotations` are the unwrapped rotation channels (columns `rotation_columns`),
     `positions` world FK points, `pelvis_positions` the same in the pelvis frame,
-    `foot_heights` the world Y of the left and right ankle. The FK-based ones are computed on
-    first access (a keyframer that needs no positions never pays for FK) and then shared.
+    `pelvis_points(points)` some of them, `foot_heights` the world Y of the left and right
+    ankle. The FK-based ones are computed on first access, composing only the joints some
+    keyframer on this stream reads (`FeatureStage.fk_points`): a keyframer that needs no
+    positions never pays for FK, one that needs a few joints pays for their chains only.
     """
 
     def __init__(self, seq: np.ndarray, time: np.ndarray, channels: np.ndarray,
@@ -151,19 +160,39 @@ class FeatureBlock:
                  stage: FeatureStage | None = None) -> None:
         self.seq, self.time, self.channels, self.rotations = seq, time, channels, rotations
         self.skeleton, self.roles, self.stage = skeleton, roles, stage
-        self._fk: FKResult | None = None
+        self._fk: FKResult | None = None  # maybe partial: `valid` points only
         self._pelvis: np.ndarray | None = None
-        self._feet: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(len(self.seq))
 
-    def _kinematics(self) -> FKResult:
-        if self._fk is None:
-            self._fk = forward_kinematics(self.skeleton, self.channels)
-            if self.stage is not None:  # someone on this stream reads positions
-                self.stage.full_fk = True
-        return self._fk
+    def _kinematics(self, points: frozenset[int] | None = None, keep: bool = True) -> FKResult:
+        """FK holding at least `points` (None: every point). With `keep`, the stream's later
+        blocks compute these points too, in their one FK pass."""
+        fk, stage = self._fk, self.stage
+        if fk is not None and (fk.valid is None or (points is not None
+                                                    and fk.valid.issuperset(points))):
+            return fk
+        need = points
+        if stage is not None and need is not None:
+            if stage.fk_points is None:
+                need = None
+            elif not stage.fk_points.issuperset(need):
+                need = stage.fk_points | need
+                if keep:
+                    stage.fk_points = need
+            else:
+                need = stage.fk_points
+        elif stage is not None and keep:
+            stage.fk_points = None
+        if need is not None and fk is not None:
+            need = need | fk.valid  # type: ignore[operator]
+        if need is None or len(need) >= self.skeleton.n_joints:
+            fk = forward_kinematics(self.skeleton, self.channels)
+        else:
+            fk = fk_points(self.skeleton, self.channels, need)
+        self._fk = fk
+        return fk
 
     @property
     def positions(self) -> np.ndarray:
@@ -177,15 +206,31 @@ class FeatureBlock:
             self._pelvis = pelvis_frame(self._kinematics(), self.roles["pelvis"])
         return self._pelvis
 
+    def pelvis_points(self, points: Sequence[int], keep: bool = True) -> np.ndarray:
+        """Some FK points in the pelvis-fixed frame (n, len(points), 3): the bits of
+        `pelvis_positions[:, points]`, composing only the joints needed. `keep=False`: a
+        one-off read, later blocks do not compute these points for it."""
+        idx, need = self._request(points)
+        if self._pelvis is not None:
+            return self._pelvis[:, idx]
+        return pelvis_frame(self._kinematics(need, keep), self.roles["pelvis"], idx)
+
+    def _request(self, points: Sequence[int]) -> tuple[np.ndarray, frozenset[int]]:
+        """`points` as an index array, and the FK points their pelvis frame reads (cached
+        on the stage: a keyframer asks for the same points every frame)."""
+        key = tuple(points)
+        cache = self.stage._requests if self.stage is not None else {}
+        got = cache.get(key)
+        if got is None:
+            idx = np.array(key, dtype=np.int64).reshape(-1)
+            got = cache[key] = (idx, frozenset(int(p) for p in idx) | {self.roles["pelvis"]})
+        return got
+
     @property
     def foot_heights(self) -> np.ndarray:
         """World Y of the left and right ankle (n, 2)."""
-        feet = (self.roles["left_ankle"], self.roles["right_ankle"])
-        if self._fk is not None or (self.stage is not None and self.stage.full_fk):
-            return self.positions[:, list(feet), 1]  # full FK is (or will be) paid anyway
-        if self._feet is None:  # the two leg chains only: the same bits as full FK
-            self._feet = joint_heights(self.skeleton, self.channels, feet)
-        return self._feet
+        feet = [self.roles["left_ankle"], self.roles["right_ankle"]]
+        return self._kinematics(frozenset(feet)).positions[:, feet, 1]
 
     def materialise(self) -> FeatureBlock:
         """Compute every lazy feature now (benchmarks)."""
@@ -198,7 +243,7 @@ class FeatureBlock:
                            self.rotations[lo:hi], self.skeleton, self.roles, self.stage)
         if self._fk is not None:
             fk = self._fk
-            out._fk = FKResult(fk.positions[lo:hi], fk.root_rotation[lo:hi], fk.names)
+            out._fk = FKResult(fk.positions[lo:hi], fk.root_rotation[lo:hi], fk.names, fk.valid)
         if self._pelvis is not None:
             out._pelvis = self._pelvis[lo:hi]
         return out
@@ -207,8 +252,9 @@ class FeatureBlock:
 class FeatureStage:
     """Per-stream feature computation: FK and derived signals, once per frame.
 
-    State carried between blocks: the unwrap state of the rotation channels, and whether any
-    keyframer reads full FK (`full_fk`).
+    State carried between blocks: the unwrap state of the rotation channels (`unwrap_prev`,
+    `unwrap_offset`: owned here, updated in place), and the FK points some keyframer on this
+    stream reads (`fk_points`; None: every point), which each block composes in one pass.
     """
 
     def __init__(self, skeleton: Skeleton, fps: float,
@@ -217,40 +263,46 @@ class FeatureStage:
         self.fps = float(fps)
         self.roles = resolve_roles(skeleton, role_mapping)
         self.body_height = body_height(skeleton)
-        self.rotation_columns = skeleton.rotation_columns()
+        self.rotation_columns = skeleton.rotation_columns().astype(np.int64)
         self.unwrap_prev: np.ndarray | None = None
         self.unwrap_offset: np.ndarray | None = None
-        # Set once a keyframer reads full FK; from then on foot heights come from it too
-        # (same bits as the leg-chain FK), so a pipeline pays for FK once.
-        self.full_fk = False
+        self.fk_points: frozenset[int] | None = frozenset()
+        self._requests: dict[tuple[int, ...], tuple[np.ndarray, frozenset[int]]] = {}
+        warm_kinematics()  # the first frame must not wait for the compiler (or its cache)
+        warm_unwrap()
 
     def compute(self, frames: Sequence[Frame]) -> FeatureBlock:
-        """Features of consecutive clean frames (vectorised over the block; FK on demand)."""
-        if len(frames) == 1:
+        """Features of consecutive clean frames (unwrapped rotations now; FK on demand)."""
+        n = len(frames)
+        if n == 1:
             f = frames[0]
             channels = np.array(f.channels, dtype=np.float64).reshape(1, -1)
             seq, time = np.array([f.seq], dtype=np.int64), np.array([f.time], dtype=np.float64)
-            raw = channels[:, self.rotation_columns]
-            prev = self.unwrap_prev
-            if prev is not None:  # no jump of 180 degrees or more: the offset stays (unwrap_step)
-                step = np.subtract(raw[0], prev)
-                if np.maximum.reduce(np.abs(step, out=step)) < 180.0:
-                    self.unwrap_prev = raw[0]
-                    return FeatureBlock(seq, time, channels, raw + self.unwrap_offset,
-                                        self.skeleton, self.roles, self)
         else:
             channels = np.array([f.channels for f in frames], dtype=np.float64).reshape(
-                len(frames), self.skeleton.n_channels)
+                n, self.skeleton.n_channels)
             seq = np.array([f.seq for f in frames], dtype=np.int64)
             time = np.array([f.time for f in frames], dtype=np.float64)
-        rotations, self.unwrap_prev, self.unwrap_offset = unwrap_step(
-            channels[:, self.rotation_columns], self.unwrap_prev, self.unwrap_offset)
+        cols = self.rotation_columns
+        rotations = np.empty((n, len(cols)))
+        if n:
+            if self.unwrap_prev is None or self.unwrap_offset is None:
+                self.unwrap_prev, self.unwrap_offset = unwrap_state(channels[0, cols], None,
+                                                                    None)
+            unwrap_into(channels, cols, self.unwrap_prev, self.unwrap_offset, rotations)
         return FeatureBlock(seq, time, channels, rotations, self.skeleton, self.roles, self)
 
     def reset(self) -> None:
         """Start a new stream (after a long gap): forget the unwrap state."""
         self.unwrap_prev = None
         self.unwrap_offset = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k != "_requests"}  # a derived cache
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._requests = {}
 
 
 class OnlineKeyframer:

@@ -250,7 +250,7 @@ class Playable(OnlineKeyframer):
             values[kf.method] = kf.keyness.get(t, 0.0)
             for seq in [s for s in kf.keyness if s <= t]:
                 del kf.keyness[seq]
-        rows = block.pelvis_positions[i, self._joints] / self.features.body_height
+        rows = block.slice(i, i + 1).pelvis_points(self._joints)[0] / self.features.body_height
         if self._prev is not None:
             raw = float(np.linalg.norm(rows - self._prev, axis=1).mean() * self.fps)
             a = 1.0 - math.exp(-1.0 / (SIGNAL_SMOOTHING_SECONDS * self.fps))

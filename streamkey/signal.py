@@ -11,9 +11,11 @@ import numpy as np
 from scipy.linalg import cholesky_banded, solveh_banded
 
 from .errors import UsageError
+from .jit import kernel, warmer
 
 __all__ = ["hp_lambda", "hp_filter", "hp_banded", "hp_settle", "hp_factor", "unwrap_degrees",
-           "unwrap_step", "local_minima", "local_maxima"]
+           "unwrap_step", "unwrap_state", "unwrap_columns", "unwrap_into", "local_minima",
+           "local_maxima", "warm_unwrap"]
 
 
 def hp_lambda(cutoff_hz: float, frame_time: float) -> float:
@@ -111,39 +113,83 @@ def hp_factor(n: int, lam: float) -> np.ndarray:
     return c
 
 
+@kernel
+def unwrap_into(channels: np.ndarray, cols: np.ndarray, prev: np.ndarray,
+                   offset: np.ndarray, out: np.ndarray) -> None:
+    """`np.unwrap` (period 360) of channels[:, cols] into `out`, continuing from the state
+    `prev` (last raw row) and `offset` (its correction), both updated in place. np.unwrap's
+    arithmetic: a correction where |step| >= 180, the corrections summed in stream order
+    (zeros included), added to the raw value."""
+    for f in range(channels.shape[0]):
+        for c in range(cols.shape[0]):
+            x = channels[f, cols[c]]
+            d = x - prev[c]
+            corr = 0.0
+            if abs(d) >= 180.0:
+                m = np.fmod(d + 180.0, 360.0)  # np.mod(d + 180, 360): the divisor's sign
+                if m < 0.0:
+                    m += 360.0
+                elif m == 0.0:
+                    m = 0.0
+                m -= 180.0
+                if m == -180.0 and d > 0.0:
+                    m = 180.0
+                corr = m - d
+            offset[c] = offset[c] + corr
+            out[f, c] = x + offset[c]
+            prev[c] = x
+
+
 def unwrap_step(raw: np.ndarray, prev_raw: np.ndarray | None,
                 offset: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unwrap a block of angle rows (degrees) continuing from the previous block's state.
 
     State is `(prev_raw, offset)`: the last raw row and the correction (a multiple of 360)
-    applied to it. Returns `(unwrapped, prev_raw, offset)`. Same arithmetic as `np.unwrap`,
-    accumulated in one sequence, so any split of a stream into blocks gives identical bits.
+    applied to it. Returns `(unwrapped, prev_raw, offset)` (new arrays). Same arithmetic as
+    `np.unwrap`, accumulated in one sequence, so any split of a stream into blocks gives
+    identical bits.
     """
     raw = np.asarray(raw, dtype=np.float64)
     if len(raw) == 0:
         return raw.copy(), prev_raw, offset  # type: ignore[return-value]
+    shape = raw.shape
+    rows = np.ascontiguousarray(raw.reshape(len(raw), -1))
+    out = np.empty(rows.shape)
+    prev, off = unwrap_state(rows[0], prev_raw, offset)
+    unwrap_into(rows, np.arange(rows.shape[1]), prev, off, out)
+    return out.reshape(shape), prev.reshape(shape[1:]), off.reshape(shape[1:])
+
+
+def unwrap_state(first: np.ndarray, prev_raw: np.ndarray | None,
+                 offset: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Fresh, writable copies of an unwrap state (`unwrap_into`); a stream's start (no
+    state): its first raw row, no correction."""
     if prev_raw is None or offset is None:
-        prev_raw, offset = raw[0], np.zeros(raw.shape[1:])
-    dd = np.empty(raw.shape)
-    np.subtract(raw[:1], prev_raw, out=dd[:1])
-    np.subtract(raw[1:], raw[:-1], out=dd[1:])
-    jumps = np.flatnonzero(np.abs(dd) >= 180.0)
-    if len(jumps) == 0:  # every correction is zero
-        return raw + offset, raw[-1].copy(), offset
-    # Corrections only where a jump is (x + 0 == x: the running sum is the dense one's).
-    d = dd.reshape(-1)[jumps]
-    dmod = np.mod(d + 180.0, 360.0) - 180.0
-    np.copyto(dmod, 180.0, where=(dmod == -180.0) & (d > 0))
-    acc = np.zeros(raw.shape)
-    acc.reshape(-1)[jumps] = dmod - d
-    acc[0] += offset
-    np.add.accumulate(acc, axis=0, out=acc)
-    return raw + acc, raw[-1].copy(), acc[-1].copy()
+        return np.array(first, dtype=np.float64).ravel(), np.zeros(np.size(first))
+    return (np.array(prev_raw, dtype=np.float64).ravel(),
+            np.array(offset, dtype=np.float64).ravel())
 
 
 def unwrap_degrees(angles: np.ndarray) -> np.ndarray:
     """Euler angle channels (frames along axis 0) without ±180° jumps (as `np.unwrap`)."""
     return unwrap_step(angles, None, None)[0]
+
+
+def unwrap_columns(channels: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """`unwrap_degrees(channels[:, cols])` without the copy of the columns (n, len(cols))."""
+    channels = np.ascontiguousarray(channels, dtype=np.float64)
+    cols = np.asarray(cols, dtype=np.int64)
+    out = np.empty((len(channels), len(cols)))
+    if len(channels):
+        prev, off = unwrap_state(channels[0, cols], None, None)
+        unwrap_into(channels, cols, prev, off, out)
+    return out
+
+
+@warmer
+def warm_unwrap() -> None:
+    """Compile (or load from the cache) the unwrap kernel."""
+    unwrap_columns(np.array([[0.0, 170.0], [0.0, -170.0]]), np.array([1]))
 
 
 def local_minima(v: np.ndarray) -> np.ndarray:

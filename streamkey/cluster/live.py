@@ -33,6 +33,7 @@ import zmq
 
 from ..adapters.zmq import decode_frame_parts, decode_skeleton_parts, parse_topic, topic
 from ..io import stream_tag
+from ..jit import warm_up
 from ..keyframes import Event
 from ..motion import Frame, Skeleton
 from ..online import Pipeline
@@ -220,6 +221,7 @@ class ShardWorker:
         try:
             with self.lock:
                 self.restore_all()
+            warm_up()  # compiled kernels loaded before the first stream's first frame
             self.ready.set()
             poller = zmq.Poller()
             poller.register(sock, zmq.POLLIN)

@@ -113,11 +113,8 @@ class AutoOnline(OnlineKeyframer):
             return self._pass(self.active.process(block))
         need = self.horizon - len(self.rows)
         head = block if len(block) <= need else block.slice(0, need)
-        stage = block.stage
-        before = stage.full_fk if stage is not None else False
-        p = head.pelvis_positions[:, self._joints] / self.features.body_height
-        if stage is not None:  # read for the decision only: do not make the stream pay FK
-            stage.full_fk = before
+        # read for the decision only: later blocks do not compute these joints for it
+        p = head.pelvis_points(self._joints, keep=False) / self.features.body_height
         self.rows.extend(p)
         out = self._both(self.inners["low"].process(head), self.inners["high"].process(head))
         if len(self.rows) >= self.horizon:

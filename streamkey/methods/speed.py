@@ -716,7 +716,7 @@ class Online(OnlineKeyframer):
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Append frames, doing each frame's share of the running analysis; every `hop`
         frames start the next one. The block's last frame leaves its share to `idle`."""
-        rows = block.pelvis_positions[:, self._joints].reshape(len(block), -1) / self._height
+        rows = block.pelvis_points(self._joints).reshape(len(block), -1) / self._height
         if self._resume_after is not None and len(block):
             shift = int(block.seq[0]) - 1 - self._resume_after
             if shift < 0:  # the source started over: the kept history stays in the past
