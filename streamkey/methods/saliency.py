@@ -650,7 +650,9 @@ class Online(OnlineKeyframer):
             self.out_st = remap_stats(self.out_st, perm)
         elif self.out_st.top.shape[0] != kk:
             self.out_st = MapStats.empty(kk)
-        if "d" not in self.buf or self.buf["d"].shape[1] != kk or perm is not None:
+        same = "d" in self.buf and self.buf["d"].shape[1] == kk and (
+            perm is None or np.array_equal(perm, np.arange(kk)))
+        if not same:  # the curves moved columns (or their count changed): new ring arrays
             self._alloc_curves(kk, perm)
         self.basis = new
         self.weights, self.footmask = curve_weights(new, self.contact)
