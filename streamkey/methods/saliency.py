@@ -130,6 +130,8 @@ from .saliency_math import (
 
 TRACE_FRAMES = 2400  # 20 s at 120 Hz of per-frame saliency kept for live views
 CANDIDATE_EVERY = 4  # frames between two derivations of the provisional candidates
+SPREAD = 16  # frames over which a periodic basis update is computed before it applies
+FOLD_EVERY = 64  # frames that left the window folded into the totals at once
 
 __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FOOT_SIGMA",
            "SCALES", "HISTORY_SECONDS", "Basis", "Moments", "MapStats", "moments", "pca_basis",
@@ -279,6 +281,24 @@ def _info(cv: _Curves, cand: np.ndarray, res: dict[str, np.ndarray], thr: np.nda
 # --------------------------------------------------------------------------- online
 
 
+@dataclass
+class _Spread:
+    """A periodic basis update in progress (`Online._spread_step`): due at frame u, its
+    window w0..u (rows copied), applied at frame u + SPREAD."""
+
+    u: int
+    w0: int
+    mom: Moments
+    xs: np.ndarray
+    ft: np.ndarray
+    basis: Basis | None = None
+    perm: np.ndarray | None = None
+    d: np.ndarray | None = None
+    c: np.ndarray | None = None
+    s: np.ndarray | None = None
+    maps: int = 0
+
+
 class Online(OnlineKeyframer):
     """Online multiscale saliency: `push` frames, get keyframe events within `lookahead`.
 
@@ -376,6 +396,7 @@ class Online(OnlineKeyframer):
         # mean of S_j(f) / mean(S_j) over the curves (> 1 on a candidate of every curve).
         self.trace: deque[tuple[int, float]] = deque(maxlen=TRACE_FRAMES)
         self.resume_at = 0  # after a restart with kept statistics: first frame to analyse
+        self.spread: _Spread | None = None  # a periodic basis update in progress
 
     def restart(self, keep_statistics: bool = True) -> None:
         """A new window after a long gap or a source restart (after `finish()`): the basis,
@@ -467,9 +488,16 @@ class Online(OnlineKeyframer):
                 self._update(final=False)
         elif t < self.resume_at:  # restarted with kept statistics: the window fills first
             return []
+        elif self.spread is not None:
+            self._spread_step(t)
         elif t + 1 >= self.next_update:
-            self._catch_up(t - 1)
-            self._update(final=False)
+            if t - self.window + 1 > 0:  # a periodic update: spread over SPREAD frames
+                self._spread_start(t)
+            else:  # stream start (the window still holds the first frame): at once
+                self._catch_up(t - 1)
+                self._update(final=False)
+        elif min(t - self.window + 1, self.s_ready - 1) - self.out_upto >= FOLD_EVERY:
+            self._fold_out(self.out_upto + FOLD_EVERY)  # the past in small pieces
         if self.basis is None:
             return []
         return self._classify_due(t)
@@ -496,12 +524,8 @@ class Online(OnlineKeyframer):
             return
         n = f1 - f0 + 1
         # maps of frames f0..f1: curvatures f-R..f+R of each (the rows as `_map_row` reads them)
-        c = b["c"]
-        row = c.strides[0]
-        win = np.ndarray((n, c.shape[1], 2 * R + 1), c.dtype, c, (f0 - R - base) * row,
-                         (row, c.strides[1], row))  # a sliding window view, without its checks
         s = b["s"][f0 - base : f1 - base + 1]
-        np.abs((win @ self._diff_bank).reshape(n, -1)[:, self._pick], out=s.reshape(n, -1))
+        self._window_maps(b["c"], f0 - R - base, n, self._pick, s)
         st = self.st
         st.n += n
         st.total = np.add.accumulate(np.concatenate([st.total[None], s]), axis=0)[-1]
@@ -515,6 +539,15 @@ class Online(OnlineKeyframer):
         np.maximum(st.lm_top, peak.max(axis=0), out=st.lm_top)
         self.s_ready = f1 + 1
         self._norm = None
+
+    def _window_maps(self, c: np.ndarray, r0: int, n: int, pick: np.ndarray, out: np.ndarray
+                     ) -> None:
+        """Maps (n, k, 4) into `out` of n frames from the curvatures `c` (contiguous rows):
+        frame i's Gaussian windows are rows r0 + i .. r0 + i + 2 radius (one product)."""
+        row = c.strides[0]
+        win = np.ndarray((n, c.shape[1], 2 * self.radius + 1), c.dtype, c, r0 * row,
+                         (row, c.strides[1], row))  # a sliding window view, without its checks
+        np.abs((win @ self._diff_bank).reshape(n, -1)[:, pick], out=out.reshape(n, -1))
 
     def _curve_rows(self, p: int, upto: int) -> None:
         """Curve rows of frames p..upto and curvature rows of frames p-1..upto-1."""
@@ -601,18 +634,23 @@ class Online(OnlineKeyframer):
         return events
 
     # ------------------------------------------------------------------ maths
-    def _update(self, final: bool) -> None:
-        """New basis from the running moments; recompute the window's curves and maps."""
+    def _update(self, final: bool, spread: _Spread | None = None) -> None:
+        """New basis from the running moments; recompute the window's curves and maps. With
+        `spread`, the basis and most rows come from the spread update (`_spread_step`)."""
         t = self.t
         w0 = max(0, t - self.window + 1)
         self._fold_out(w0)
         a, e = w0 - self.base, t - self.base + 1
-        self._new_basis(self.out_mom + moments(self.buf["xs"][a:e]))
         b = self.buf
-        assert self.basis is not None
-        d = curves_of(self.basis, b["xs"][a:e], b["ft"][a:e], self.contact)
-        c = curvature(d)
-        s = maps_of(c, self.sigma, self.contact)
+        self.spread = None
+        if spread is None:
+            self._new_basis(self.out_mom + moments(self.buf["xs"][a:e]))
+            assert self.basis is not None
+            d = curves_of(self.basis, b["xs"][a:e], b["ft"][a:e], self.contact)
+            c = curvature(d)
+            s = maps_of(c, self.sigma, self.contact)
+        else:
+            d, c, s = self._spread_rows(spread, a, e)
         b["d"][a:e], b["c"][a:e] = d, c
         # Rows whose Gaussian windows lie inside the window (all of them at stream start) get
         # new maps; older rows keep theirs. At flush the stream's end is a real end.
@@ -637,16 +675,48 @@ class Online(OnlineKeyframer):
             self.warm = map_stats(s)
         self._norm = None
         self.inc_t = t
-        self.next_update = t + 1 + min(t + 1, self.update_every)
+        if spread is None:
+            self.next_update = t + 1 + min(t + 1, self.update_every)
+
+    def _spread_rows(self, sp: _Spread, a: int, e: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Switch to the spread update's basis; curves, curvatures and maps of the window
+        (ring rows a..e-1, frames u + 1 - window + SPREAD .. u + SPREAD): the spread's rows,
+        completed by the frames after u and the maps that reach them."""
+        assert sp.basis is not None and sp.d is not None and sp.c is not None
+        assert sp.s is not None
+        self._set_basis(sp.basis, sp.perm)
+        b, R, n = self.buf, self.radius, len(sp.d)
+        d_new = curves_of(sp.basis, b["xs"][a + n : e], b["ft"][a + n : e], self.contact)
+        d = np.concatenate([sp.d, d_new])
+        c_new = curvature(d[n - 2 :])  # frames u - 1 .. t; the first row is an edge row
+        c = np.concatenate([sp.c[: n - 1], c_new[1:]])
+        s = np.concatenate([sp.s, np.zeros((e - a - n,) + sp.s.shape[1:])])
+        f0 = sp.maps - (sp.w0 + SPREAD)  # first window row without maps yet
+        cnt = len(c) - R - f0  # up to frame t - radius (the windows inside the window)
+        if cnt > 0:
+            self._window_maps(c, f0 - R, cnt, self._pick, s[f0 : f0 + cnt])
+        return d, c, s
 
     def _new_basis(self, mom: Moments) -> None:
         """PCA of the moments, matched to the previous basis; per-curve state follows it."""
+        self._set_basis(*self._pca(mom))
+
+    def _pca(self, mom: Moments) -> tuple[Basis, np.ndarray | None]:
+        """The basis of the moments matched to the current one, and `perm` (`match_basis`;
+        None for the first basis). Changes no state."""
         feet = 2 if self.contact else 0
         new = fit_k(pca_basis(mom, self.k, self.variance_rule), self.k, self.contact)
+        if self.basis is None:
+            return new, None
         kk = new.vectors.shape[1]
-        perm = None
-        if self.basis is not None:
-            new, perm = match_basis(self.basis, new, len(self.weights) - feet, kk - feet)
+        return match_basis(self.basis, new, len(self.weights) - feet, kk - feet)
+
+    def _set_basis(self, new: Basis, perm: np.ndarray | None) -> None:
+        """Switch to the basis `new` (`_pca`): statistics and ring columns follow its curves."""
+        feet = 2 if self.contact else 0
+        kk = new.vectors.shape[1]
+        if perm is not None:
             self.out_st = remap_stats(self.out_st, perm)
         elif self.out_st.top.shape[0] != kk:
             self.out_st = MapStats.empty(kk)
@@ -658,10 +728,59 @@ class Online(OnlineKeyframer):
         self.weights, self.footmask = curve_weights(new, self.contact)
         self._wsum = max(float(self.weights.sum()), 1e-300)
         self._foot_rows = self.footmask[:, None]
-        # flat index of each curve's four maps in the (k, 8) product: foot curves take 4-7
-        self._pick = (np.arange(kk)[:, None] * 8 + np.arange(4) + 4 * self._foot_rows).ravel()
+        self._pick = self._pick_of(new)
         self._proj = (new.keep, new.mean[new.keep], new.sd[new.keep],
                       np.ascontiguousarray(new.vectors[:, : kk - feet]))
+
+    # ------------------------------------------------------------------ spread update
+    def _spread_start(self, u: int) -> None:
+        """A periodic update due at frame u: fold the window's past out and keep a copy of
+        the window's rows; the work follows one piece a frame (`_spread_step`) and the basis
+        switches at frame u + `SPREAD` (module docstring)."""
+        self._catch_up(u - 1)
+        w0 = u - self.window + 1
+        self._fold_out(w0)
+        a, e = w0 - self.base, u - self.base + 1
+        self.spread = _Spread(u, w0, self.out_mom, self.buf["xs"][a:e].copy(),
+                              self.buf["ft"][a + SPREAD : e].copy())
+        self.next_update = u + 1 + min(u + 1, self.update_every)
+
+    def _spread_step(self, t: int) -> None:
+        """One piece of the spread update (the window's moments, the PCA, its curves, a
+        block of maps), or the switch at its last frame."""
+        sp = self.spread
+        assert sp is not None
+        v = sp.u + SPREAD
+        if t >= v:
+            self._catch_up(t - 1)
+            self._update(final=False, spread=sp)
+            return
+        k = t - sp.u
+        if k == 1:
+            sp.mom = sp.mom + moments(sp.xs)
+        elif k == 2:
+            sp.basis, sp.perm = self._pca(sp.mom)
+        elif k == 3:  # curves and curvatures of frames w0 + SPREAD .. u (the last row: later)
+            sp.d = curves_of(sp.basis, sp.xs[SPREAD:], sp.ft, self.contact)
+            sp.c = curvature(sp.d)
+            sp.s = np.zeros((len(sp.d), sp.d.shape[1], 4))
+            sp.maps = sp.w0 + SPREAD + self.radius + 1  # next frame to map
+        elif k > 3:  # maps of frames whose Gaussian windows end before frame u
+            f0, last = sp.maps, sp.u - 1 - self.radius
+            f1 = min(last, f0 + -(-(last - f0 + 1) // (v - t)) - 1)
+            if f1 >= f0:
+                lo = sp.w0 + SPREAD
+                self._window_maps(sp.c, f0 - self.radius - lo, f1 - f0 + 1,
+                                  self._pick_of(sp.basis), sp.s[f0 - lo : f1 - lo + 1])
+                sp.maps = f1 + 1
+
+    def _pick_of(self, basis: Basis | None) -> np.ndarray:
+        """Flat index of each curve's four maps in the (k, 8) product of `_window_maps`: foot
+        curves take columns 4-7."""
+        assert basis is not None
+        foot = curve_weights(basis, self.contact)[1]
+        kk = len(foot)
+        return (np.arange(kk)[:, None] * 8 + np.arange(4) + 4 * foot[:, None]).ravel()
 
     def _incremental(self, t: int) -> None:
         """One new frame between basis updates: its curve row, one curvature, one map row."""
