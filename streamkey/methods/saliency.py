@@ -103,6 +103,8 @@ from .saliency_math import (
     cluster_keyframes,
     cluster_size,
     combine,
+    components,
+    correlation,
     curvature,
     curve_weights,
     curves_of,
@@ -130,7 +132,7 @@ from .saliency_math import (
 
 TRACE_FRAMES = 2400  # 20 s at 120 Hz of per-frame saliency kept for live views
 CANDIDATE_EVERY = 4  # frames between two derivations of the provisional candidates
-SPREAD = 16  # frames over which a periodic basis update is computed before it applies
+SPREAD = 24  # frames over which a periodic basis update is computed before it applies
 FOLD_EVERY = 64  # frames that left the window folded into the totals at once
 
 __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FOOT_SIGMA",
@@ -291,6 +293,7 @@ class _Spread:
     mom: Moments
     xs: np.ndarray
     ft: np.ndarray
+    corr: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
     basis: Basis | None = None
     perm: np.ndarray | None = None
     d: np.ndarray | None = None
@@ -705,10 +708,15 @@ class Online(OnlineKeyframer):
     def _pca(self, mom: Moments) -> tuple[Basis, np.ndarray | None]:
         """The basis of the moments matched to the current one, and `perm` (`match_basis`;
         None for the first basis). Changes no state."""
-        feet = 2 if self.contact else 0
-        new = fit_k(pca_basis(mom, self.k, self.variance_rule), self.k, self.contact)
+        return self._match(fit_k(pca_basis(mom, self.k, self.variance_rule), self.k,
+                                 self.contact))
+
+    def _match(self, new: Basis | None) -> tuple[Basis, np.ndarray | None]:
+        """`new` matched to the current basis (`match_basis`), and `perm` (None: no basis)."""
+        assert new is not None
         if self.basis is None:
             return new, None
+        feet = 2 if self.contact else 0
         kk = new.vectors.shape[1]
         return match_basis(self.basis, new, len(self.weights) - feet, kk - feet)
 
@@ -759,13 +767,29 @@ class Online(OnlineKeyframer):
         if k == 1:
             sp.mom = sp.mom + moments(sp.xs)
         elif k == 2:
-            sp.basis, sp.perm = self._pca(sp.mom)
-        elif k == 3:  # curves and curvatures of frames w0 + SPREAD .. u (the last row: later)
-            sp.d = curves_of(sp.basis, sp.xs[SPREAD:], sp.ft, self.contact)
+            sp.corr = correlation(sp.mom)
+        elif k == 3:
+            assert sp.corr is not None
+            sp.basis = fit_k(components(sp.corr, self.k, self.variance_rule), self.k,
+                             self.contact)
+        elif k == 4:
+            sp.basis, sp.perm = self._match(sp.basis)
+        elif k in (5, 6):  # curves of frames w0 + SPREAD .. u, half of them a frame
+            n = len(sp.ft)
+            h = n // 2
+            rows = slice(0, h) if k == 5 else slice(h, n)
+            d = curves_of(sp.basis, sp.xs[SPREAD:][rows], sp.ft[rows], self.contact)
+            if k == 5:
+                sp.d = np.empty((n, d.shape[1]))
+            assert sp.d is not None
+            sp.d[rows] = d
+        elif k == 7:  # their curvatures (the last row, frame u's: at the switch)
+            assert sp.d is not None
             sp.c = curvature(sp.d)
             sp.s = np.zeros((len(sp.d), sp.d.shape[1], 4))
             sp.maps = sp.w0 + SPREAD + self.radius + 1  # next frame to map
-        elif k > 3:  # maps of frames whose Gaussian windows end before frame u
+        else:  # maps of frames whose Gaussian windows end before frame u, a block a frame
+            assert sp.c is not None and sp.s is not None
             f0, last = sp.maps, sp.u - 1 - self.radius
             f1 = min(last, f0 + -(-(last - f0 + 1) // (v - t)) - 1)
             if f1 >= f0:

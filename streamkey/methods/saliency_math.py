@@ -13,7 +13,8 @@ from scipy.linalg import eigh
 from scipy.ndimage import correlate1d
 
 __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapStats", "Clusterer",
-           "moments", "pca_basis", "curvature", "end_curvature", "kernel", "widths",
+           "moments", "pca_basis",
+           "correlation", "components", "curvature", "end_curvature", "kernel", "widths",
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
@@ -79,13 +80,24 @@ def pca_basis(mo: Moments, k: int, variance_rule: bool) -> Basis:
 
     Returns at most as many components as non-constant columns (possibly zero).
     """
+    return components(correlation(mo), k, variance_rule)
+
+
+def correlation(mo: Moments) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """First half of `pca_basis`: (mean, sd, kept columns, their correlation matrix)."""
     n = max(mo.n, 1)
     mean = mo.sx / n
     cov = mo.sxx / n - np.outer(mean, mean)
     var = np.maximum(np.diag(cov).copy(), 0.0)
     keep = np.flatnonzero(var > _MIN_VAR)
     sd = np.sqrt(np.where(var > _MIN_VAR, var, 1.0))
-    corr = cov[np.ix_(keep, keep)] / np.outer(sd[keep], sd[keep])
+    return mean, sd, keep, cov[np.ix_(keep, keep)] / np.outer(sd[keep], sd[keep])
+
+
+def components(stats: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], k: int,
+               variance_rule: bool) -> Basis:
+    """Second half of `pca_basis`: the components of `correlation`'s matrix."""
+    mean, sd, keep, corr = stats
     if len(keep) == 0:
         return Basis(mean, sd, keep, np.zeros((0, 0)), np.zeros(0), 1.0)
     values, vectors = eigh(corr, check_finite=False)
