@@ -54,7 +54,15 @@ makes the online result equal the offline one when every decision waits for `flu
   frames, and at `flush()`), because each basis change moves every curve (the main source of
   disagreement, DESIGN §5) and costs a batch recompute of the window. New components are
   matched to the previous ones (greedy on |cos|, signs aligned) so that curve j stays curve j
-  and keeps its running statistics.
+  and keeps its running statistics. Frames that left the window are folded in pieces of
+  `FOLD_EVERY` (64) frames. Once the window no longer holds the stream's first frame, an
+  update is spread so that no frame pays for all of it (6.5 ms at once before): due at frame
+  u, it takes the moments of the window at u, and its work (moments, correlation,
+  eigen-decomposition, matching, curves, curvatures, blocks of maps: one piece a frame) runs
+  over the next `SPREAD` (24) frames; the new basis applies at frame u + 24, the frames in
+  between are classified with the previous one. Measured on the shared clips (sigma = 10):
+  mean F1 against offline 0.897 at lookahead 121 and 0.931 at 240 (0.897 and 0.932 with the
+  update at once).
 - Itti maxima M_i and H, mean of the other local maxima, and the mean-saliency threshold ->
   per (curve, scale) running count, sum, maximum, and local-maximum count / sum / maximum of
   the raw maps of every frame so far. Whole-history statistics, not a short window (DESIGN §5:
