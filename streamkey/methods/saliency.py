@@ -131,6 +131,8 @@ from .saliency_math import (
     pick_keyframe,
     remap,
     remap_stats,
+    ring_curves,
+    ring_maps,
     row_terms,
     scale_maps,
     support_radius,
@@ -314,9 +316,9 @@ class Online(OnlineKeyframer):
     """Online multiscale saliency: `push` frames, get keyframe events within `lookahead`.
 
     Running statistics replace the global ones (module docstring). Between basis updates a
-    new frame costs one projection, one curvature row and one row of maps (a small matrix
-    product over the Gaussian windows), computed when a classification next reads them, for
-    every frame since at once; memory is a ring of `window` frames.
+    new frame costs one projection, one curvature row and one row of maps (compiled loops,
+    `saliency_math.ring_curves` / `ring_maps`), computed when a classification next reads
+    them, for every frame since at once; memory is a ring of `window` frames.
 
     Timing: the maps of frame f need frames up to f + `radius` + 1. Frames are classified
     (candidate or not, with the statistics of that moment) in order and as late as allowed: a
@@ -402,6 +404,7 @@ class Online(OnlineKeyframer):
         self._norm: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
         self._pick = np.zeros(0, dtype=np.int64)
+        self._cols = np.zeros((0, 4), dtype=np.int64)
         self._proj: tuple[np.ndarray, ...] = ()
         # (seq, saliency) of each frame as it is classified, for live views: the weighted
         # mean of S_j(f) / mean(S_j) over the curves (> 1 on a candidate of every curve).
@@ -517,8 +520,8 @@ class Online(OnlineKeyframer):
         """The incremental rows (curve, curvature, maps, statistics) of frames up to `upto`.
 
         They are computed when something reads them (a classification, a basis update, the
-        ring moving), for all frames since the last time at once: the same values as frame
-        by frame (the statistics are summed in the same order), for fewer numpy calls."""
+        ring moving), for all frames since the last time at once, in compiled loops that go
+        frame by frame (`ring_curves`, `ring_maps`): the same bits whatever the split."""
         p = self.inc_t + 1
         if self.basis is None or upto < p or p == 0:  # p == 0: a window restarted with the
             return  # basis kept, before its first analysis (`_update` makes every row)
@@ -533,21 +536,10 @@ class Online(OnlineKeyframer):
         f0, f1 = max(self.s_ready, p - R - 1), upto - R - 1
         if f1 < f0:
             return
-        n = f1 - f0 + 1
-        # maps of frames f0..f1: curvatures f-R..f+R of each (the rows as `_map_row` reads them)
-        s = b["s"][f0 - base : f1 - base + 1]
-        self._window_maps(b["c"], f0 - R - base, n, self._pick, s)
         st = self.st
-        st.n += n
-        st.total = np.add.accumulate(np.concatenate([st.total[None], s]), axis=0)[-1]
-        np.maximum(st.top, s.max(axis=0), out=st.top)
-        prev, mid = b["s"][f0 - 2 - base : f1 - 1 - base], b["s"][f0 - 1 - base : f1 - base]
-        flag = (mid > prev) & (mid >= s)
-        b["lm"][f0 - 1 - base : f1 - base] = flag
-        st.lm_n += flag.sum(axis=0)
-        peak = mid * flag
-        st.lm_sum = np.add.accumulate(np.concatenate([st.lm_sum[None], peak]), axis=0)[-1]
-        np.maximum(st.lm_top, peak.max(axis=0), out=st.lm_top)
+        st.n += f1 - f0 + 1
+        ring_maps(b["c"], b["s"], b["lm"], f0 - base, f1 - base, self._diff_bank, self._cols,
+                  st.total, st.top, st.lm_n, st.lm_sum, st.lm_top)
         self.s_ready = f1 + 1
         self._norm = None
 
@@ -563,25 +555,14 @@ class Online(OnlineKeyframer):
     def _curve_rows(self, p: int, upto: int) -> None:
         """Curve rows of frames p..upto and curvature rows of frames p-1..upto-1."""
         b, base = self.buf, self.base
-        a0, a1 = p - base, upto - base + 1
         keep, mean, sd, vec = self._proj
-        d = b["d"]
-        d[a0:a1, : vec.shape[1]] = ((b["xs"][a0:a1][:, keep] - mean) / sd) @ vec
-        if self.contact:
-            d[a0:a1, -2:] = b["ft"][a0:a1]
-        dm, d0, dp = d[a0 - 2 : a1 - 2], d[a0 - 1 : a1 - 1], d[a0:a1]
-        d1 = np.subtract(dp, dm)
-        d1 /= 2.0
-        num = dp - 2.0 * d0
-        num += dm
-        den = np.multiply(d1, d1, out=d1)
-        den += 1.0
-        np.divide(np.abs(num, out=num), np.power(den, 1.5, out=den), out=b["c"][a0 - 1 : a1 - 1])
+        ring_curves(b["xs"], b["ft"], keep, mean, sd, vec, self.contact, b["d"], b["c"],
+                    p - base, upto - base + 1)
 
     def _peek(self, upto: int) -> None:
-        """Curve rows up to `upto` for the provisional candidates only, without catching up:
-        `_catch_up` writes the same rows again in its own blocks (a matrix product's last bit
-        depends on the block), so decisions and scores never depend on who read when."""
+        """Curve rows up to `upto` for the provisional candidates only, without catching up
+        (`_catch_up` writes the same rows again), so decisions and scores never depend on
+        who read when."""
         p = self.inc_t + 1
         if self.basis is None or upto < p or p == 0:  # p == 0: a restarted window, no rows yet
             return
@@ -745,6 +726,7 @@ class Online(OnlineKeyframer):
         self._wsum = max(float(self.weights.sum()), 1e-300)
         self._foot_rows = self.footmask[:, None]
         self._pick = self._pick_of(new)
+        self._cols = (self._pick.reshape(kk, 4) - 8 * np.arange(kk)[:, None]).astype(np.int64)
         self._proj = (new.keep, new.mean[new.keep], new.sd[new.keep],
                       np.ascontiguousarray(new.vectors[:, : kk - feet]))
 

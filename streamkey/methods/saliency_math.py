@@ -12,13 +12,17 @@ import numpy as np
 from scipy.linalg import eigh
 from scipy.ndimage import correlate1d
 
+from ..jit import kernel as compiled
+from ..jit import warmer
+
 __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapStats", "Clusterer",
            "moments", "pca_basis",
            "correlation", "components", "curvature", "end_curvature", "kernel", "widths",
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
-           "cluster_size", "support_radius", "row_terms"]
+           "cluster_size", "support_radius", "row_terms",
+           "ring_curves", "ring_maps"]
 
 FOOT_SIGMA = 3.0  # Halit §3.3
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
@@ -475,3 +479,73 @@ def remap_stats(st: MapStats, perm: np.ndarray) -> MapStats:
 
     return MapStats(st.n, col(st.total), col(st.top), col(st.lm_n), col(st.lm_sum),
                     col(st.lm_top))
+
+
+# --------------------------------------------------------------------------- online ring rows
+
+@compiled
+def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarray,
+                sd: np.ndarray, vec: np.ndarray, contact: bool, d: np.ndarray, c: np.ndarray,
+                a0: int, a1: int) -> None:
+    """Online rows between basis updates, one compiled loop: curve rows a0..a1-1 of the ring
+    (projection of the kept columns, the foot heights last with contact) and the interior
+    curvatures (eq. 3.4) of rows a0-1..a1-2. Row by row, so any block split gives the same
+    bits."""
+    npca = vec.shape[1]
+    for r in range(a0, a1):
+        for j in range(npca):
+            acc = 0.0
+            for q in range(len(keep)):
+                acc += (xs[r, keep[q]] - mean[q]) / sd[q] * vec[q, j]
+            d[r, j] = acc
+        if contact:
+            d[r, d.shape[1] - 2] = ft[r, 0]
+            d[r, d.shape[1] - 1] = ft[r, 1]
+    for r in range(a0 - 1, a1 - 1):
+        for j in range(d.shape[1]):
+            d1 = (d[r + 1, j] - d[r - 1, j]) / 2.0
+            num = (d[r + 1, j] - 2.0 * d[r, j]) + d[r - 1, j]
+            c[r, j] = abs(num) / (1.0 + d1 * d1) ** 1.5
+
+
+@compiled
+def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, bank: np.ndarray,
+              cols: np.ndarray, total: np.ndarray, top: np.ndarray, lm_n: np.ndarray,
+              lm_sum: np.ndarray, lm_top: np.ndarray) -> None:
+    """Online maps of ring rows f0..f1 (f0 >= 2) from the curvatures around them, and the
+    running statistics in place (`MapStats` fields, frame by frame): S_i = |sum of the
+    curvatures times `bank[:, cols[j, i]]`| (`bank` the (2 R + 1, 8) differences of the
+    normalised Gaussian kernels), row f - 1's local-maximum flags once row f exists."""
+    radius = (bank.shape[0] - 1) // 2
+    for f in range(f0, f1 + 1):
+        for j in range(c.shape[1]):
+            for i in range(4):
+                col = cols[j, i]
+                acc = 0.0
+                for q in range(2 * radius + 1):
+                    acc += c[f - radius + q, j] * bank[q, col]
+                v = abs(acc)
+                s[f, j, i] = v
+                total[j, i] += v
+                if v > top[j, i]:
+                    top[j, i] = v
+                mid = s[f - 1, j, i]
+                flag = mid > s[f - 2, j, i] and mid >= v
+                lm[f - 1, j, i] = flag
+                if flag:
+                    lm_n[j, i] += 1
+                    lm_sum[j, i] += mid
+                    if mid > lm_top[j, i]:
+                        lm_top[j, i] = mid
+
+
+@warmer
+def _warm() -> None:
+    xs, ft = np.zeros((8, 3)), np.zeros((8, 2))
+    d, c = np.zeros((8, 3)), np.zeros((8, 3))
+    keep = np.arange(3, dtype=np.int64)
+    ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8)
+    z = np.zeros((3, 4))
+    ring_maps(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4, np.ones((3, 8)),
+              np.zeros((3, 4), dtype=np.int64), z, z.copy(), np.zeros((3, 4), dtype=np.int64),
+              z.copy(), z.copy())
