@@ -193,6 +193,7 @@ def _warm() -> None:
     for use_ratio in (False, True):
         _split_all(x, 0, 3, 0.0, use_ratio, -1, rows, dists)
         _first(x, 0, 3, 0.0, use_ratio)
+        _splits(x, 0, 3, 0.0, use_ratio)  # called alone by `Online._meets`
 
 
 def _rule_args(x: np.ndarray, tolerance: float | None, ratio: float | None
