@@ -505,7 +505,8 @@ class Online(OnlineKeyframer):
         elif self.spread is not None:
             self._spread_step(t)
         elif t + 1 >= self.next_update:
-            if t - self.window + 1 > 0:  # a periodic update: spread over SPREAD frames
+            if t - self.window + 1 > 0 and self.window > SPREAD + 2 * self.radius + 2:
+                # a periodic update (the window has moved on): spread over SPREAD frames
                 self._spread_start(t)
             else:  # stream start (the window still holds the first frame): at once
                 self._catch_up(t - 1)
