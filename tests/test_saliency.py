@@ -271,6 +271,28 @@ def test_a_long_gap_flushes_the_window_and_starts_a_new_stream() -> None:
     assert all(e.latency_frames <= kf.lookahead for e in keys)
 
 
+def test_a_periodic_basis_update_is_spread_and_applies_spread_frames_later() -> None:
+    m = motion("01_01.bvh")  # 2751 frames: the window (300) moves on, updates every 400
+    kw = {**LOW, "history": 300, "update_every": 400}
+    kf = saliency.Online(m.skeleton, m.fps, **kw)  # type: ignore[arg-type]
+    starts, switches, events = [], [], []
+    basis = None
+    for i, frame in enumerate(m.frames()):
+        spreading = kf.spread is not None
+        events += kf.push(frame)
+        if kf.spread is not None and not spreading:
+            starts.append(i)
+        if kf.basis is not basis and basis is not None and spreading:
+            switches.append(i)
+        basis = kf.basis
+    events += kf.flush()
+    assert len(starts) >= 4 and switches == [u + saliency.SPREAD for u in starts]
+    block = saliency.Online(m.skeleton, m.fps, **kw)  # type: ignore[arg-type]
+    frames = m.frames()
+    split = block.push_block(frames[:1000]) + block.push_block(frames[1000:2013])
+    assert split + block.push_block(frames[2013:]) + block.flush() == events
+
+
 @cache
 def frame_by_frame(name: str) -> tuple[Event, ...]:
     m = motion(name)
