@@ -404,7 +404,7 @@ class Online(OnlineKeyframer):
         self._norm: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
         self._pick = np.zeros(0, dtype=np.int64)
-        self._cols = np.zeros((0, 4), dtype=np.int64)
+        self._curve_bank = np.zeros((2 * self.radius + 1, 0, 4))
         self._proj: tuple[np.ndarray, ...] = ()
         # (seq, saliency) of each frame as it is classified, for live views: the weighted
         # mean of S_j(f) / mean(S_j) over the curves (> 1 on a candidate of every curve).
@@ -539,8 +539,8 @@ class Online(OnlineKeyframer):
             return
         st = self.st
         st.n += f1 - f0 + 1
-        ring_maps(b["c"], b["s"], b["lm"], f0 - base, f1 - base, self._diff_bank, self._cols,
-                  st.total, st.top, st.lm_n, st.lm_sum, st.lm_top)
+        ring_maps(b["c"], b["s"], b["lm"], f0 - base, f1 - base, self._curve_bank, st.total,
+                  st.top, st.lm_n, st.lm_sum, st.lm_top)
         self.s_ready = f1 + 1
         self._norm = None
 
@@ -727,7 +727,8 @@ class Online(OnlineKeyframer):
         self._wsum = max(float(self.weights.sum()), 1e-300)
         self._foot_rows = self.footmask[:, None]
         self._pick = self._pick_of(new)
-        self._cols = (self._pick.reshape(kk, 4) - 8 * np.arange(kk)[:, None]).astype(np.int64)
+        cols = self._pick.reshape(kk, 4) - 8 * np.arange(kk)[:, None]  # `_diff_bank` columns
+        self._curve_bank = np.ascontiguousarray(self._diff_bank[:, cols])  # (2 R + 1, k, 4)
         self._proj = (new.keep, new.mean[new.keep], new.sd[new.keep],
                       np.ascontiguousarray(new.vectors[:, : kk - feet]))
 

@@ -510,21 +510,26 @@ def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarr
 
 @compiled
 def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, bank: np.ndarray,
-              cols: np.ndarray, total: np.ndarray, top: np.ndarray, lm_n: np.ndarray,
-              lm_sum: np.ndarray, lm_top: np.ndarray) -> None:
+              total: np.ndarray, top: np.ndarray, lm_n: np.ndarray, lm_sum: np.ndarray,
+              lm_top: np.ndarray) -> None:
     """Online maps of ring rows f0..f1 (f0 >= 2) from the curvatures around them, and the
-    running statistics in place (`MapStats` fields, frame by frame): S_i = |sum of the
-    curvatures times `bank[:, cols[j, i]]`| (`bank` the (2 R + 1, 8) differences of the
-    normalised Gaussian kernels), row f - 1's local-maximum flags once row f exists."""
-    radius = (bank.shape[0] - 1) // 2
+    running statistics in place (`MapStats` fields, frame by frame): S_i of curve j = |sum
+    over the window of the curvatures times `bank[:, j, i]`| (`bank` (2 R + 1, k, 4): the
+    differences of the normalised Gaussian kernels of each curve's scales, summed in window
+    order), row f - 1's local-maximum flags once row f exists."""
+    k = c.shape[1]
+    acc = np.empty((k, 4))
     for f in range(f0, f1 + 1):
-        for j in range(c.shape[1]):
+        acc[:] = 0.0
+        for q in range(bank.shape[0]):
+            r = f - (bank.shape[0] - 1) // 2 + q
+            for j in range(k):
+                cj = c[r, j]
+                for i in range(4):
+                    acc[j, i] += cj * bank[q, j, i]
+        for j in range(k):
             for i in range(4):
-                col = cols[j, i]
-                acc = 0.0
-                for q in range(2 * radius + 1):
-                    acc += c[f - radius + q, j] * bank[q, col]
-                v = abs(acc)
+                v = abs(acc[j, i])
                 s[f, j, i] = v
                 total[j, i] += v
                 if v > top[j, i]:
@@ -546,6 +551,6 @@ def _warm() -> None:
     keep = np.arange(3, dtype=np.int64)
     ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8)
     z = np.zeros((3, 4))
-    ring_maps(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4, np.ones((3, 8)),
-              np.zeros((3, 4), dtype=np.int64), z, z.copy(), np.zeros((3, 4), dtype=np.int64),
-              z.copy(), z.copy())
+    ring_maps(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
+              np.ones((3, 3, 4)), z, z.copy(), np.zeros((3, 4), dtype=np.int64), z.copy(),
+              z.copy())
