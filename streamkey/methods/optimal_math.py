@@ -293,8 +293,9 @@ def _warm() -> None:
 
 def _dp_block_tolerance(band: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray,
                         b: int, tolerance: float, floor: int) -> None:
-    """Tolerance DP rows b .. b + len(band) − 1 (b >= L), as `_dp_block`: fewest keys, then
-    least F, then the earliest a; the same comparisons as the row-by-row loop."""
+    """Tolerance DP rows b .. b + len(band) − 1 (b >= L): the candidates before the block in
+    one vectorised pass, the ones inside it in plain Python; fewest keys, then least F, then
+    the earliest a; the same comparisons as the row-by-row loop."""
     nb, max_len = band.shape
     fs, ks = f.strides[0], keys.strides[0]
     fv = np.ndarray((nb, max_len), f.dtype, f, (b - max_len) * fs, (fs, fs))
