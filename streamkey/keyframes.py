@@ -36,9 +36,9 @@ def rank_strength(recent: Any, score: float) -> float:
 def rank_strengths(scores: Any, window: int = STRENGTH_WINDOW) -> np.ndarray:
     """Strength of each key of a sorted key list: the mid-rank of its score among itself and
     the `window - 1` keys before it (causal, the same numbers as the online keyframer's)."""
-    s = np.asarray(scores, dtype=np.float64)
-    return np.array([rank_strength(s[max(0, i - window + 1) : i + 1], float(s[i]))
-                     for i in range(len(s))])
+    s = np.asarray(scores, dtype=np.float64).tolist()  # Python floats: the same comparisons
+    return np.array([rank_strength(s[max(0, i - window + 1) : i + 1], s[i])
+                     for i in range(len(s))], dtype=np.float64)
 
 
 @dataclass

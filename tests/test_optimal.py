@@ -71,6 +71,34 @@ def test_prefix_sum_costs_equal_direct_sums_across_epochs():
     np.testing.assert_allclose(om.pair_costs(x, a, b), direct, rtol=1e-6, atol=1e-11)
 
 
+def _dp_numpy(band: np.ndarray, lam: float, floor: int) -> tuple[np.ndarray, np.ndarray]:
+    """The penalised DP row by row in numpy (the code the compiled loop replaced)."""
+    n, max_len = band.shape
+    f, bp = np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
+    f[: floor + 1] = 0.0
+    for b in range(floor + 1, n):
+        lo = max(b - max_len, floor)
+        vals = f[lo:b] + band[b, max_len - (b - lo):]
+        i = int(np.argmin(vals))
+        f[b], bp[b] = vals[i] + lam, lo + i
+    return f, bp
+
+
+@pytest.mark.parametrize("floor", [0, 37])
+def test_compiled_dp_is_bit_identical_to_the_numpy_rows_on_a_shared_clip(floor):
+    x = optimal.curve(load("05_02.bvh"))
+    band = om.band_costs(x, 240)
+    ref_f, ref_bp = _dp_numpy(band, 3.5e-3, floor)
+    f, bp = np.full(len(x), np.inf), np.full(len(x), -1, dtype=np.int64)
+    f[: floor + 1] = 0.0
+    keys = np.zeros(len(x), dtype=np.int64)
+    om.dp_rows(band, f, bp, keys, floor + 1, len(x), 3.5e-3, floor)
+    assert np.array_equal(f, ref_f) and np.array_equal(bp[floor + 1 :], ref_bp[floor + 1 :])
+    rows = np.array(om.chain(bp, len(x) - 1, floor - 1), dtype=np.int64)
+    np.testing.assert_allclose(om.chain_costs(x, rows)[1:],
+                               om.pair_costs(x, rows[:-1], rows[1:]), rtol=1e-9, atol=1e-15)
+
+
 def test_count_mode_is_the_exact_k_key_optimum_on_a_small_curve():
     x = optimal.curve(load("07_01.bvh"))[::20]  # 16 rows
     n = len(x)

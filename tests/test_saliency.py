@@ -97,6 +97,41 @@ def test_maps_cut_at_the_newest_frame_are_the_offline_maps_of_the_clip_ending_th
     assert np.allclose(got, saliency.maps_of(c, 10.0, True)[frames], rtol=1e-9, atol=1e-15)
 
 
+def test_compiled_ring_rows_match_the_batch_curves_maps_and_statistics() -> None:
+    f = features("05_18.bvh")
+    xs = f.rotations - f.rotations[0]
+    feet = f.foot_heights / f.body_height
+    basis = saliency_math.fit_k(saliency.pca_basis(saliency.moments(xs), 7, False), 7, True)
+    d_ref = saliency.curves_of(basis, xs, feet, True)
+    c_ref = saliency.curvature(d_ref)
+    n, k, R = len(xs), d_ref.shape[1], saliency.support_radius(10.0, True)
+    d, c = np.zeros((n, k)), np.zeros((n, k))
+    keep = basis.keep
+    saliency_math.ring_curves(xs, feet, keep, basis.mean[keep], basis.sd[keep],
+                              np.ascontiguousarray(basis.vectors[:, :-2]), True, d, c, 0, n)
+    assert np.allclose(d, d_ref, rtol=1e-12, atol=1e-12)
+    assert np.allclose(c[1:-1], c_ref[1:-1], rtol=1e-9, atol=1e-15)  # the interior rule
+    bank = np.hstack([saliency.kernel_bank(10.0, R), saliency.kernel_bank(saliency.FOOT_SIGMA, R)])
+    full = bank / bank.sum(axis=0)
+    diff = np.hstack([full[:, 0:4] - full[:, 4:8], full[:, 8:12] - full[:, 12:16]])
+    cols = np.arange(4)[None, :] + 4 * np.array([0] * (k - 2) + [1, 1])[:, None]
+    s, lm = np.zeros((n, k, 4)), np.zeros((n, k, 4), dtype=bool)
+    st = saliency.MapStats.empty(k)
+    f0, f1 = R + 2, n - R - 1  # rows with whole Gaussian windows
+    s[f0 - 2 : f0] = saliency.maps_of(c_ref, 10.0, True)[f0 - 2 : f0]
+    saliency_math.ring_maps(c_ref, s, lm, f0, f1, np.ascontiguousarray(diff[:, cols]),
+                            st.total, st.top, st.lm_n, st.lm_sum, st.lm_top)
+    ref = saliency.maps_of(c_ref, 10.0, True)
+    assert np.allclose(s[f0 : f1 + 1], ref[f0 : f1 + 1], rtol=1e-9, atol=1e-12 * ref.max())
+    got = s[f0 - 2 : f1 + 1]
+    mask = saliency.local_max_mask(got)
+    assert np.array_equal(lm[f0 - 1 : f1], mask[1:-1])
+    assert np.allclose(st.total, got[2:].sum(axis=0), rtol=1e-12)
+    assert np.array_equal(st.top, got[2:].max(axis=0))
+    assert np.array_equal(st.lm_n, mask[1:-1].sum(axis=0))
+    assert np.array_equal(st.lm_top, np.where(mask, got, 0.0)[1:-1].max(axis=0))
+
+
 # ----------------------------------------------------------------------------- offline
 
 def test_saliency_selects_3_to_10_percent_on_walk() -> None:
@@ -234,6 +269,28 @@ def test_a_long_gap_flushes_the_window_and_starts_a_new_stream() -> None:
     assert before and before[-1].decided_at == 250
     assert any(e.frame > 300 for e in keys)
     assert all(e.latency_frames <= kf.lookahead for e in keys)
+
+
+def test_a_periodic_basis_update_is_spread_and_applies_spread_frames_later() -> None:
+    m = motion("01_01.bvh")  # 2751 frames: the window (300) moves on, updates every 400
+    kw = {**LOW, "history": 300, "update_every": 400}
+    kf = saliency.Online(m.skeleton, m.fps, **kw)  # type: ignore[arg-type]
+    starts, switches, events = [], [], []
+    basis = None
+    for i, frame in enumerate(m.frames()):
+        spreading = kf.spread is not None
+        events += kf.push(frame)
+        if kf.spread is not None and not spreading:
+            starts.append(i)
+        if kf.basis is not basis and basis is not None and spreading:
+            switches.append(i)
+        basis = kf.basis
+    events += kf.flush()
+    assert len(starts) >= 4 and switches == [u + saliency.SPREAD for u in starts]
+    block = saliency.Online(m.skeleton, m.fps, **kw)  # type: ignore[arg-type]
+    frames = m.frames()
+    split = block.push_block(frames[:1000]) + block.push_block(frames[1000:2013])
+    assert split + block.push_block(frames[2013:]) + block.flush() == events
 
 
 @cache

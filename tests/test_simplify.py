@@ -149,6 +149,35 @@ def test_long_clip_is_simplified_iteratively_without_recursion_limits():
     assert simplify.max_chord_error(long, rows).max() <= 40.0 + _slack(long)
 
 
+def _split_keys_numpy(x: np.ndarray, tolerance: float) -> dict[int, float]:
+    """The recursion in plain numpy (the code the compiled loop replaced)."""
+    keys: dict[int, float] = {}
+    stack = [(0, len(x) - 1)]
+    while stack:
+        a, b = stack.pop()
+        if b - a < 2:
+            continue
+        t = np.arange(1, b - a)[:, None] / (b - a)
+        resid = x[a + 1 : b] - x[a] - t * (x[b] - x[a])
+        sq = np.einsum("ij,ij->i", resid, resid)
+        i = int(np.argmax(sq))
+        if np.sqrt(sq[i]) > tolerance:
+            keys[a + 1 + i] = float(np.sqrt(sq[i]))
+            stack += [(a + 1 + i, b), (a, a + 1 + i)]
+    return keys
+
+
+@pytest.mark.parametrize("name", ["02_10.bvh", "131_03.bvh", "09_06.amc"])
+def test_compiled_split_matches_the_numpy_recursion_on_shared_clips(name):
+    x = simplify.curve(load(name), "positions", features(name))
+    ref = _split_keys_numpy(x, simplify.DEFAULT_TOLERANCE["positions"])
+    got = simplify.split_keys(x, 0, len(x) - 1, tolerance=simplify.DEFAULT_TOLERANCE["positions"])
+    assert sorted(got) == sorted(ref)  # same keys; distances up to the order of the sums
+    assert np.allclose([got[k] for k in ref], list(ref.values()), rtol=1e-12, atol=0)
+    first, score = simplify.first_key(x, 0, len(x) - 1, tolerance=0.03)
+    assert first == min(ref) and score == got[first]
+
+
 def test_bad_parameters_raise_usage_error():
     m = load("07_01.bvh")
     with pytest.raises(UsageError):

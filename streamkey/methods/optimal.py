@@ -478,12 +478,11 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
 
 
 def key_scores(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """A key's score: the cost of the segment it ends (the first key: 0), each segment priced
-    alone, so offline and online (which knows it once the key is decided) agree bit for bit."""
-    out = np.zeros(len(rows))
-    for i in range(1, len(rows)):
-        out[i] = om.pair_costs(x, [rows[i - 1]], [rows[i]])[0]
-    return out
+    """A key's score: the cost of the segment it ends (the first key: 0), each segment summed
+    alone (`optimal_math.chain_costs`), so offline and online (which knows it once the key is
+    decided) agree bit for bit."""
+    return om.chain_costs(np.ascontiguousarray(x, dtype=np.float64),
+                          np.asarray(rows, dtype=np.int64))
 
 
 class Online(OnlineKeyframer):

@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..jit import kernel, warmer
 from ..kinematics import root_relative_joints
 
 __all__ = ["CHUNK", "EPOCH", "Pricer", "point_scale", "body_rows", "band_costs", "pair_costs",
-           "dp_rows", "chain", "best_split", "fill_gaps"]
+           "chain_costs", "dp_rows", "chain", "best_split", "fill_gaps"]
 
 CHUNK = 16  # frames priced together (online: the DP runs when a chunk of frames is complete)
 EPOCH = 512  # frames between re-based prefix sums (a multiple of CHUNK)
@@ -206,6 +207,23 @@ def pair_costs(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(m <= 1.0, 0.0, np.maximum(cost, 0.0))
 
 
+@kernel
+def chain_costs(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Cost of each segment (rows[i − 1], rows[i]) of `x` summed directly, frame by frame
+    (out[0] = 0): one compiled loop, no prefix sums, the same bits on any call path."""
+    out = np.zeros(len(rows))
+    for i in range(1, len(rows)):
+        a, b = rows[i - 1], rows[i]
+        total = 0.0
+        for f in range(a + 1, b):
+            t = (f - a) / (b - a)
+            for j in range(x.shape[1]):
+                r = (x[f, j] - x[a, j]) - t * (x[b, j] - x[a, j])
+                total += r * r
+        out[i] = total
+    return out
+
+
 def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, b0: int,
             b1: int, lam: float, floor: int = 0, tolerance: float | None = None,
             c0: int = 0) -> None:
@@ -216,72 +234,68 @@ def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, 
     the earliest a. Tolerance form (`tolerance` given): among a with cost(a, b) ≤ tolerance ·
     (b − a), fewest keys, then least F (summed cost). `keys[b]` counts the chain's keys.
     """
+    if tolerance is None:
+        _dp_penalised(costs, f, bp, keys, b0, b1, float(lam), floor, c0)
+        return
     max_len = costs.shape[1]
     b = b0
     while b < b1:
         if b >= max_len:
             e = min(b1, b + CHUNK)
-            if tolerance is None:
-                _dp_block(costs[b - c0 : e - c0], f, bp, keys, b, lam, floor)
-            else:
-                _dp_block_tolerance(costs[b - c0 : e - c0], f, bp, keys, b, tolerance, floor)
+            _dp_block_tolerance(costs[b - c0 : e - c0], f, bp, keys, b, tolerance, floor)
             b = e
             continue
         lo = max(b - max_len, floor)
         c = costs[b - c0, max_len - (b - lo):]
         vals = f[lo:b] + c
-        if tolerance is None:
-            i = int(np.argmin(vals))
-            f[b] = vals[i] + lam
-        else:
-            ok = c <= tolerance * np.arange(b - lo, 0, -1)
-            ok &= np.isfinite(vals)
-            if not ok.any():
-                f[b], bp[b], keys[b] = np.inf, -1, 0
-                b += 1
-                continue
-            k = np.where(ok, keys[lo:b], np.iinfo(np.int64).max)
-            best = np.flatnonzero(k == k.min())
-            i = int(best[np.argmin(vals[best])])
-            f[b] = vals[i]
+        ok = c <= tolerance * np.arange(b - lo, 0, -1)
+        ok &= np.isfinite(vals)
+        if not ok.any():
+            f[b], bp[b], keys[b] = np.inf, -1, 0
+            b += 1
+            continue
+        k = np.where(ok, keys[lo:b], np.iinfo(np.int64).max)
+        best = np.flatnonzero(k == k.min())
+        i = int(best[np.argmin(vals[best])])
+        f[b] = vals[i]
         bp[b] = lo + i
         keys[b] = keys[lo + i] + 1
         b += 1
 
 
-def _dp_block(band: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, b: int,
-              lam: float, floor: int) -> None:
-    """Penalised DP rows b .. b + len(band) − 1 (b >= L): the candidates before the block in
-    one vectorised pass, the ones inside it in plain Python floats. Same sums, same earliest
-    tie as the row-by-row loop, so the same bits."""
-    nb, max_len = band.shape
-    step = f.strides[0]  # F(a) for a = b - L + i + j: a sliding view, no copy
-    vals = np.ndarray((nb, max_len), f.dtype, f, (b - max_len) * step, (step, step)) + band
-    vals[_inside(nb, max_len)] = np.inf  # a >= b: decided below, in order
-    if floor > b - max_len:
-        vals[np.arange(max_len)[None, :] < floor - b + max_len - np.arange(nb)[:, None]] = \
-            np.inf
-    arg = np.argmin(vals, axis=1)
-    pre = vals[np.arange(nb), arg].tolist()
-    rows = band[:, max_len - nb :].tolist()  # costs of the in-block candidates
-    done: list[float] = []
-    for i in range(nb):
-        best, a = pre[i], b - max_len + i + int(arg[i])
-        row = rows[i]
-        for k in range(max(0, floor - b), i):  # candidate a = b + k
-            v = done[k] + row[nb - i + k]
+@kernel
+def _dp_penalised(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, b0: int,
+                  b1: int, lam: float, floor: int, c0: int) -> None:
+    """Penalised DP rows b0 .. b1 − 1 (`dp_rows`), one compiled loop: F(a) + cost(a, b) summed
+    as before, candidates in increasing a with a strict `<` (the earliest minimum, as
+    `np.argmin`), so the bits and back-pointers of the numpy version it replaced. A row with
+    no finite candidate points at its first one (a = b − L, or `floor` near the start)."""
+    max_len = costs.shape[1]
+    for b in range(b0, b1):
+        start = b - max_len if b >= max_len else max(b - max_len, floor)
+        best, arg = np.inf, start
+        for a in range(max(start, floor), b):
+            v = f[a] + costs[b - c0, max_len - (b - a)]
             if v < best:
-                best, a = v, b + k
-        done.append(best + lam)
-        f[b + i] = done[i]
-        bp[b + i] = a
-        keys[b + i] = keys[a] + 1
+                best, arg = v, a
+        f[b] = best + lam
+        bp[b] = arg
+        keys[b] = keys[arg] + 1
+
+
+@warmer
+def _warm() -> None:
+    f, bp, keys = np.zeros(4), np.zeros(4, dtype=np.int64), np.zeros(4, dtype=np.int64)
+    chain_costs(np.zeros((4, 3)), np.array([0, 3], dtype=np.int64))
+    for dtype in (np.float64, np.float32):
+        _dp_penalised(np.zeros((4, 2), dtype=dtype), f, bp, keys, 1, 4, 1.0, 0, 0)
 
 
 def _dp_block_tolerance(band: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray,
                         b: int, tolerance: float, floor: int) -> None:
-    """Tolerance DP rows b .. b + len(band) − 1 (b >= L), as `_dp_block`: fewest keys, then
-    least F, then the earliest a; the same comparisons as the row-by-row loop."""
+    """Tolerance DP rows b .. b + len(band) − 1 (b >= L): the candidates before the block in
+    one vectorised pass, the ones inside it in plain Python; fewest keys, then least F, then
+    the earliest a; the same comparisons as the row-by-row loop."""
     nb, max_len = band.shape
     fs, ks = f.strides[0], keys.strides[0]
     fv = np.ndarray((nb, max_len), f.dtype, f, (b - max_len) * fs, (fs, fs))

@@ -12,12 +12,17 @@ import numpy as np
 from scipy.linalg import eigh
 from scipy.ndimage import correlate1d
 
+from ..jit import kernel as compiled
+from ..jit import warmer
+
 __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapStats", "Clusterer",
-           "moments", "pca_basis", "curvature", "end_curvature", "kernel", "widths",
+           "moments", "pca_basis",
+           "correlation", "components", "curvature", "end_curvature", "kernel", "widths",
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
-           "cluster_size", "support_radius", "row_terms"]
+           "cluster_size", "support_radius", "row_terms",
+           "ring_curves", "ring_maps"]
 
 FOOT_SIGMA = 3.0  # Halit §3.3
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
@@ -79,13 +84,24 @@ def pca_basis(mo: Moments, k: int, variance_rule: bool) -> Basis:
 
     Returns at most as many components as non-constant columns (possibly zero).
     """
+    return components(correlation(mo), k, variance_rule)
+
+
+def correlation(mo: Moments) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """First half of `pca_basis`: (mean, sd, kept columns, their correlation matrix)."""
     n = max(mo.n, 1)
     mean = mo.sx / n
     cov = mo.sxx / n - np.outer(mean, mean)
     var = np.maximum(np.diag(cov).copy(), 0.0)
     keep = np.flatnonzero(var > _MIN_VAR)
     sd = np.sqrt(np.where(var > _MIN_VAR, var, 1.0))
-    corr = cov[np.ix_(keep, keep)] / np.outer(sd[keep], sd[keep])
+    return mean, sd, keep, cov[np.ix_(keep, keep)] / np.outer(sd[keep], sd[keep])
+
+
+def components(stats: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], k: int,
+               variance_rule: bool) -> Basis:
+    """Second half of `pca_basis`: the components of `correlation`'s matrix."""
+    mean, sd, keep, corr = stats
     if len(keep) == 0:
         return Basis(mean, sd, keep, np.zeros((0, 0)), np.zeros(0), 1.0)
     values, vectors = eigh(corr, check_finite=False)
@@ -312,10 +328,26 @@ def curves_of(basis: Basis, xs: np.ndarray, feet: np.ndarray, contact: bool) -> 
 
 def maps_of(c: np.ndarray, sigma: float, contact: bool) -> np.ndarray:
     """Raw scale maps S_i (n, k, 4) of curvatures `c`; the foot curves use sigma = 3 (§3.3)."""
+    out = np.empty(c.shape + (4,))
     if not contact:
-        return scale_maps(gaussian_means(c, sigma))
-    return np.concatenate([scale_maps(gaussian_means(c[:, :-2], sigma)),
-                           scale_maps(gaussian_means(c[:, -2:], FOOT_SIGMA))], axis=1)
+        out[...] = _maps_t(c, sigma)
+    else:
+        out[:, :-2] = _maps_t(c[:, :-2], sigma)
+        out[:, -2:] = _maps_t(c[:, -2:], FOOT_SIGMA)
+    return out
+
+
+def _maps_t(c: np.ndarray, sigma: float) -> np.ndarray:
+    """`scale_maps(gaussian_means(c, sigma))` as a (n, k, 4) view, computed curve by curve
+    along contiguous rows (the same sums and divisions, so the same bits)."""
+    ct = np.ascontiguousarray(c.T)
+    g = np.empty((8,) + ct.shape)
+    ones = np.ones(len(c))
+    for i, s in enumerate(widths(sigma)):
+        w = kernel(s)
+        num = correlate1d(ct, w, axis=1, mode="constant", cval=0.0)
+        np.divide(num, correlate1d(ones, w, mode="constant", cval=0.0), out=g[i])
+    return np.abs(g[:4] - g[4:]).transpose(2, 1, 0)
 
 
 
@@ -447,3 +479,78 @@ def remap_stats(st: MapStats, perm: np.ndarray) -> MapStats:
 
     return MapStats(st.n, col(st.total), col(st.top), col(st.lm_n), col(st.lm_sum),
                     col(st.lm_top))
+
+
+# --------------------------------------------------------------------------- online ring rows
+
+@compiled
+def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarray,
+                sd: np.ndarray, vec: np.ndarray, contact: bool, d: np.ndarray, c: np.ndarray,
+                a0: int, a1: int) -> None:
+    """Online rows between basis updates, one compiled loop: curve rows a0..a1-1 of the ring
+    (projection of the kept columns, the foot heights last with contact) and the interior
+    curvatures (eq. 3.4) of rows a0-1..a1-2. Row by row, so any block split gives the same
+    bits."""
+    npca = vec.shape[1]
+    for r in range(a0, a1):
+        for j in range(npca):
+            acc = 0.0
+            for q in range(len(keep)):
+                acc += (xs[r, keep[q]] - mean[q]) / sd[q] * vec[q, j]
+            d[r, j] = acc
+        if contact:
+            d[r, d.shape[1] - 2] = ft[r, 0]
+            d[r, d.shape[1] - 1] = ft[r, 1]
+    for r in range(a0 - 1, a1 - 1):
+        for j in range(d.shape[1]):
+            d1 = (d[r + 1, j] - d[r - 1, j]) / 2.0
+            num = (d[r + 1, j] - 2.0 * d[r, j]) + d[r - 1, j]
+            c[r, j] = abs(num) / (1.0 + d1 * d1) ** 1.5
+
+
+@compiled
+def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, bank: np.ndarray,
+              total: np.ndarray, top: np.ndarray, lm_n: np.ndarray, lm_sum: np.ndarray,
+              lm_top: np.ndarray) -> None:
+    """Online maps of ring rows f0..f1 (f0 >= 2) from the curvatures around them, and the
+    running statistics in place (`MapStats` fields, frame by frame): S_i of curve j = |sum
+    over the window of the curvatures times `bank[:, j, i]`| (`bank` (2 R + 1, k, 4): the
+    differences of the normalised Gaussian kernels of each curve's scales, summed in window
+    order), row f - 1's local-maximum flags once row f exists."""
+    k = c.shape[1]
+    acc = np.empty((k, 4))
+    for f in range(f0, f1 + 1):
+        acc[:] = 0.0
+        for q in range(bank.shape[0]):
+            r = f - (bank.shape[0] - 1) // 2 + q
+            for j in range(k):
+                cj = c[r, j]
+                for i in range(4):
+                    acc[j, i] += cj * bank[q, j, i]
+        for j in range(k):
+            for i in range(4):
+                v = abs(acc[j, i])
+                s[f, j, i] = v
+                total[j, i] += v
+                if v > top[j, i]:
+                    top[j, i] = v
+                mid = s[f - 1, j, i]
+                flag = mid > s[f - 2, j, i] and mid >= v
+                lm[f - 1, j, i] = flag
+                if flag:
+                    lm_n[j, i] += 1
+                    lm_sum[j, i] += mid
+                    if mid > lm_top[j, i]:
+                        lm_top[j, i] = mid
+
+
+@warmer
+def _warm() -> None:
+    xs, ft = np.zeros((8, 3)), np.zeros((8, 2))
+    d, c = np.zeros((8, 3)), np.zeros((8, 3))
+    keep = np.arange(3, dtype=np.int64)
+    ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8)
+    z = np.zeros((3, 4))
+    ring_maps(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
+              np.ones((3, 3, 4)), z, z.copy(), np.zeros((3, 4), dtype=np.int64), z.copy(),
+              z.copy())
