@@ -71,6 +71,7 @@ DEFAULT_SMOOTH = 4.0
 DEFAULT_KEY_COST = 1.0
 DEFAULT_TOL = 1e-3
 _ZERO = 1e-6  # |derivative| below this carries the previous sign
+_COLUMNS = 8  # channels per block of full-length numpy work (cache-sized temporaries)
 
 
 def hermite(t: np.ndarray, pa: np.ndarray, pb: np.ndarray, ra: np.ndarray,
@@ -175,12 +176,13 @@ def fit_channels(x: np.ndarray, m: np.ndarray, init: list[np.ndarray], key_cost:
     work = np.empty(_k.work_size(max((len(k) for k in keys), default=0)))
     run = np.empty((5, n + 1))
     trails = []
-    for c in range(c_n):  # channels are independent: each runs all its passes at once
-        keys[c], trail = _k.fit_channel(np.ascontiguousarray(x[:, c]),
-                                        np.ascontiguousarray(m[:, c]), keys[c], float(cost[c]),
-                                        float(key_cost), float(tol), int(max_passes), gram,
-                                        work, run)
-        trails.append(trail)
+    for lo in range(0, c_n, _COLUMNS):  # channels are independent: each runs all its passes
+        xt, mt = x[:, lo : lo + _COLUMNS].T.copy(), m[:, lo : lo + _COLUMNS].T.copy()
+        for i, c in enumerate(range(lo, lo + len(xt))):
+            keys[c], trail = _k.fit_channel(xt[i], mt[i], keys[c], float(cost[c]),
+                                            float(key_cost), float(tol), int(max_passes), gram,
+                                            work, run)
+            trails.append(trail)
     passes = max((len(t) for t in trails), default=min(int(max_passes), 1))
     history = [float(cost.sum())]
     for i in range(passes):
@@ -192,9 +194,14 @@ def fit_channels(x: np.ndarray, m: np.ndarray, init: list[np.ndarray], key_cost:
 
 
 def _cost(x: np.ndarray, m: np.ndarray, keys: list[np.ndarray], key_cost: float) -> np.ndarray:
-    """SSE of the Hermite fit plus key_cost per key, per channel (direct evaluation)."""
-    r = x - hermite_curves(x, m, keys)
-    return np.einsum("ij,ij->j", r, r) + key_cost * np.array([len(k) for k in keys])
+    """SSE of the Hermite fit plus key_cost per key, per channel (direct evaluation; a block
+    of channels at a time, so temporaries stay cache-sized on long clips)."""
+    sse = np.empty(x.shape[1])
+    for lo in range(0, x.shape[1], _COLUMNS):
+        hi = lo + _COLUMNS
+        r = x[:, lo:hi] - hermite_curves(x[:, lo:hi], m[:, lo:hi], keys[lo:hi])
+        sse[lo:hi] = np.einsum("ij,ij->j", r, r)
+    return sse + key_cost * np.array([len(k) for k in keys])
 
 
 def hermite_curves(x: np.ndarray, m: np.ndarray, keys: list[np.ndarray]) -> np.ndarray:
@@ -226,6 +233,20 @@ def _check(smooth: float, key_cost: float, max_passes: int, tol: float) -> None:
         raise UsageError(f"curvefit: max_passes must be an integer >= 0, got {max_passes!r}")
 
 
+def _channels(motion: Motion, features: Features | None) -> np.ndarray:
+    """`simplify.curve(motion, "channels")`, with the rotations unwrapped once in `features`
+    when they are the same bits: unwrapping from frame 0 instead of `first_frame` adds no
+    correction when the first captured frame needed none (else the curve unwraps again)."""
+    first = motion.first_frame
+    if features is not None:
+        rot = motion.skeleton.rotation_columns()
+        if np.array_equal(features.rotations[first], motion.channels[first, rot]):
+            x = motion.channels[first:].copy()
+            x[:, rot] = features.rotations[first:]
+            return x
+    return curve(motion, "channels")
+
+
 def extract(motion: Motion, *, features: Features | None = None,
             smooth: float = DEFAULT_SMOOTH, key_cost: float = DEFAULT_KEY_COST,
             tol: float = DEFAULT_TOL, max_passes: int = 100) -> Keyframes:
@@ -236,7 +257,7 @@ def extract(motion: Motion, *, features: Features | None = None,
     """
     _check(smooth, key_cost, max_passes, tol)
     first = motion.first_frame
-    x = curve(motion, "channels")
+    x = _channels(motion, features)
     n, c_n = x.shape
     params: dict[str, Any] = {"smooth": smooth, "key_cost": key_cost, "tol": tol,
                               "max_passes": max_passes}
@@ -244,9 +265,12 @@ def extract(motion: Motion, *, features: Features | None = None,
         rows = np.arange(n)
         return Keyframes(METHOD, rows + first, np.full(n, float(c_n)), params, motion.n_frames,
                          {"per_channel": [(rows + first).tolist()] * c_n})
-    m = tangents(x)
-    mask = initial_keys(x, smooth)
-    init = [np.flatnonzero(mask[:, c]) for c in range(c_n)]
+    m = np.empty_like(x)
+    init = []
+    for lo in range(0, c_n, _COLUMNS):  # column blocks: the same numbers, cache-sized
+        m[:, lo : lo + _COLUMNS] = tangents(x[:, lo : lo + _COLUMNS])
+        mask = initial_keys(x[:, lo : lo + _COLUMNS], smooth)
+        init += [np.flatnonzero(mask[:, c]) for c in range(mask.shape[1])]
     keys, cost, history = fit_channels(x, m, init, key_cost, int(max_passes), tol)
     counts = np.array([len(k) for k in keys])
     sse = cost - key_cost * counts
