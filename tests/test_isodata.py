@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 from functools import cache
 
 import numpy as np
@@ -89,6 +90,40 @@ def test_initial_classes_break_at_large_steps_and_far_from_the_class_centre() ->
     starts = isodata.initial_classes(y, adjacent, 0.5)
     # the jump starts a class at 3; at 7, 5.9 is 0.6 from the centre 5.3 of frames 3-6
     assert starts.tolist() == [0, 3, 7]
+
+
+def python_initial_classes(y: np.ndarray, adjacent: np.ndarray, d_t: float,
+                           scale: np.ndarray) -> np.ndarray:
+    """The paper's two rules as a plain loop over frames (the numpy form the kernel replaced:
+    the same row products, centre division and `diff @ diff`)."""
+    starts, total, count = [0], None, 0
+    for f, row in enumerate(y * scale):
+        if total is None:
+            total, count = row.copy(), 1
+            continue
+        diff = row - total / count
+        if adjacent[f - 1] >= d_t or math.sqrt(diff @ diff) >= d_t:
+            starts.append(f)
+            total, count = row.copy(), 1
+        else:
+            total += row
+            count += 1
+    return np.array(starts)
+
+
+@pytest.mark.parametrize("name", ["05_06.bvh", "49_18.amc", "131_03.bvh"])
+def test_initial_classes_kernel_equals_the_frame_by_frame_loop(name: str) -> None:
+    motion = load(name)
+    x = isodata.pose_vectors(motion.skeleton, motion.channels[motion.first_frame :])
+    x = x.reshape(len(x), -1)
+    scale = np.repeat(np.sqrt(isodata.joint_weights(motion.skeleton)), 4)
+    adjacent = np.linalg.norm(np.diff(x * scale, axis=0), axis=1)
+    d_t = isodata.min_dispersion_split(adjacent, isodata.OUTLIER_FENCE)[1]
+    for threshold in (d_t, d_t / 2, d_t / 4):
+        starts = isodata.initial_classes(x, adjacent, threshold, scale)
+        assert len(starts) > 10
+        np.testing.assert_array_equal(starts, python_initial_classes(x, adjacent, threshold,
+                                                                     scale))
 
 
 def test_derived_parameters_follow_the_papers_120_hz_values() -> None:

@@ -69,6 +69,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import UsageError
 from ..features import Features
+from ..jit import kernel, warmer
 from ..keyframes import Keyframes
 from ..motion import Motion, Skeleton
 
@@ -199,28 +200,51 @@ def _fence(d: np.ndarray, k: float | None) -> float:
     return float(q3 + k * (q3 - q1))
 
 
+@kernel
+def _initial_starts(x: np.ndarray, scale: np.ndarray, far: np.ndarray, d_t: float,
+                    out: np.ndarray) -> int:
+    """`initial_classes` compiled: class start rows into `out`, returns their count. The
+    distance to the centre is the same BLAS dot product as numpy's `diff @ diff`."""
+    n, d = x.shape
+    total, diff, row = np.empty(d), np.empty(d), np.empty(d)
+    count, m = 0, 0
+    for f in range(n):
+        for j in range(d):
+            row[j] = x[f, j] * scale[j]
+        if f > 0:
+            for j in range(d):
+                diff[j] = row[j] - total[j] / count
+            if not (far[f - 1] or math.sqrt(np.dot(diff, diff)) >= d_t):
+                for j in range(d):
+                    total[j] += row[j]
+                count += 1
+                continue
+        out[m] = f
+        m += 1
+        total[:] = row
+        count = 1
+    return m
+
+
+@warmer
+def _warm() -> None:
+    """Compile (or load) the kernel on a tiny input."""
+    x = np.arange(12.0).reshape(4, 3)
+    _initial_starts(x, np.ones(3), np.zeros(3, dtype=np.bool_), 1.0, np.empty(4, np.int64))
+
+
 def initial_classes(y: np.ndarray, adjacent: np.ndarray, d_t: float,
                     scale: np.ndarray | None = None) -> np.ndarray:
     """Start rows of the initial classes (the paper's two rules, frames in order).
 
-    With `scale`, the pose vectors are the rows of `y` times `scale` (made block by block)."""
-    starts = [0]
-    far_from_previous = (adjacent >= d_t).tolist()
-    total, count = None, 0
-    for lo in range(0, len(y), CHUNK):
-        block = y[lo : lo + CHUNK] if scale is None else y[lo : lo + CHUNK] * scale
-        for f, row in enumerate(block, lo):
-            if total is None:
-                total, count = row.copy(), 1
-                continue
-            diff = row - total / count
-            if far_from_previous[f - 1] or math.sqrt(diff @ diff) >= d_t:
-                starts.append(f)
-                total, count = row.copy(), 1
-            else:
-                total += row
-                count += 1
-    return np.array(starts, dtype=np.int64)
+    With `scale`, the pose vectors are the rows of `y` times `scale`."""
+    if len(y) == 0:
+        return np.zeros(1, dtype=np.int64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    scale = np.ones(y.shape[1]) if scale is None else np.ascontiguousarray(scale, np.float64)
+    out = np.empty(len(y), dtype=np.int64)
+    m = _initial_starts(y, scale, np.asarray(adjacent >= d_t, dtype=np.bool_), float(d_t), out)
+    return out[:m].copy()
 
 
 def derived_parameters(n: int, fps: float, cluster_seconds: float) -> dict[str, int]:
