@@ -128,12 +128,15 @@ def test_bad_counts_raise_usage_error():
 def test_decimation_kernel_removes_in_the_heapq_forms_order_on_every_shared_clip():
     """The compiled loop sums a segment's squares in another order than numpy (costs differ
     in the last bits), yet the whole removal order down to 2 keys is the one of the heapq +
-    numpy form it replaced (tests/decimation_reference.py), in both spaces."""
+    numpy form it replaced (tests/decimation_reference.py), in both spaces (whose curves
+    are the same rows whether decimate computes them or is given the features)."""
     for name in CLIPS:
         m = load(name)
         feats = compute_features(m)
         for space in simplify.SPACES:
             x = simplify.curve(m, space, feats)
+            # without features, positions come from FK alone: the same rows
+            np.testing.assert_array_equal(baselines._curve(m, space, None), x)
             removed, costs = baselines.decimation_order(x, 2)
             ref_removed, ref_costs = reference.decimation_order(x, 2)
             np.testing.assert_array_equal(removed, ref_removed, err_msg=f"{name} {space}")

@@ -16,7 +16,11 @@ Frame decimation, as settled here:
 - Each step removes the keyframe of least cost (ties: the earliest frame). A heap holds
   (cost, frame); entries are invalidated lazily by a per-frame version number, and a removal
   only re-prices its two neighbours (two new segment SSEs), so the whole run costs
-  O(n log n + sum of re-priced segment lengths) instead of O(n^2) rescans.
+  O(n log n + sum of re-priced segment lengths) instead of O(n^2) rescans. The loop is one
+  numba kernel (`streamkey.jit`); its segment SSE sums squares in frame then column order
+  (numpy's einsum and pairwise sum differ in the last bits), and the removal order is the one
+  of the former heapq + numpy loop on every shared clip in both spaces, counts down to 2
+  (tests/decimation_reference.py); 100,000 frames: 0.36 s CPU against 2.8 s.
 - Removal order is nested: the keyframes for K are those for K + 1 minus one frame, so one run
   (`decimation_order`) serves every K.
 """
@@ -29,8 +33,9 @@ from ..errors import UsageError
 from ..features import Features
 from ..jit import kernel, warmer
 from ..keyframes import Keyframes
+from ..kinematics import body_height, forward_kinematics
 from ..motion import Motion
-from .simplify import DEFAULT_SPACE, SPACES, curve
+from .simplify import DEFAULT_SPACE, SPACES, curve, position_rows
 
 __all__ = ["uniform", "decimate", "decimation_order", "segment_sse", "reconstruction_sse"]
 
@@ -189,12 +194,22 @@ def decimation_order(x: np.ndarray, count: int = 2) -> tuple[np.ndarray, np.ndar
     return _decimation_order(np.ascontiguousarray(x, dtype=np.float64), int(count))
 
 
+def _curve(motion: Motion, space: str, features: Features | None) -> np.ndarray:
+    """`simplify.curve`; in positions space without `features`, FK alone on the captured
+    frames (the same rows: FK frames are independent, and the unwrapped rotations and the
+    pelvis frame of `compute_features` are not needed)."""
+    if space == "positions" and features is None:
+        fk = forward_kinematics(motion.skeleton, motion.channels[motion.first_frame :])
+        return position_rows(fk.positions, motion.skeleton.n_joints, body_height(motion.skeleton))
+    return curve(motion, space, features)
+
+
 def decimate(motion: Motion, count: int, *, space: str = DEFAULT_SPACE,
              features: Features | None = None) -> Keyframes:
     """Frame decimation to exactly `count` keyframes (see the module docstring)."""
     if space not in SPACES:
         raise UsageError(f"space must be one of {SPACES}, got {space!r}")
-    x = curve(motion, space, features)
+    x = _curve(motion, space, features)
     count = _check_count(count, len(x))
     removed, costs = decimation_order(x, count)
     keep = np.ones(len(x), dtype=bool)
