@@ -19,6 +19,8 @@ import numpy as np
 
 from ..jit import kernel, warmer
 
+__all__ = ["candidates", "block_costs", "search_pass", "fit_channel", "work_size", "SEARCH"]
+
 SEARCH = 4  # nine candidates: key - 4 .. key + 4 (Önder §3.1 step 2)
 _ACCEPT = 1 - 1e-12  # a pass's result is kept when it lowers the cost by more than this
 
