@@ -8,10 +8,45 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from streamkey.methods.curvefit import SEARCH, _cost, _gram, _limit
+from streamkey.methods.curvefit import _COLUMNS, SEARCH, _gram, hermite
 
 _BATCH_KEYS = 20_000  # keys per DP batch of channels (bounds the 9 x 18 cost blocks held)
 _CHUNK = 300_000  # moment-window cells per numpy batch (cache-friendly size)
+
+
+def _limit(ra: np.ndarray, rb: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Segment tangents (per unit t) limited to 3 |x_b - x_a| (Fritsch-Carlson's bound): a
+    steep key next to a flat one would otherwise swing the cubic far outside the data."""
+    bound = 3 * np.abs(delta)
+    return np.clip(ra, -bound, bound), np.clip(rb, -bound, bound)
+
+
+def hermite_curves(x: np.ndarray, m: np.ndarray, keys: list[np.ndarray]) -> np.ndarray:
+    """Every column of `x` rebuilt from its keys by Hermite segments (tangents `m`)."""
+    out = x.copy()
+    n = len(x)
+    frames = np.arange(n)
+    for c, k in enumerate(keys):
+        if len(k) < 2:
+            continue
+        seg = np.clip(np.searchsorted(k, frames, side="right") - 1, 0, len(k) - 2)
+        a, b = k[seg], k[seg + 1]
+        length = (b - a).astype(np.float64)
+        t = (frames - a) / length
+        ra, rb = _limit(m[a, c] * length, m[b, c] * length, x[b, c] - x[a, c])
+        out[:, c] = hermite(t, x[a, c], x[b, c], ra, rb)
+        out[k, c] = x[k, c]
+    return out
+
+
+def _cost(x: np.ndarray, m: np.ndarray, keys: list[np.ndarray], key_cost: float) -> np.ndarray:
+    """SSE of the Hermite fit plus key_cost per key, per channel (column blocks)."""
+    sse = np.empty(x.shape[1])
+    for lo in range(0, x.shape[1], _COLUMNS):
+        hi = lo + _COLUMNS
+        r = x[:, lo:hi] - hermite_curves(x[:, lo:hi], m[:, lo:hi], keys[lo:hi])
+        sse[lo:hi] = np.einsum("ij,ij->j", r, r)
+    return sse + key_cost * np.array([len(k) for k in keys])
 
 
 @dataclass

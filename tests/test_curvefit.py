@@ -314,3 +314,17 @@ def test_curvefit_with_the_features_rotations_equals_curvefit_without(name: str)
     with_features = curvefit.extract(motion, features=compute_features(motion))
     assert with_features.info == fitted(name).info
     np.testing.assert_array_equal(with_features.frames, fitted(name).frames)
+
+
+@pytest.mark.parametrize("name", ["07_01.bvh", "49_18.amc"])
+def test_hermite_kernel_rebuilds_channels_bit_for_bit_as_the_numpy_form(name: str) -> None:
+    motion = load(name)
+    x = simplify.curve(motion, "channels")
+    m = curvefit.tangents(x)
+    keys = [np.asarray(k) - motion.first_frame for k in fitted(name).info["per_channel"]]
+    keys[0] = keys[0][1:-1]  # a channel whose keys leave frames outside: extrapolated
+    keys[1] = keys[1][:1]  # a single key: the data kept
+    np.testing.assert_array_equal(curvefit.hermite_curves(x, m, keys),
+                                  reference.hermite_curves(x, m, keys))
+    np.testing.assert_array_equal(curvefit._cost(x, m, keys, 1.0),
+                                  reference._cost(x, m, keys, 1.0))

@@ -105,13 +105,6 @@ def tangents(x: np.ndarray, smooth: float = 0.0) -> np.ndarray:
     return np.where(left * right > 0, small, 0.0)
 
 
-def _limit(ra: np.ndarray, rb: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Segment tangents (per unit t) limited to 3 |x_b - x_a| (Fritsch-Carlson's bound): a
-    steep key next to a flat one would otherwise swing the cubic far outside the data."""
-    bound = 3 * np.abs(delta)
-    return np.clip(ra, -bound, bound), np.clip(rb, -bound, bound)
-
-
 def _sign_changes(d: np.ndarray) -> np.ndarray:
     """Mask (n x C) of frames where the sign of `d` differs from the last nonzero sign."""
     s = np.sign(d) * (np.abs(d) > _ZERO)
@@ -207,18 +200,14 @@ def _cost(x: np.ndarray, m: np.ndarray, keys: list[np.ndarray], key_cost: float)
 def hermite_curves(x: np.ndarray, m: np.ndarray, keys: list[np.ndarray]) -> np.ndarray:
     """Every column of `x` rebuilt from its keys by Hermite segments (tangents `m`)."""
     out = x.copy()
-    n = len(x)
-    frames = np.arange(n)
+    col = np.empty(len(x))
     for c, k in enumerate(keys):
         if len(k) < 2:
             continue
-        seg = np.clip(np.searchsorted(k, frames, side="right") - 1, 0, len(k) - 2)
-        a, b = k[seg], k[seg + 1]
-        length = (b - a).astype(np.float64)
-        t = (frames - a) / length
-        ra, rb = _limit(m[a, c] * length, m[b, c] * length, x[b, c] - x[a, c])
-        out[:, c] = hermite(t, x[a, c], x[b, c], ra, rb)
-        out[k, c] = x[k, c]
+        _k.hermite_fill(np.ascontiguousarray(x[:, c], dtype=np.float64),
+                        np.ascontiguousarray(m[:, c], dtype=np.float64),
+                        np.ascontiguousarray(k, dtype=np.int64), col)
+        out[:, c] = col
     return out
 
 

@@ -19,7 +19,8 @@ import numpy as np
 
 from ..jit import kernel, warmer
 
-__all__ = ["candidates", "block_costs", "search_pass", "fit_channel", "work_size", "SEARCH"]
+__all__ = ["candidates", "block_costs", "search_pass", "fit_channel", "hermite_fill",
+           "work_size", "SEARCH"]
 
 SEARCH = 4  # nine candidates: key - 4 .. key + 4 (Önder §3.1 step 2)
 _ACCEPT = 1 - 1e-12  # a pass's result is kept when it lowers the cost by more than this
@@ -222,6 +223,29 @@ def fit_channel(xc: np.ndarray, mc: np.ndarray, keys: np.ndarray, cost: float,
     return kp[:count].copy(), history[:passes].copy()
 
 
+@kernel
+def hermite_fill(xc: np.ndarray, mc: np.ndarray, keys: np.ndarray, out: np.ndarray) -> None:
+    """Channel `xc` rebuilt from its sorted `keys` (at least 2) by Hermite segments (tangents
+    `mc`, limited as in the search) into `out`; frames outside the keys extrapolate the first
+    or last segment; the keys keep their data values. `curvefit.hermite`'s arithmetic."""
+    s = 0
+    for f in range(len(xc)):
+        while s < len(keys) - 2 and keys[s + 1] <= f:
+            s += 1
+        a, b = keys[s], keys[s + 1]
+        length = float(b - a)
+        t = (f - a) / length
+        bound = 3 * abs(xc[b] - xc[a])
+        ra = min(max(mc[a] * length, -bound), bound)
+        rb = min(max(mc[b] * length, -bound), bound)
+        t2 = t * t
+        t3 = t2 * t
+        out[f] = ((2 * t3 - 3 * t2 + 1) * xc[a] + (t3 - 2 * t2 + t) * ra
+                  + (-2 * t3 + 3 * t2) * xc[b] + (t3 - t2) * rb)
+    for k in keys:
+        out[k] = xc[k]
+
+
 def work_size(keys: int) -> int:
     """Floats of `fit_channel`'s scratch buffer for a channel of `keys` initial keys."""
     return 189 * (keys + 2)
@@ -234,5 +258,6 @@ def _warm() -> None:
     m = np.gradient(x)
     gram = np.zeros((6, 41))
     keys = np.array([0, 10, 20, 39])
+    hermite_fill(x, m, keys, np.empty(len(x)))
     fit_channel(x, m, keys, 1e9, 1.0, 0.0, 1, gram, np.empty(work_size(len(keys))),
                 np.empty((5, len(x) + 1)))
