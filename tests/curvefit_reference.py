@@ -8,7 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from streamkey.methods.curvefit import _COLUMNS, SEARCH, _gram, hermite
+from streamkey.methods.curvefit import SEARCH, _gram, hermite
+from streamkey.methods.curvefit import _cost as kernel_cost
 
 _BATCH_KEYS = 20_000  # keys per DP batch of channels (bounds the 9 x 18 cost blocks held)
 _CHUNK = 300_000  # moment-window cells per numpy batch (cache-friendly size)
@@ -40,13 +41,8 @@ def hermite_curves(x: np.ndarray, m: np.ndarray, keys: list[np.ndarray]) -> np.n
 
 
 def _cost(x: np.ndarray, m: np.ndarray, keys: list[np.ndarray], key_cost: float) -> np.ndarray:
-    """SSE of the Hermite fit plus key_cost per key, per channel (column blocks)."""
-    sse = np.empty(x.shape[1])
-    for lo in range(0, x.shape[1], _COLUMNS):
-        hi = lo + _COLUMNS
-        r = x[:, lo:hi] - hermite_curves(x[:, lo:hi], m[:, lo:hi], keys[lo:hi])
-        sse[lo:hi] = np.einsum("ij,ij->j", r, r)
-    return sse + key_cost * np.array([len(k) for k in keys])
+    """SSE of the Hermite fit (the numpy rebuild above) plus key_cost per key, per channel."""
+    return kernel_cost(x, m, keys, key_cost, hermite_curves)
 
 
 @dataclass

@@ -100,6 +100,26 @@ def _before(c1: float, k1: int, v1: int, c2: float, k2: int, v2: int) -> bool:
 
 
 @kernel
+def _sift_down(hc: np.ndarray, hk: np.ndarray, hv: np.ndarray, hs: np.ndarray, i: int,
+               size: int) -> None:
+    """Move heap entry `i` down below its smaller children (heap of `size` entries)."""
+    while True:
+        lo = 2 * i + 1
+        if lo >= size:
+            break
+        if lo + 1 < size and _before(hc[lo + 1], hk[lo + 1], hv[lo + 1], hc[lo], hk[lo],
+                                     hv[lo]):
+            lo += 1
+        if not _before(hc[lo], hk[lo], hv[lo], hc[i], hk[i], hv[i]):
+            break
+        hc[i], hc[lo] = hc[lo], hc[i]
+        hk[i], hk[lo] = hk[lo], hk[i]
+        hv[i], hv[lo] = hv[lo], hv[i]
+        hs[i], hs[lo] = hs[lo], hs[i]
+        i = lo
+
+
+@kernel
 def _decimation_order(x: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
     """`decimation_order` in one compiled loop: a binary heap of (cost, frame, version, span)
     with lazy invalidation."""
@@ -121,41 +141,13 @@ def _decimation_order(x: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray
         hc[size], hk[size], hv[size], hs[size] = c, k, 0, c
         size += 1
     for start in range(size // 2 - 1, -1, -1):  # heapify
-        i = start
-        while True:
-            lo = 2 * i + 1
-            if lo >= size:
-                break
-            if lo + 1 < size and _before(hc[lo + 1], hk[lo + 1], hv[lo + 1], hc[lo], hk[lo],
-                                         hv[lo]):
-                lo += 1
-            if not _before(hc[lo], hk[lo], hv[lo], hc[i], hk[i], hv[i]):
-                break
-            hc[i], hc[lo] = hc[lo], hc[i]
-            hk[i], hk[lo] = hk[lo], hk[i]
-            hv[i], hv[lo] = hv[lo], hv[i]
-            hs[i], hs[lo] = hs[lo], hs[i]
-            i = lo
+        _sift_down(hc, hk, hv, hs, start, size)
     left, done = n, 0
     while left > count and size > 0:
         cost, k, ver, span = hc[0], hk[0], hv[0], hs[0]
         size -= 1  # pop: the last entry sifts down from the root
         hc[0], hk[0], hv[0], hs[0] = hc[size], hk[size], hv[size], hs[size]
-        i = 0
-        while True:
-            lo = 2 * i + 1
-            if lo >= size:
-                break
-            if lo + 1 < size and _before(hc[lo + 1], hk[lo + 1], hv[lo + 1], hc[lo], hk[lo],
-                                         hv[lo]):
-                lo += 1
-            if not _before(hc[lo], hk[lo], hv[lo], hc[i], hk[i], hv[i]):
-                break
-            hc[i], hc[lo] = hc[lo], hc[i]
-            hk[i], hk[lo] = hk[lo], hk[i]
-            hv[i], hv[lo] = hv[lo], hv[i]
-            hs[i], hs[lo] = hs[lo], hs[i]
-            i = lo
+        _sift_down(hc, hk, hv, hs, 0, size)
         if ver != version[k]:
             continue  # stale entry (lazy invalidation)
         p, q = prev[k], nxt[k]
