@@ -268,9 +268,21 @@ class _Classes:
         return np.repeat(np.arange(len(self.starts)), self.sizes())
 
 
-def _centres(cs: np.ndarray, starts: np.ndarray, n: int) -> np.ndarray:
-    ends = np.append(starts[1:], n)
+def _centres(cs: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Centres of the runs [starts, ends) from the prefix sums `cs`."""
     return (cs[ends] - cs[starts]) / (ends - starts)[:, None]
+
+
+def _centre_gaps(st: _Stats, cl: _Classes) -> np.ndarray:
+    """Distance between the centres of adjacent classes (blocks of classes: cache-sized
+    temporaries; row by row the same numbers as on all classes at once)."""
+    starts, ends = cl.starts, np.append(cl.starts[1:], cl.n)
+    out = np.empty(max(len(starts) - 1, 0))
+    for lo in range(0, len(out), CHUNK):
+        hi = min(len(starts), lo + CHUNK + 1)
+        c = _centres(st.cy, starts[lo:hi], ends[lo:hi])
+        out[lo : hi - 1] = np.linalg.norm(np.diff(c, axis=0), axis=1)
+    return out
 
 
 class _Stats:
@@ -333,11 +345,13 @@ def _dispersion(st: _Stats, cl: _Classes) -> np.ndarray:
 
 def _centre_distances(st: _Stats, cl: _Classes, lab: np.ndarray) -> np.ndarray:
     """Distance of every frame to its class centre, in row chunks (cache-sized temporaries)."""
-    centres = _centres(st.cy, cl.starts, cl.n)
+    ends = np.append(cl.starts[1:], cl.n)
     dist = np.empty(cl.n)
     for lo in range(0, cl.n, CHUNK):
         hi = min(cl.n, lo + CHUNK)
-        dist[lo:hi] = np.linalg.norm(st.y_rows(lo, hi) - centres[lab[lo:hi]], axis=1)
+        a, b = lab[lo], lab[hi - 1] + 1  # the classes of these rows only
+        centres = _centres(st.cy, cl.starts[a:b], ends[a:b])
+        dist[lo:hi] = np.linalg.norm(st.y_rows(lo, hi) - centres[lab[lo:hi] - a], axis=1)
     return dist
 
 
@@ -362,9 +376,8 @@ def _split(st: _Stats, cl: _Classes, o_s: float, o_n: int) -> _Classes:
 
 def _merge(st: _Stats, cl: _Classes, o_c: float, o_n: int, limit: int | None) -> _Classes:
     """ISODATA merge rule, adjacent pairs in frame order, each class at most once."""
-    centres = _centres(st.cy, cl.starts, cl.n)
     sizes = cl.sizes()
-    close = np.linalg.norm(np.diff(centres, axis=0), axis=1) < o_c
+    close = _centre_gaps(st, cl) < o_c
     small = (sizes[:-1] < o_n) | (sizes[1:] < o_n)
     want = close | small
     keep = np.ones(len(cl.starts), dtype=bool)
@@ -384,8 +397,7 @@ def _thresholds(st: _Stats, cl: _Classes, o_c: float, o_s: float,
     """Step 1 again on adjacent centre distances: new (O_c, O_s); kept below 3 classes."""
     if len(cl.starts) < 3:
         return o_c, o_s
-    cy = _centres(st.cy, cl.starts, cl.n)
-    i, d_t = min_dispersion_split(np.linalg.norm(np.diff(cy, axis=0), axis=1), fence)
+    i, d_t = min_dispersion_split(_centre_gaps(st, cl), fence)
     ends = np.append(cl.starts[1:], cl.n)
     pair = [st.x_mean(int(cl.starts[k]), int(ends[k])) for k in (i, i + 1)]
     return d_t, float(np.abs(pair[1] - pair[0]).sum())
