@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import csv
+import hashlib
+import json
 import math
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -206,3 +209,23 @@ def test_isodata_agrees_on_the_bvh_and_amc_copies_of_a_clip_within_a_few_keys() 
 def test_isodata_rejects_bad_parameters(bad: dict[str, float]) -> None:
     with pytest.raises(UsageError):
         isodata.extract(load("07_01.bvh"), **bad)  # type: ignore[arg-type]
+
+
+def _digest(k: Keyframes) -> str:
+    blob = json.dumps({"frames": k.frames.tolist(), "scores": k.scores.tolist(),
+                       "starts": np.asarray(k.info["class_starts"]).tolist(),
+                       "history": k.info["history"], "O_s": k.info["O_s"], "D_T": k.info["D_T"]})
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", CLIPS)
+def test_isodata_gives_the_numpy_forms_result_on_every_shared_clip(name: str) -> None:
+    """Keyframes, class starts, thresholds and history as before the kernel and the blocked
+    centres (sha256 digests recorded then: tests/isodata_digests.json), with and without
+    precomputed features."""
+    recorded = json.loads((Path(__file__).parent / "isodata_digests.json").read_text())
+    motion = load(name)
+    assert _digest(isodata.extract(motion)) == recorded[name]
+    features = compute_features(motion)
+    assert _digest(isodata.extract(motion, features=features)) == recorded[name + "+features"]
