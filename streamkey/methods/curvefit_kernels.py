@@ -119,14 +119,20 @@ def block_costs(xc: np.ndarray, mc: np.ndarray, a: np.ndarray, ends: np.ndarray,
 
 @kernel
 def search_pass(xc: np.ndarray, mc: np.ndarray, kp: np.ndarray, count: int, key_cost: float,
-                gram: np.ndarray, old_kp: np.ndarray, old_count: int, old_blocks: np.ndarray,
-                blocks: np.ndarray, cand: np.ndarray, value: np.ndarray, back: np.ndarray,
+                gram: np.ndarray, old_kp: np.ndarray, old_count: int, blocks: np.ndarray,
+                cand: np.ndarray, value: np.ndarray, back: np.ndarray,
                 run: np.ndarray, found: np.ndarray) -> tuple[int, float]:
     """One pass (Önder steps 2-5) over one channel's keys `kp[:count]` (padded by two n - 1):
-    its new keys into `found`, returns (their count, their cost). Blocks of keys whose frame
-    and next two keys' frames are those of a key of the last pass (`old_kp`, `old_blocks`)
-    are copied, the others priced; `blocks` receives this pass's blocks."""
+    its new keys into `found`, returns (their count, their cost). `blocks` holds the last
+    pass's blocks (of keys `old_kp`) and receives this pass's, in place: a key whose frame
+    and next two keys' frames are those of a key of the last pass at the same or a later
+    index keeps or moves that block down, the others are priced. `value` and `back`
+    hold the last pass's DP: its rows before the first key that moved are this pass's too
+    (the same blocks, summed in the same order), so the DP restarts there."""
     n = len(xc)
+    first = 0  # first key index whose frame differs from the last pass's
+    while first < count and first < old_count and kp[first] == old_kp[first]:
+        first += 1
     candidates(kp, count, n, cand)
     for j in range(9):
         cand[count, j] = n - 1  # the padding key after the last
@@ -136,9 +142,10 @@ def search_pass(xc: np.ndarray, mc: np.ndarray, kp: np.ndarray, count: int, key_
         f = kp[k]
         while i_old < old_count and old_kp[i_old] < f:
             i_old += 1
-        if (i_old <= old_count - 2 and old_kp[i_old] == f
+        if (k <= i_old <= old_count - 2 and old_kp[i_old] == f
                 and old_kp[i_old + 1] == kp[k + 1] and old_kp[i_old + 2] == kp[k + 2]):
-            blocks[k] = old_blocks[i_old]
+            if i_old != k:  # slots below k are this pass's, slots from k on the last's
+                blocks[k] = blocks[i_old]
         else:
             for j in range(9):
                 ends[j] = cand[k + 1, j]
@@ -146,7 +153,7 @@ def search_pass(xc: np.ndarray, mc: np.ndarray, kp: np.ndarray, count: int, key_
             block_costs(xc, mc, cand[k], ends, gram, run, blocks[k])
     for j in range(9):
         value[0, j] = key_cost
-    for k in range(1, count):
+    for k in range(max(1, first - 1), count):
         for j in range(9):
             best = value[k - 1, 0] + blocks[k - 1, 0, j]
             arg = 0
@@ -189,9 +196,8 @@ def fit_channel(xc: np.ndarray, mc: np.ndarray, keys: np.ndarray, cost: float,
     channels so that long clips do not touch fresh memory per channel."""
     n = len(xc)
     size = len(keys) + 2
-    blocks_a = work[: size * 90].reshape(size, 9, 10)
-    blocks_b = work[size * 90 : 2 * size * 90].reshape(size, 9, 10)
-    value = work[2 * size * 90 : 2 * size * 90 + size * 9].reshape(size, 9)
+    blocks = work[: size * 90].reshape(size, 9, 10)
+    value = work[size * 90 : size * 99].reshape(size, 9)
     back = np.empty((size, 9, 2), dtype=np.int64)
     cand = np.empty((size, 9), dtype=np.int64)
     found = np.empty(size, dtype=np.int64)
@@ -202,13 +208,11 @@ def fit_channel(xc: np.ndarray, mc: np.ndarray, keys: np.ndarray, cost: float,
     old_count = 0
     history = np.empty(max(max_passes, 0))
     passes = 0
-    new_blocks, last_blocks = blocks_a, blocks_b
     while passes < max_passes:
-        m, new = search_pass(xc, mc, kp, count, key_cost, gram, old_kp, old_count, last_blocks,
-                             new_blocks, cand, value, back, run, found)
+        m, new = search_pass(xc, mc, kp, count, key_cost, gram, old_kp, old_count, blocks,
+                             cand, value, back, run, found)
         old_kp[:] = kp
         old_count = count
-        new_blocks, last_blocks = last_blocks, new_blocks
         accept = new < cost * _ACCEPT
         going = accept and new < cost * (1 - tol)
         if accept:
@@ -248,7 +252,7 @@ def hermite_fill(xc: np.ndarray, mc: np.ndarray, keys: np.ndarray, out: np.ndarr
 
 def work_size(keys: int) -> int:
     """Floats of `fit_channel`'s scratch buffer for a channel of `keys` initial keys."""
-    return 189 * (keys + 2)
+    return 99 * (keys + 2)
 
 
 @warmer
