@@ -80,6 +80,7 @@ METHOD = "isodata"
 CLUSTER_SECONDS = 25.0 / 120.0  # O_N = 25 frames at the paper's 120 Hz
 OUTLIER_FENCE = 10.0  # far beyond Tukey's far-out fence (Q3 + 3 IQR): pose glitches only
 CHUNK = 4096  # rows per block of full-length work: temporaries stay cache-sized
+_STEP = 8  # rows between stored prefix sums
 
 
 def joint_weights(skeleton: Skeleton) -> np.ndarray:
@@ -231,6 +232,9 @@ def _warm() -> None:
     """Compile (or load) the kernel on a tiny input."""
     x = np.arange(12.0).reshape(4, 3)
     _initial_starts(x, np.ones(3), np.zeros(3, dtype=np.bool_), 1.0, np.empty(4, np.int64))
+    checkpoints = np.empty((3, 3))
+    _prefix_checkpoints(x, np.ones(3), 2, checkpoints)
+    _prefix_rows(x, np.ones(3), 2, checkpoints, np.array([0, 3]), np.empty((2, 3)))
 
 
 def initial_classes(y: np.ndarray, adjacent: np.ndarray, d_t: float,
@@ -268,9 +272,9 @@ class _Classes:
         return np.repeat(np.arange(len(self.starts)), self.sizes())
 
 
-def _centres(cs: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """Centres of the runs [starts, ends) from the prefix sums `cs`."""
-    return (cs[ends] - cs[starts]) / (ends - starts)[:, None]
+def _centres(st: _Stats, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Centres (weighted) of the runs [starts, ends) from the prefix sums."""
+    return (st.prefix(ends) - st.prefix(starts)) / (ends - starts)[:, None]
 
 
 def _centre_gaps(st: _Stats, cl: _Classes) -> np.ndarray:
@@ -280,31 +284,63 @@ def _centre_gaps(st: _Stats, cl: _Classes) -> np.ndarray:
     out = np.empty(max(len(starts) - 1, 0))
     for lo in range(0, len(out), CHUNK):
         hi = min(len(starts), lo + CHUNK + 1)
-        c = _centres(st.cy, starts[lo:hi], ends[lo:hi])
+        c = _centres(st, starts[lo:hi], ends[lo:hi])
         out[lo : hi - 1] = np.linalg.norm(np.diff(c, axis=0), axis=1)
     return out
 
 
+@kernel
+def _prefix_checkpoints(x: np.ndarray, scale: np.ndarray, step: int, out: np.ndarray) -> None:
+    """out[q] = sum of the rows x[i] * scale, i < q step, added in row order (as `cumsum`)."""
+    d = x.shape[1]
+    total = np.zeros(d)
+    out[0] = total
+    for i in range(len(x)):
+        for j in range(d):
+            total[j] += x[i, j] * scale[j]
+        if (i + 1) % step == 0:
+            out[(i + 1) // step] = total
+
+
+@kernel
+def _prefix_rows(x: np.ndarray, scale: np.ndarray, step: int, checkpoints: np.ndarray,
+                 idx: np.ndarray, out: np.ndarray) -> None:
+    """out[r] = sum of the rows x[i] * scale, i < idx[r]: from the checkpoint below, the same
+    additions in the same order as one running sum over every row."""
+    for r in range(len(idx)):
+        q = idx[r] // step
+        out[r] = checkpoints[q]
+        for i in range(q * step, idx[r]):
+            for j in range(x.shape[1]):
+                out[r, j] += x[i, j] * scale[j]
+
+
 class _Stats:
     """Prefix sums of the weighted pose vectors y = x * scale for O(1) run statistics (y made
-    block by block, never whole); statistics of the plain ones (x) for the few classes that
-    need them."""
+    block by block, never whole; the row prefix sums kept every `_STEP` rows and completed on
+    demand: an eighth of the memory, the same bits); statistics of the plain ones (x) for the
+    few classes that need them."""
 
     def __init__(self, x: np.ndarray, scale: np.ndarray) -> None:
-        self.x, self.scale = x, scale
+        self.x, self.scale = np.ascontiguousarray(x), np.ascontiguousarray(scale)
         n = len(x)
-        self.cy = np.empty((n + 1, x.shape[1]))
+        self.checkpoints = np.empty((n // _STEP + 1, x.shape[1]))
+        _prefix_checkpoints(self.x, self.scale, _STEP, self.checkpoints)
         self.cyy = np.empty(n + 1)
-        self.cy[0], self.cyy[0] = 0.0, 0.0
+        self.cyy[0] = 0.0
         for lo in range(0, n, CHUNK):
             hi = min(n, lo + CHUNK)
             y = self.y_rows(lo, hi)
             yy = np.einsum("ij,ij->i", y, y)
-            # the running total enters the first row: the same additions as one cumsum
-            y[0] += self.cy[lo]
-            np.cumsum(y, axis=0, out=self.cy[lo + 1 : hi + 1])
-            yy[0] += self.cyy[lo]
+            yy[0] += self.cyy[lo]  # the running total enters the first row: one cumsum's sums
             np.cumsum(yy, out=self.cyy[lo + 1 : hi + 1])
+
+    def prefix(self, idx: np.ndarray) -> np.ndarray:
+        """Sums of the weighted rows before each of `idx` (len(idx) x columns)."""
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        out = np.empty((len(idx), self.x.shape[1]))
+        _prefix_rows(self.x, self.scale, _STEP, self.checkpoints, idx, out)
+        return out
 
     def y_rows(self, lo: int, hi: int) -> np.ndarray:
         """Weighted pose vectors of rows [lo, hi) (a new array)."""
@@ -321,7 +357,7 @@ class _Stats:
 
     def sse(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Weighted squared deviations of rows [a, b) about their mean."""
-        s = self.cy[b] - self.cy[a]
+        s = self.prefix(b) - self.prefix(a)
         return self.cyy[b] - self.cyy[a] - np.einsum("ij,ij->i", s, s) / (b - a)
 
     def x_mean(self, a: int, b: int) -> np.ndarray:
@@ -350,7 +386,7 @@ def _centre_distances(st: _Stats, cl: _Classes, lab: np.ndarray) -> np.ndarray:
     for lo in range(0, cl.n, CHUNK):
         hi = min(cl.n, lo + CHUNK)
         a, b = lab[lo], lab[hi - 1] + 1  # the classes of these rows only
-        centres = _centres(st.cy, cl.starts[a:b], ends[a:b])
+        centres = _centres(st, cl.starts[a:b], ends[a:b])
         dist[lo:hi] = np.linalg.norm(st.y_rows(lo, hi) - centres[lab[lo:hi] - a], axis=1)
     return dist
 
