@@ -229,3 +229,15 @@ def test_isodata_gives_the_numpy_forms_result_on_every_shared_clip(name: str) ->
     assert _digest(isodata.extract(motion)) == recorded[name]
     features = compute_features(motion)
     assert _digest(isodata.extract(motion, features=features)) == recorded[name + "+features"]
+
+
+def test_prefix_kernel_gives_the_running_sums_of_one_cumsum_bit_for_bit() -> None:
+    motion = load("05_06.bvh")
+    x = isodata.pose_vectors(motion.skeleton, motion.channels[motion.first_frame :])
+    x = x.reshape(len(x), -1)
+    scale = np.repeat(np.sqrt(isodata.joint_weights(motion.skeleton)), 4)
+    st = isodata._Stats(x, scale)
+    cumulative = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x * scale, axis=0)])
+    idx = np.array([0, 1, 7, 8, 9, len(x) - 1, len(x), 333, 16, 15])
+    np.testing.assert_array_equal(st.prefix(idx), cumulative[idx])
+    np.testing.assert_array_equal(st.prefix(np.arange(len(x) + 1)), cumulative)
