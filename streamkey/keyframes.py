@@ -36,9 +36,20 @@ def rank_strength(recent: Any, score: float) -> float:
 def rank_strengths(scores: Any, window: int = STRENGTH_WINDOW) -> np.ndarray:
     """Strength of each key of a sorted key list: the mid-rank of its score among itself and
     the `window - 1` keys before it (causal, the same numbers as the online keyframer's)."""
-    s = np.asarray(scores, dtype=np.float64).tolist()  # Python floats: the same comparisons
-    return np.array([rank_strength(s[max(0, i - window + 1) : i + 1], s[i])
-                     for i in range(len(s))], dtype=np.float64)
+    s = np.asarray(scores, dtype=np.float64)
+    head = min(len(s), window - 1)
+    out = np.array([rank_strength(s[: i + 1], float(s[i])) for i in range(head)])
+    if len(s) <= head:
+        return out
+    # the full windows at once (blocks of rows: cache-sized), rank_strength's arithmetic
+    rows = np.lib.stride_tricks.sliding_window_view(s, window)
+    tail = np.empty(len(rows))
+    for lo in range(0, len(rows), 4096):
+        w, me = rows[lo : lo + 4096], s[window - 1 + lo : window - 1 + lo + 4096, None]
+        below = np.count_nonzero(w < me, axis=1)
+        equal = np.count_nonzero(w == me, axis=1)
+        tail[lo : lo + len(w)] = (below + 0.5 * equal) / window
+    return np.concatenate([out, tail])
 
 
 @dataclass

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from functools import cache
 
+import decimation_reference as reference
 import numpy as np
 import pytest
 from cmu import DATA, clips
@@ -13,6 +14,7 @@ from hypothesis.extra.numpy import arrays
 
 from streamkey.amc import read_motion
 from streamkey.errors import UsageError
+from streamkey.features import compute_features
 from streamkey.methods import baselines, simplify
 from streamkey.motion import Motion
 
@@ -120,3 +122,30 @@ def test_bad_counts_raise_usage_error():
             baselines.uniform(m, bad)
     with pytest.raises(UsageError):
         baselines.decimate(m, 5, space="euler")
+
+
+@pytest.mark.slow
+def test_decimation_kernel_removes_in_the_heapq_forms_order_on_every_shared_clip():
+    """The compiled loop sums a segment's squares in another order than numpy (costs differ
+    in the last bits), yet the whole removal order down to 2 keys is the one of the heapq +
+    numpy form it replaced (tests/decimation_reference.py), in both spaces (whose curves
+    are the same rows whether decimate computes them or is given the features)."""
+    for name in CLIPS:
+        m = load(name)
+        feats = compute_features(m)
+        for space in simplify.SPACES:
+            x = simplify.curve(m, space, feats)
+            # without features, positions come from FK alone: the same rows
+            np.testing.assert_array_equal(baselines._curve(m, space, None), x)
+            removed, costs = baselines.decimation_order(x, 2)
+            ref_removed, ref_costs = reference.decimation_order(x, 2)
+            np.testing.assert_array_equal(removed, ref_removed, err_msg=f"{name} {space}")
+            np.testing.assert_allclose(costs, ref_costs, rtol=1e-9, atol=1e-12)
+
+
+def test_segment_sse_kernel_equals_the_numpy_form():
+    m = load("07_01.bvh")
+    x = simplify.curve(m, "positions")
+    for a, b in ((0, 1), (0, 2), (10, 60), (5, len(x) - 1)):
+        assert baselines.segment_sse(x, a, b) == pytest.approx(
+            reference.segment_sse(x, a, b), rel=1e-12, abs=1e-15)

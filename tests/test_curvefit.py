@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 from functools import cache
+from pathlib import Path
 
+import curvefit_reference as reference
 import numpy as np
 import pytest
 from cmu import DATA, ROOT, clips
@@ -11,6 +15,7 @@ from cmu import DATA, ROOT, clips
 from streamkey.amc import read_motion
 from streamkey.errors import UsageError
 from streamkey.evaluate import Evaluator, reconstruct
+from streamkey.features import compute_features
 from streamkey.keyframes import Keyframes
 from streamkey.methods import curvefit, simplify
 from streamkey.motion import Motion
@@ -238,3 +243,88 @@ def test_reconstruct_rejects_a_result_of_another_method() -> None:
 def test_curvefit_rejects_bad_parameters(bad: dict[str, float]) -> None:
     with pytest.raises(UsageError):
         curvefit.extract(load("07_01.bvh"), **bad)  # type: ignore[arg-type]
+
+
+# --- the compiled search against the numpy form it replaced (tests/curvefit_reference.py) -----
+
+def _search_inputs(x: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    mask = curvefit.initial_keys(x, curvefit.DEFAULT_SMOOTH)
+    return curvefit.tangents(x), [np.flatnonzero(mask[:, c]) for c in range(x.shape[1])]
+
+
+def test_block_kernel_prices_segments_bit_for_bit_as_the_numpy_form() -> None:
+    rng = np.random.default_rng(7)
+    x = np.cumsum(rng.normal(0, 1, (3, 400)), axis=1) * 7 + 50  # channels x frames
+    m = np.ascontiguousarray(curvefit.tangents(x.T).T)
+    gaps = rng.integers(1, 40, (60, 3))  # some keys so close that their candidates cross
+    keys = np.cumsum(gaps, axis=1) + rng.integers(5, 250, (60, 1))
+    a = np.clip(keys[:, :1] + np.arange(-4, 5), 0, 399)
+    ends = np.concatenate([np.clip(keys[:, 1:2] + np.arange(-4, 5), 0, 399), keys[:, 2:]], 1)
+    ch = rng.integers(0, 3, 60)
+    got = curvefit._block_costs(x, m, ch, a, ends, curvefit._gram(400))
+    want = reference._block_costs(x, m, ch, a, ends, curvefit._gram(400))
+    assert np.isinf(want).any() and (want == 0).any() and np.isfinite(want).sum() > 1000
+    np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("name", ["07_01.bvh", "09_06.amc", "02_03.bvh"])
+def test_search_kernel_gives_the_numpy_searchs_keys_costs_and_history(name: str) -> None:
+    x = simplify.curve(load(name), "channels")
+    m, init = _search_inputs(x)
+    args = (x, m, init, curvefit.DEFAULT_KEY_COST, 100, curvefit.DEFAULT_TOL)
+    keys, cost, history = curvefit.fit_channels(*args)
+    ref_keys, ref_cost, ref_history = reference.fit_channels(*args)
+    assert len(history) > 2  # several passes
+    assert all(np.array_equal(k, r) for k, r in zip(keys, ref_keys, strict=True))
+    np.testing.assert_array_equal(cost, ref_cost)
+    assert history == ref_history
+
+
+@pytest.mark.parametrize(("key_cost", "passes", "tol"), [(0.0, 3, 0.0), (5.0, 100, 0.0),
+                                                        (1.0, 0, 1e-3), (0.3, 100, 0.5)])
+def test_search_kernel_matches_the_numpy_search_for_other_parameters(
+        key_cost: float, passes: int, tol: float) -> None:
+    x = simplify.curve(load("06_08.bvh"), "channels")[:, ::7]
+    m, init = _search_inputs(x)
+    keys, cost, history = curvefit.fit_channels(x, m, init, key_cost, passes, tol)
+    ref_keys, ref_cost, ref_history = reference.fit_channels(x, m, init, key_cost, passes, tol)
+    assert all(np.array_equal(k, r) for k, r in zip(keys, ref_keys, strict=True))
+    np.testing.assert_array_equal(cost, ref_cost)
+    assert history == ref_history
+
+
+def _digest(k: Keyframes) -> str:
+    blob = json.dumps({"per_channel": k.info["per_channel"], "cost_history": k.info["cost_history"],
+                       "mse_per_channel": k.info["mse_per_channel"]})
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", CLIPS)
+def test_curvefit_gives_the_numpy_searchs_result_on_every_shared_clip(name: str) -> None:
+    """Per-channel keys, cost history and MSE as the numpy search gave them (sha256 digests
+    recorded with it before the kernel landed: tests/curvefit_digests.json)."""
+    recorded = json.loads((Path(__file__).parent / "curvefit_digests.json").read_text())
+    assert _digest(fitted(name)) == recorded[name]
+
+
+@pytest.mark.parametrize("name", ["07_01.bvh", "05_11.amc"])
+def test_curvefit_with_the_features_rotations_equals_curvefit_without(name: str) -> None:
+    motion = load(name)
+    with_features = curvefit.extract(motion, features=compute_features(motion))
+    assert with_features.info == fitted(name).info
+    np.testing.assert_array_equal(with_features.frames, fitted(name).frames)
+
+
+@pytest.mark.parametrize("name", ["07_01.bvh", "49_18.amc"])
+def test_hermite_kernel_rebuilds_channels_bit_for_bit_as_the_numpy_form(name: str) -> None:
+    motion = load(name)
+    x = simplify.curve(motion, "channels")
+    m = curvefit.tangents(x)
+    keys = [np.asarray(k) - motion.first_frame for k in fitted(name).info["per_channel"]]
+    keys[0] = keys[0][1:-1]  # a channel whose keys leave frames outside: extrapolated
+    keys[1] = keys[1][:1]  # a single key: the data kept
+    np.testing.assert_array_equal(curvefit.hermite_curves(x, m, keys),
+                                  reference.hermite_curves(x, m, keys))
+    np.testing.assert_array_equal(curvefit._cost(x, m, keys, 1.0),
+                                  reference._cost(x, m, keys, 1.0))

@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import csv
+import hashlib
+import json
+import math
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -91,6 +95,40 @@ def test_initial_classes_break_at_large_steps_and_far_from_the_class_centre() ->
     assert starts.tolist() == [0, 3, 7]
 
 
+def python_initial_classes(y: np.ndarray, adjacent: np.ndarray, d_t: float,
+                           scale: np.ndarray) -> np.ndarray:
+    """The paper's two rules as a plain loop over frames (the numpy form the kernel replaced:
+    the same row products, centre division and `diff @ diff`)."""
+    starts, total, count = [0], None, 0
+    for f, row in enumerate(y * scale):
+        if total is None:
+            total, count = row.copy(), 1
+            continue
+        diff = row - total / count
+        if adjacent[f - 1] >= d_t or math.sqrt(diff @ diff) >= d_t:
+            starts.append(f)
+            total, count = row.copy(), 1
+        else:
+            total += row
+            count += 1
+    return np.array(starts)
+
+
+@pytest.mark.parametrize("name", ["05_06.bvh", "49_18.amc", "131_03.bvh"])
+def test_initial_classes_kernel_equals_the_frame_by_frame_loop(name: str) -> None:
+    motion = load(name)
+    x = isodata.pose_vectors(motion.skeleton, motion.channels[motion.first_frame :])
+    x = x.reshape(len(x), -1)
+    scale = np.repeat(np.sqrt(isodata.joint_weights(motion.skeleton)), 4)
+    adjacent = np.linalg.norm(np.diff(x * scale, axis=0), axis=1)
+    d_t = isodata.min_dispersion_split(adjacent, isodata.OUTLIER_FENCE)[1]
+    for threshold in (d_t, d_t / 2, d_t / 4):
+        starts = isodata.initial_classes(x, adjacent, threshold, scale)
+        assert len(starts) > 10
+        np.testing.assert_array_equal(starts, python_initial_classes(x, adjacent, threshold,
+                                                                     scale))
+
+
 def test_derived_parameters_follow_the_papers_120_hz_values() -> None:
     p = isodata.derived_parameters(2500, 120.0, isodata.CLUSTER_SECONDS)
     assert p == {"K": 100, "O_N": 25, "I": 13}  # I = ceil(N / 2K), eq. 6
@@ -171,3 +209,35 @@ def test_isodata_agrees_on_the_bvh_and_amc_copies_of_a_clip_within_a_few_keys() 
 def test_isodata_rejects_bad_parameters(bad: dict[str, float]) -> None:
     with pytest.raises(UsageError):
         isodata.extract(load("07_01.bvh"), **bad)  # type: ignore[arg-type]
+
+
+def _digest(k: Keyframes) -> str:
+    blob = json.dumps({"frames": k.frames.tolist(), "scores": k.scores.tolist(),
+                       "starts": np.asarray(k.info["class_starts"]).tolist(),
+                       "history": k.info["history"], "O_s": k.info["O_s"], "D_T": k.info["D_T"]})
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", CLIPS)
+def test_isodata_gives_the_numpy_forms_result_on_every_shared_clip(name: str) -> None:
+    """Keyframes, class starts, thresholds and history as before the kernel and the blocked
+    centres (sha256 digests recorded then: tests/isodata_digests.json), with and without
+    precomputed features."""
+    recorded = json.loads((Path(__file__).parent / "isodata_digests.json").read_text())
+    motion = load(name)
+    assert _digest(isodata.extract(motion)) == recorded[name]
+    features = compute_features(motion)
+    assert _digest(isodata.extract(motion, features=features)) == recorded[name + "+features"]
+
+
+def test_prefix_kernel_gives_the_running_sums_of_one_cumsum_bit_for_bit() -> None:
+    motion = load("05_06.bvh")
+    x = isodata.pose_vectors(motion.skeleton, motion.channels[motion.first_frame :])
+    x = x.reshape(len(x), -1)
+    scale = np.repeat(np.sqrt(isodata.joint_weights(motion.skeleton)), 4)
+    st = isodata._Stats(x, scale)
+    cumulative = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x * scale, axis=0)])
+    idx = np.array([0, 1, 7, 8, 9, len(x) - 1, len(x), 333, 16, 15])
+    np.testing.assert_array_equal(st.prefix(idx), cumulative[idx])
+    np.testing.assert_array_equal(st.prefix(np.arange(len(x) + 1)), cumulative)
