@@ -147,6 +147,7 @@ def test_carried_hp_passes_equal_lapack_solves_of_the_stream_so_far(window: int)
     pre, off, conv = speed.packed_factors(lams)
     region, fresh = 150, 72
     ys = np.zeros((region + 4, len(lams)))
+    scratch = np.full((window + 2, len(lams)), np.nan)
     done, checked = 0, 0
     for end in range(100, len(v_all) + 1, 24):
         g0 = max(0, end - window)
@@ -155,7 +156,7 @@ def test_carried_hp_passes_equal_lapack_solves_of_the_stream_so_far(window: int)
         if upto > done:
             done = kern.hp_advance(v, g0, done, upto, ys, pre, off, conv)
         lo = max(0, len(v) - region - 1)
-        trends = kern.hp_tail(v, g0, lo, done, ys, pre, off, conv, lams)
+        trends = kern.hp_tail(v, g0, lo, done, ys, pre, off, conv, lams, scratch)
         if end % 480 == 4 or end + 24 > len(v_all):
             for i in range(len(lams)):
                 ref = bank.solve(v_all[:end], i)[g0 + lo :]

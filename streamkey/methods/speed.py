@@ -117,11 +117,16 @@ _PACKED: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # lambdas 
 # one thread, and a race between threads could at worst build a table twice.
 
 
+_SCRATCH: dict[int, np.ndarray] = {}  # lambdas -> `hp_tail` work rows (consumed at once)
+
+
 def packed_factors(lams: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The interior columns of every lambda's HP factor (`signal.hp_factor`) side by side for
     `speed_kernels.hp_tail`: LAPACK's first columns of lambda i at `off[i]:off[i + 1]` of
-    `pre` (3, total), and the converged columns `conv` (3, len(lams)). Derived data shared
-    by every stream with the same lambdas (2.4 MB at 120 fps with the defaults), never pickled.
+    `pre` (3, total), and the converged columns `conv` (4, len(lams): the fourth row holds the
+    reciprocals of the diagonal; the kernels multiply where the columns are constant).
+    Derived data shared by every stream with the same lambdas (2.4 MB at 120 fps with the
+    defaults), never pickled.
     """
     key = np.asarray(lams, dtype=np.float64).tobytes()
     got = _PACKED.get(key)
@@ -129,7 +134,8 @@ def packed_factors(lams: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
         cols = [hp_prefix(float(lam)) for lam in lams]
         off = np.concatenate([[0], np.cumsum([c.shape[1] for c in cols])]).astype(np.int64)
         pre = np.ascontiguousarray(np.concatenate(cols, axis=1))
-        conv = np.ascontiguousarray(np.stack([c[:, -1] for c in cols], axis=1))
+        conv = np.stack([c[:, -1] for c in cols], axis=1)
+        conv = np.ascontiguousarray(np.vstack([conv, 1.0 / conv[2:]]))
         if len(_PACKED) >= 16:
             _PACKED.clear()
         got = _PACKED[key] = (pre, off, conv)
@@ -474,25 +480,28 @@ class _Ring:
 
     def extend(self, first_seq: int, rows: np.ndarray, times: np.ndarray) -> None:
         """Append consecutive frames starting at `first_seq`; drop the oldest beyond capacity."""
-        if len(self) == 0:
+        k, start, end = len(rows), self._start, self._end
+        held = end - start
+        if held == 0:
             self.first_seq = first_seq
-        need = len(self) + len(rows)
-        if self._end + len(rows) > len(self._rows):
+        if end + k > len(self._rows):
+            need = held + k
             size = max(16, min(2 * self.capacity, 2 * need))
-            keep = slice(self._start, self._end)
             rows_new = np.empty((max(size, need), self.width))
             times_new = np.empty(len(rows_new))
-            rows_new[: len(self)] = self._rows[keep]
-            times_new[: len(self)] = self._times[keep]
+            rows_new[:held] = self._rows[start:end]
+            times_new[:held] = self._times[start:end]
             self._rows, self._times = rows_new, times_new
-            self._start, self._end = 0, len(self)
-        self._rows[self._end : self._end + len(rows)] = rows
-        self._times[self._end : self._end + len(rows)] = times
-        self._end += len(rows)
-        drop = max(0, len(self) - self.capacity)
-        self._start += drop
-        self.first_seq += drop
-        self.dropped_since += drop
+            start, end = 0, held
+        self._rows[end : end + k] = rows
+        self._times[end : end + k] = times
+        self._end = end + k
+        drop = held + k - self.capacity
+        if drop > 0:
+            start += drop
+            self.first_seq += drop
+            self.dropped_since += drop
+        self._start = start
 
     def rows(self) -> np.ndarray:
         """The held rows, oldest first (a view)."""
@@ -575,7 +584,7 @@ class Online(OnlineKeyframer):
         # Two thirds of the hop: the mean online/offline F1 on the shared clips is 0.867 with
         # no spread, 0.856 / 0.854 / 0.853 / 0.849 spread over 8 / 12 / 16 / 23 frames.
         self.delay = max(0, min(2 * self.hop // 3, self.lookahead - self.hop - 2))
-        self._joints = [self.features.roles[name] for name in MIURA_ROLES]
+        self._joints = np.array([self.features.roles[name] for name in MIURA_ROLES])
         self._height = self.features.body_height
         self._lams = scale_lambdas(scale_frequencies(f_max, f_min, r), 1.0 / self.fps)
         # Region re-analysed by a regular update: the lookahead plus room for the DP context.
@@ -622,24 +631,27 @@ class Online(OnlineKeyframer):
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Append frames, doing each frame's share of the running analysis; every `hop`
         frames start the next one. The block's last frame leaves its share to `idle`."""
-        rows = block.pelvis_positions[:, self._joints].reshape(len(block), -1) / self._height
-        if self._resume_after is not None and len(block):
-            shift = int(block.seq[0]) - 1 - self._resume_after
+        seqs, n, hop = block.seq, len(block.seq), self.hop
+        # Rows as captured (in the pelvis frame); divided by the body height per analysis.
+        rows = block.pelvis_positions[:, self._joints].reshape(n, -1)
+        if self._resume_after is not None and n:
+            shift = int(seqs[0]) - 1 - self._resume_after
             if shift < 0:  # the source started over: the kept history stays in the past
                 self._hist_seq = deque(seq + shift for seq in self._hist_seq)
             self._resume_after = None
         events: list[KeyframeEvent] = []
         i = 0
-        while i < len(block):
-            take = min(len(block) - i, self.hop - self._count % self.hop)
-            self._ring.extend(int(block.seq[i]), rows[i : i + take], block.time[i : i + take])
+        while i < n:
+            take = min(n - i, hop - self._count % hop)
+            self._ring.extend(int(seqs[i]), rows[i : i + take], block.time[i : i + take])
             self._count += take
             i += take
-            self._last_seq = int(block.seq[i - 1])
-            self._advance(self._count if i < len(block) else self._count - 1)
-            events.extend(self._emit())
-            if self._count % self.hop == 0:
-                if i < len(block):
+            self._last_seq = int(seqs[i - 1])
+            self._advance(self._count if i < n else self._count - 1)
+            if self._scheduled:
+                events.extend(self._emit())
+            if self._count % hop == 0:
+                if i < n:
                     self._schedule()
                     events.extend(self._emit())
                 else:  # the block's last frame: start the analysis in `idle`
@@ -653,7 +665,7 @@ class Online(OnlineKeyframer):
         if self._analysis_due:
             self._analysis_due = False
             self._schedule()
-        return self._emit()
+        return self._emit() if self._scheduled else []
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: analyse the whole window and decide every candidate not yet sent.
@@ -711,9 +723,9 @@ class Online(OnlineKeyframer):
         seg = self._fresh + self._pos_settle
         old = self._v[self._ring.dropped_since :][: n - 1 - self._fresh]
         if n <= seg or len(old) < n - 1 - self._fresh:
-            snap, old = rows.copy(), None
+            snap, old = rows / self._height, None
         else:
-            snap = rows[n - seg :].copy()
+            snap = rows[n - seg :] / self._height
         self._g0 += self._ring.dropped_since
         self._ring.dropped_since = 0
         # Decided (sent or not) in the last `cutoff_history` frames: intensities as decided.
@@ -765,8 +777,12 @@ class Online(OnlineKeyframer):
             v, g0 = job.v, job.g0 - self._hp_base
             if g0 + len(v) >= 5:
                 pre, off, conv = packed_factors(self._lams)
+                rows = g0 + len(v) - max(0, min(g0 + job.lo_trend, self._hp_done - 2))
+                scratch = _SCRATCH.get(len(self._lams))
+                if scratch is None or len(scratch) < rows:
+                    scratch = _SCRATCH[len(self._lams)] = np.empty((rows, len(self._lams)))
                 trends = hp_tail(v, g0, job.lo_trend, self._hp_done, self._hp_y, pre, off,
-                                 conv, self._lams)
+                                 conv, self._lams, scratch)
             else:  # a system too short for the corner formulas (g0 is 0): whole solves
                 trends = np.stack([self._bank.solve(v, j)[job.lo_trend :]
                                    for j in range(2 * s)], axis=1)
@@ -796,7 +812,7 @@ class Online(OnlineKeyframer):
 
     def _speed(self) -> np.ndarray:
         """Speed over the whole window (at flush)."""
-        self._v = speed_signal(self._ring.rows(), 1.0 / self.fps, self.f_c)
+        self._v = speed_signal(self._ring.rows() / self._height, 1.0 / self.fps, self.f_c)
         self._ring.dropped_since = 0
         return self._v
 

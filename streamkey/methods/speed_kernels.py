@@ -34,6 +34,23 @@ def _column(pre: np.ndarray, off: np.ndarray, lam: int, j: int
 
 
 @kernel
+def _forward_row(x: float, g: int, y: np.ndarray, y1: np.ndarray, y2: np.ndarray,
+                 pre: np.ndarray, off: np.ndarray, conv: np.ndarray) -> None:
+    """Forward row g of every lambda (y1, y2: rows g-1, g-2), factors not all converged."""
+    for lam in range(len(y)):
+        if g >= off[lam + 1] - off[lam]:  # converged: the constant column
+            y[lam] = ((x - conv[0, lam] * y2[lam]) - conv[1, lam] * y1[lam]) * conv[3, lam]
+        else:
+            c = off[lam] + g
+            t = x
+            if g >= 2:
+                t = t - pre[0, c] * y2[lam]
+            if g >= 1:
+                t = t - pre[1, c] * y1[lam]
+            y[lam] = t / pre[2, c]
+
+
+@kernel
 def hp_advance(v: np.ndarray, g0: int, done: int, upto: int, ys: np.ndarray, pre: np.ndarray,
                off: np.ndarray, conv: np.ndarray) -> int:
     """Forward substitution of every lambda over stream rows done..upto-1 (speed g is
@@ -47,34 +64,29 @@ def hp_advance(v: np.ndarray, g0: int, done: int, upto: int, ys: np.ndarray, pre
         x = v[g - g0]
         r, r1, r2 = g % n_ring, (g - 1) % n_ring, (g - 2) % n_ring
         if g >= k_max:  # every factor has converged: constant columns
+            y, y1, y2 = ys[r], ys[r1], ys[r2]
             for lam in range(n_lam):
-                ys[r, lam] = ((x - conv[0, lam] * ys[r2, lam]) - conv[1, lam] * ys[r1, lam]
-                              ) / conv[2, lam]
+                y[lam] = ((x - conv[0, lam] * y2[lam]) - conv[1, lam] * y1[lam]) * conv[3, lam]
         else:
-            for lam in range(n_lam):
-                c0, c1, c2 = _column(pre, off, lam, g)
-                t = x
-                if g >= 2:
-                    t = t - c0 * ys[r2, lam]
-                if g >= 1:
-                    t = t - c1 * ys[r1, lam]
-                ys[r, lam] = t / c2
+            _forward_row(x, g, ys[r], ys[r1], ys[r2], pre, off, conv)
     return upto
 
 
 @kernel
 def hp_tail(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.ndarray,
-            off: np.ndarray, conv: np.ndarray, lams: np.ndarray) -> np.ndarray:
+            off: np.ndarray, conv: np.ndarray, lams: np.ndarray, scratch: np.ndarray
+            ) -> np.ndarray:
     """HP trends of every lambda at stream rows g0+lo .. N-1 (N = g0 + len(v) >= 5: the
     system since the stream's start), rows x lambdas. Forward values before row `done` come
     from the ring `ys` (`hp_advance`); rows done..N-1 are solved here, the last two with the
     factor's bottom corner (the arithmetic of `signal.hp_factor`), then the back
-    substitution (U x = y, bottom up) down to row g0 + lo."""
+    substitution (U x = y, bottom up) down to row g0 + lo. The result is a view of
+    `scratch` (a buffer of at least N - g0 - lo + 2 rows, reused: no page faults per call)."""
     n_ring, n_lam = ys.shape
     big_n = g0 + len(v)
     lo_g = g0 + lo
     e0 = max(0, min(lo_g, done - 2))
-    out = np.empty((big_n - e0, n_lam))
+    out = scratch[: big_n - e0]
     for g in range(e0, done):
         out[g - e0] = ys[g % n_ring]
     k_max = 0
@@ -84,18 +96,11 @@ def hp_tail(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.
         x = v[g - g0]
         i = g - e0
         if g >= k_max:
+            y, y1, y2 = out[i], out[i - 1], out[i - 2]
             for lam in range(n_lam):
-                out[i, lam] = ((x - conv[0, lam] * out[i - 2, lam])
-                               - conv[1, lam] * out[i - 1, lam]) / conv[2, lam]
+                y[lam] = ((x - conv[0, lam] * y2[lam]) - conv[1, lam] * y1[lam]) * conv[3, lam]
         else:
-            for lam in range(n_lam):
-                c0, c1, c2 = _column(pre, off, lam, g)
-                t = x
-                if g >= 2:
-                    t = t - c0 * out[i - 2, lam]
-                if g >= 1:
-                    t = t - c1 * out[i - 1, lam]
-                out[i, lam] = t / c2
+            _forward_row(x, g, out[i], out[i - 1], out[i - 2], pre, off, conv)
     i = big_n - 2 - e0
     for lam in range(n_lam):  # the bottom corner, forward and back
         u0, u1, _ = _column(pre, off, lam, big_n - 2)
@@ -110,15 +115,21 @@ def hp_tail(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.
     for g in range(big_n - 3, lo_g - 1, -1):
         i = g - e0
         if g >= k_max:
+            x0, x1, x2 = out[i], out[i + 1], out[i + 2]
             for lam in range(n_lam):
-                out[i, lam] = ((out[i, lam] - out[i + 2, lam] * conv[0, lam])
-                               - out[i + 1, lam] * conv[1, lam]) / conv[2, lam]
+                x0[lam] = ((x0[lam] - x2[lam] * conv[0, lam]) - x1[lam] * conv[1, lam]
+                           ) * conv[3, lam]
         else:
+            x0, x1, x2 = out[i], out[i + 1], out[i + 2]
             for lam in range(n_lam):
-                c2 = _column(pre, off, lam, g)[2]
-                c1 = _column(pre, off, lam, g + 1)[1]
-                c0 = _column(pre, off, lam, g + 2)[0]
-                out[i, lam] = ((out[i, lam] - out[i + 2, lam] * c0) - out[i + 1, lam] * c1) / c2
+                if g + 1 >= off[lam + 1] - off[lam]:  # columns g..g+2 have converged
+                    x0[lam] = ((x0[lam] - x2[lam] * conv[0, lam]) - x1[lam] * conv[1, lam]
+                               ) * conv[3, lam]
+                else:
+                    c2 = _column(pre, off, lam, g)[2]
+                    c1 = _column(pre, off, lam, g + 1)[1]
+                    c0 = _column(pre, off, lam, g + 2)[0]
+                    x0[lam] = ((x0[lam] - x2[lam] * c0) - x1[lam] * c1) / c2
     return out[lo_g - e0 :]
 
 
@@ -128,20 +139,25 @@ def tail_minima(trends: np.ndarray, n_scales: int, lo: int, start: int
     """Per scale s: local minima m >= start of column s of `trends` (rows from frame lo),
     u = |trend_s - trend_(S+s)| there. Flat (m, u) and per-scale counts."""
     rows = trends.shape[0]
-    ms = np.empty(n_scales * max(rows // 2, 1), dtype=np.int64)
-    us = np.empty(len(ms))
-    counts = np.zeros(n_scales, dtype=np.int64)
-    k = 0
     first = max(1, start - lo)
+    minimum = np.zeros((rows, n_scales), dtype=np.bool_)
+    counts = np.zeros(n_scales, dtype=np.int64)
+    for i in range(first, rows - 1):  # row by row: the trends' memory order
+        before, here, after = trends[i - 1], trends[i], trends[i + 1]
+        for s in range(n_scales):
+            if here[s] < before[s] and here[s] <= after[s]:
+                minimum[i, s] = True
+                counts[s] += 1
+    ms = np.empty(counts.sum(), dtype=np.int64)
+    us = np.empty(len(ms))
+    k = 0
     for s in range(n_scales):
         for i in range(first, rows - 1):
-            x = trends[i, s]
-            if x < trends[i - 1, s] and x <= trends[i + 1, s]:
+            if minimum[i, s]:
                 ms[k] = i + lo
-                us[k] = abs(x - trends[i, n_scales + s])
+                us[k] = abs(trends[i, s] - trends[i, n_scales + s])
                 k += 1
-                counts[s] += 1
-    return ms[:k], us[:k], counts
+    return ms, us, counts
 
 
 @kernel
@@ -205,37 +221,37 @@ def chain_totals(candidates: np.ndarray, minima: np.ndarray, u: np.ndarray,
 
 
 @kernel
-def _heap_less(hd: np.ndarray, hi: np.ndarray, hs: np.ndarray, x: int, y: int) -> bool:
-    """Entry x before entry y: (level, left, right, size) compared as tuples."""
-    if hd[x] != hd[y]:
-        return hd[x] < hd[y]
-    if hi[x, 0] != hi[y, 0]:
-        return hi[x, 0] < hi[y, 0]
-    if hi[x, 1] != hi[y, 1]:
-        return hi[x, 1] < hi[y, 1]
-    return hs[x] < hs[y]
+def _before(level: np.ndarray, x: int, y: int) -> bool:
+    """Pair x pops before pair y: (level, left cluster) compared as a tuple (a current pair
+    is named by its left cluster, which fixes its right one and its size)."""
+    return level[x] < level[y] or (level[x] == level[y] and x < y)
 
 
 @kernel
-def _heap_swap(hd: np.ndarray, hi: np.ndarray, hs: np.ndarray, x: int, y: int) -> None:
-    hd[x], hd[y] = hd[y], hd[x]
-    hi[x, 0], hi[y, 0] = hi[y, 0], hi[x, 0]
-    hi[x, 1], hi[y, 1] = hi[y, 1], hi[x, 1]
-    hs[x], hs[y] = hs[y], hs[x]
-
-
-@kernel
-def _sift_down(hd: np.ndarray, hi: np.ndarray, hs: np.ndarray, pos: int, size: int) -> None:
+def _sift(heap: np.ndarray, pos: np.ndarray, level: np.ndarray, at: int, size: int,
+          up: bool) -> None:
+    """Restore the heap order around position `at` (up if `up`, then down)."""
+    x = heap[at]
+    while up and at > 0:
+        parent = (at - 1) // 2
+        if not _before(level, x, heap[parent]):
+            break
+        heap[at] = heap[parent]
+        pos[heap[at]] = at
+        at = parent
     while True:
-        a = 2 * pos + 1
-        if a >= size:
-            return
-        if a + 1 < size and _heap_less(hd, hi, hs, a + 1, a):
-            a += 1
-        if not _heap_less(hd, hi, hs, a, pos):
-            return
-        _heap_swap(hd, hi, hs, a, pos)
-        pos = a
+        child = 2 * at + 1
+        if child >= size:
+            break
+        if child + 1 < size and _before(level, heap[child + 1], heap[child]):
+            child += 1
+        if not _before(level, heap[child], x):
+            break
+        heap[at] = heap[child]
+        pos[heap[at]] = at
+        at = child
+    heap[at] = x
+    pos[x] = at
 
 
 @kernel
@@ -243,54 +259,57 @@ def ward_levels(v: np.ndarray, two: float) -> tuple[np.ndarray, np.ndarray]:
     """`speed.ward_1d` on sorted values v: fusion levels in merge order, and per merge the
     sorted position where its right cluster starts. `two` = 2.0, passed at run time: the
     first levels are 0.5 d ** two through libm's pow, as Python's `d ** 2` (x * x differs in
-    the last bit for ~1 d in 1,000)."""
+    the last bit for ~1 d in 1,000).
+
+    The heapq version pushed a (level, left, right, size) tuple per new neighbour pair and
+    skipped stale ones; its pops are the least tuple among the current pairs. Here each
+    current pair has one entry, keyed (level, left) and updated in place: the same pops."""
     n = len(v)
-    cap = max(3 * n, 1)
-    hd = np.empty(cap)
-    hi = np.empty((cap, 2), dtype=np.int64)
-    hs = np.empty(cap)
     size = np.ones(n)
     total = v.copy()
     left = np.arange(-1, n - 1)
     right = np.arange(1, n + 1)
-    alive = np.ones(n, dtype=np.bool_)
+    level = np.empty(max(n - 1, 1))
+    heap = np.arange(max(n - 1, 0))
+    pos = np.arange(max(n - 1, 0))
     for i in range(n - 1):
         d = v[i + 1] - v[i]
-        hd[i], hi[i, 0], hi[i, 1], hs[i] = 0.5 * d**two, i, i + 1, 2.0
+        level[i] = 0.5 * d**two
     h = max(n - 1, 0)
-    for pos in range(h // 2 - 1, -1, -1):
-        _sift_down(hd, hi, hs, pos, h)
+    for at in range(h // 2 - 1, -1, -1):
+        _sift(heap, pos, level, at, h, False)
     alpha = np.empty(max(n - 1, 0))
     bounds = np.empty(max(n - 1, 0), dtype=np.int64)
-    done = 0
-    while done < n - 1:
-        d, a, b, both = hd[0], hi[0, 0], hi[0, 1], hs[0]
-        h -= 1
-        _heap_swap(hd, hi, hs, 0, h)
-        _sift_down(hd, hi, hs, 0, h)
-        if not (alive[a] and alive[b]) or right[a] != b or size[a] + size[b] != both:
-            continue  # stale: one side has grown since
-        alpha[done], bounds[done] = 2.0 * d, b
-        done += 1
-        alive[b] = False
+    for done in range(n - 1):
+        a = heap[0]
+        b = right[a]
+        alpha[done], bounds[done] = 2.0 * level[a], b
+        h -= 1  # a leaves the heap ...
+        if h > 0:
+            heap[0] = heap[h]
+            _sift(heap, pos, level, 0, h, False)
+        if right[b] < n:  # ... and so does b's pair with its right neighbour
+            at = pos[b]
+            h -= 1
+            if at < h:
+                heap[at] = heap[h]
+                _sift(heap, pos, level, at, h, True)
         size[a] += size[b]
         total[a] += total[b]
         right[a] = right[b]
         if right[a] < n:
             left[right[a]] = a
-        for x, y in ((left[a], a), (a, right[a])):
-            if 0 <= x and y < n:
-                nx, ny = size[x], size[y]
-                diff = total[x] / nx - total[y] / ny
-                hd[h], hi[h, 0], hi[h, 1], hs[h] = nx * ny / (nx + ny) * diff * diff, x, y, nx + ny
-                pos = h
-                h += 1
-                while pos > 0:  # sift up
-                    parent = (pos - 1) // 2
-                    if not _heap_less(hd, hi, hs, pos, parent):
-                        break
-                    _heap_swap(hd, hi, hs, pos, parent)
-                    pos = parent
+            y = right[a]  # a's new pair: back in the heap
+            diff = total[a] / size[a] - total[y] / size[y]
+            level[a] = size[a] * size[y] / (size[a] + size[y]) * diff * diff
+            heap[h] = a
+            h += 1
+            _sift(heap, pos, level, h - 1, h, True)
+        x = left[a]
+        if x >= 0:  # the left neighbour's pair: new level, in place
+            diff = total[x] / size[x] - total[a] / size[a]
+            level[x] = size[x] * size[a] / (size[x] + size[a]) * diff * diff
+            _sift(heap, pos, level, pos[x], h, True)
     return alpha, bounds
 
 
@@ -298,12 +317,12 @@ def ward_levels(v: np.ndarray, two: float) -> tuple[np.ndarray, np.ndarray]:
 def _warm() -> None:
     """Compile (or load) every kernel of this module on tiny inputs."""
     lams = np.array([2.0, 30.0])
-    pre, conv = np.ones((3, 4)), np.ones((3, 2))
+    pre, conv = np.ones((3, 4)), np.ones((4, 2))
     off = np.array([0, 2, 4], dtype=np.int64)
     ys = np.zeros((8, 2))
     v = np.linspace(0.0, 1.0, 7)
     done = hp_advance(v, 0, 0, 3, ys, pre, off, conv)
-    trends = hp_tail(v, 0, 0, done, ys, pre, off, conv, lams)
+    trends = hp_tail(v, 0, 0, done, ys, pre, off, conv, lams, np.empty((9, 2)))
     m, u, c = tail_minima(trends, 1, 0, 1)
     tail_minima(np.ascontiguousarray(trends), 1, 0, 1)
     chain_totals(np.array([1, 3], dtype=np.int64), m, u, c)
