@@ -169,5 +169,29 @@ def test_carried_hp_passes_equal_lapack_solves_of_the_stream_so_far(window: int)
 def test_the_warmer_compiles_every_kernel() -> None:
     kern._warm()
     for fn in (kern.hp_advance, kern.hp_tail, kern.tail_minima, kern.chain_totals,
-               kern.band_offsets, kern.ward_levels):
+               kern.band_offsets, kern.ward_levels, kern.ward_labels, kern.dropped_threshold):
         assert fn.compiled is not None and fn.compiled.signatures
+
+
+def test_ward_labels_and_dropped_threshold_equal_the_numpy_steps() -> None:
+    rng = np.random.default_rng(18)
+    values = np.array([0.0, 0.5, 2.0, 7.25])
+    for case in range(200):
+        u = np.concatenate([rng.choice(values, int(rng.integers(0, 30))),
+                            np.abs(rng.standard_cauchy(int(rng.integers(3, 300))))])
+        rng.shuffle(u)
+        alpha, order, bounds = speed.ward_1d(u)
+        n_clusters = int(rng.integers(2, min(len(u), 12)))
+        merged = np.zeros(len(u), dtype=bool)  # the numpy steps of the previous version
+        merged[bounds[alpha <= alpha[len(u) - 1 - n_clusters]]] = True
+        labels = np.empty(len(u), dtype=np.int64)
+        labels[order] = np.cumsum(~merged) - 1
+        assert np.array_equal(kern.ward_labels(order, alpha, bounds, n_clusters), labels)
+        zero = np.flatnonzero(u == 0)
+        if len(zero):
+            drop = labels[zero[0]]
+        else:
+            drop = int(np.argmin(np.bincount(labels, weights=u) / np.bincount(labels)))
+        threshold = float(u[labels == drop].max())
+        contiguous = bool(np.all((u > threshold) == (labels != drop)))
+        assert kern.dropped_threshold(u, labels) == (threshold, contiguous), case

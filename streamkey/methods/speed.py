@@ -79,7 +79,16 @@ from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
 from ..signal import HP_SETTLE, hp_factor, hp_filter, hp_lambda, hp_prefix, hp_settle, local_minima
-from .speed_kernels import band_offsets, chain_totals, hp_advance, hp_tail, tail_minima, ward_levels
+from .speed_kernels import (
+    band_offsets,
+    chain_totals,
+    dropped_threshold,
+    hp_advance,
+    hp_tail,
+    tail_minima,
+    ward_labels,
+    ward_levels,
+)
 
 __all__ = ["extract", "scale_frequencies", "speed_signal", "HPBank", "scale_minima",
            "match_minima", "intensities", "mojena_threshold", "MojenaResult", "METHOD", "Online",
@@ -403,22 +412,11 @@ def mojena_threshold(u: np.ndarray, k: float = 2.75) -> MojenaResult:
         return MojenaResult(0.0, 1, cutoff, True)
     # Ward is monotone: cutting just above the last level kept gives exactly n_clusters.
     if len(u) >= WARD_1D_FROM:
-        merged = np.zeros(len(u), dtype=bool)  # boundary before sorted position i merged
-        cut = alpha[len(u) - 1 - n_clusters]
-        merged[bounds[alpha <= cut]] = True
-        labels = np.empty(len(u), dtype=np.int64)
-        labels[order] = np.cumsum(~merged) - 1
+        labels = ward_labels(order, alpha, bounds, n_clusters)
     else:
         labels = fcluster(z, z[len(u) - 1 - n_clusters, 2], criterion="distance") - 1
-    zero = np.flatnonzero(u == 0)
-    if len(zero):
-        drop = labels[zero[0]]
-    else:
-        means = np.bincount(labels, weights=u) / np.bincount(labels)
-        drop = int(np.argmin(means))
-    threshold = float(u[labels == drop].max())
-    contiguous = bool(np.all((u > threshold) == (labels != drop)))
-    return MojenaResult(threshold, n_clusters, cutoff, contiguous)
+    threshold, contiguous = dropped_threshold(u, labels.astype(np.int64))
+    return MojenaResult(float(threshold), n_clusters, cutoff, bool(contiguous))
 
 
 def _positions(motion: Motion, features: Features | None) -> np.ndarray:

@@ -12,6 +12,9 @@
 - `ward_levels`: `speed.ward_1d`'s greedy merging of sorted neighbours with an array heap.
   Merges pop in the order of the (level, left, right, size) tuples, like the heapq version,
   so the hierarchy and the levels are the same.
+- `ward_labels`, `dropped_threshold`: the rest of `speed.mojena_threshold` (clusters of the
+  cut, the dropped cluster and its largest intensity): integer work, comparisons and
+  sums in numpy's order, so the same numbers.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import numpy as np
 from ..jit import kernel, warmer
 
 __all__ = ["hp_advance", "hp_tail", "tail_minima", "chain_totals", "band_offsets",
-           "ward_levels"]
+           "ward_levels", "ward_labels", "dropped_threshold"]
 
 
 @kernel
@@ -313,6 +316,58 @@ def ward_levels(v: np.ndarray, two: float) -> tuple[np.ndarray, np.ndarray]:
     return alpha, bounds
 
 
+@kernel
+def ward_labels(order: np.ndarray, alpha: np.ndarray, bounds: np.ndarray, n_clusters: int
+                ) -> np.ndarray:
+    """Cluster label of each value (in `u`'s order) when `ward_levels`' hierarchy is cut
+    into `n_clusters`: just above the last level kept (Ward is monotone)."""
+    n = len(order)
+    merged = np.zeros(n, dtype=np.bool_)  # boundary before sorted position i merged
+    cut = alpha[n - 1 - n_clusters]
+    for j in range(len(alpha)):
+        if alpha[j] <= cut:
+            merged[bounds[j]] = True
+    labels = np.empty(n, dtype=np.int64)
+    label = -1
+    for i in range(n):
+        if not merged[i]:
+            label += 1
+        labels[order[i]] = label
+    return labels
+
+
+@kernel
+def dropped_threshold(u: np.ndarray, labels: np.ndarray) -> tuple[float, bool]:
+    """The dropped cluster (the one holding the first zero intensity, else the lowest mean:
+    sums in index order, as `np.bincount`) -> (its largest intensity, whether the clusters
+    are intervals of intensity)."""
+    n = len(u)
+    drop = -1
+    for i in range(n):
+        if u[i] == 0:
+            drop = labels[i]
+            break
+    if drop < 0:
+        sums = np.zeros(labels.max() + 1)
+        counts = np.zeros(len(sums), dtype=np.int64)
+        for i in range(n):
+            sums[labels[i]] += u[i]
+            counts[labels[i]] += 1
+        best = np.inf
+        for label in range(len(sums)):
+            mean = sums[label] / counts[label]
+            if mean < best:
+                best, drop = mean, label
+    threshold = -np.inf
+    for i in range(n):
+        if labels[i] == drop:
+            threshold = max(threshold, u[i])
+    contiguous = True
+    for i in range(n):
+        contiguous = contiguous and (u[i] > threshold) == (labels[i] != drop)
+    return threshold, contiguous
+
+
 @warmer
 def _warm() -> None:
     """Compile (or load) every kernel of this module on tiny inputs."""
@@ -327,4 +382,6 @@ def _warm() -> None:
     tail_minima(np.ascontiguousarray(trends), 1, 0, 1)
     chain_totals(np.array([1, 3], dtype=np.int64), m, u, c)
     band_offsets(np.array([1, 2, 3], dtype=np.int64), np.array([2], dtype=np.int64))
-    ward_levels(np.array([0.0, 1.0, 3.0]), 2.0)
+    alpha, bounds = ward_levels(np.array([0.0, 1.0, 3.0]), 2.0)
+    labels = ward_labels(np.array([2, 0, 1], dtype=np.int64), alpha, bounds, 2)
+    dropped_threshold(np.array([1.0, 0.0, 3.0]), labels)
