@@ -83,7 +83,9 @@ def clip_speed(name: str = "07_01.bvh", frames: int = 0) -> np.ndarray:
 def test_ward_levels_equal_the_heapq_merging_bit_for_bit() -> None:
     rng = np.random.default_rng(15)
     values = np.array([0.0, 0.3, 1.7, 2.25, 9.5, 40.125])
-    cases = [speed.extract(read_bvh(DATA / "07_01.bvh")).info["intensities"]]
+    cases = [speed.extract(read_bvh(DATA / "07_01.bvh")).info["intensities"],
+             np.zeros(5), np.array([0.0, 0.0]), np.array([0.0, 1.0]), np.array([0.0, 2.0, 2.0]),
+             np.array([0.0, 0.0, 0.0, 3.0, 3.0, 0.5]), np.array([-0.0, 0.0, 0.0, 1e-300])]
     for _ in range(300):  # exact duplicates (ties in the heap) plus spread values
         cases.append(np.concatenate([rng.choice(values, int(rng.integers(2, 80))),
                                      np.abs(rng.standard_cauchy(int(rng.integers(0, 600))))]))

@@ -273,17 +273,37 @@ def ward_levels(v: np.ndarray, two: float) -> tuple[np.ndarray, np.ndarray]:
     left = np.arange(-1, n - 1)
     right = np.arange(1, n + 1)
     level = np.empty(max(n - 1, 1))
-    heap = np.arange(max(n - 1, 0))
-    pos = np.arange(max(n - 1, 0))
     for i in range(n - 1):
         d = v[i + 1] - v[i]
         level[i] = 0.5 * d**two
-    h = max(n - 1, 0)
-    for at in range(h // 2 - 1, -1, -1):
-        _sift(heap, pos, level, at, h, False)
     alpha = np.empty(max(n - 1, 0))
     bounds = np.empty(max(n - 1, 0), dtype=np.int64)
-    for done in range(n - 1):
+    # Leading zeros (most intensities, online): their pairs are the least keys, (0, 0) first,
+    # and cluster 0 keeps level 0 while it takes them in turn; merged here, same arithmetic.
+    zeros = 0
+    while zeros < n and v[zeros] == 0:
+        zeros += 1
+    for b in range(1, zeros):
+        alpha[b - 1], bounds[b - 1] = 2.0 * level[0], b
+        size[0] += size[b]
+        total[0] += total[b]
+        right[0] = right[b]
+        if right[0] < n:
+            y = right[0]
+            left[y] = 0
+            diff = total[0] / size[0] - total[y] / size[y]
+            level[0] = size[0] * size[y] / (size[0] + size[y]) * diff * diff
+    merged = max(zeros - 1, 0)
+    heap = np.empty(max(n - 1, 0), dtype=np.int64)
+    pos = np.empty(max(n - 1, 0), dtype=np.int64)
+    h = 0
+    for i in range(n - 1):  # the pairs left: 0's, then those right of the zeros
+        if right[i] < n and (i == 0 or i > merged):
+            heap[h], pos[i] = i, h
+            h += 1
+    for at in range(h // 2 - 1, -1, -1):
+        _sift(heap, pos, level, at, h, False)
+    for done in range(merged, n - 1):
         a = heap[0]
         b = right[a]
         alpha[done], bounds[done] = 2.0 * level[a], b
