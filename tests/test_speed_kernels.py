@@ -115,7 +115,8 @@ def test_chain_totals_equal_the_numpy_chains_on_a_clip(monkeypatch: pytest.Monke
     minima = np.concatenate([m for m, _ in per_scale]).astype(np.int64)
     u = np.concatenate([x for _, x in per_scale])
     counts = np.array([len(m) for m, _ in per_scale], dtype=np.int64)
-    got = kern.chain_totals(cand, minima, u, counts)
+    got = kern.chain_totals(cand, minima, u, counts, speed.BAND_BUDGET)
+    assert len(kern.chain_totals(cand, minima, u, counts, 10)) == 0  # over budget: not done
     monkeypatch.setattr(speed, "_band_dp", numpy_band_dp)
     assert np.array_equal(got, speed.intensities(cand, per_scale))
     assert np.count_nonzero(got) > len(got) // 2

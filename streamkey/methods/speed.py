@@ -760,9 +760,8 @@ class Online(OnlineKeyframer):
                                                         self._fresh)])
             self._v = job.v = v
             job.start = max(0, len(v) - self._region)
-            cand = local_minima(v)
-            job.cand = cand[cand >= job.start]
             job.lo_trend = max(job.start - 1, 0)  # a minimum needs its left neighbour
+            job.cand = local_minima(v[job.lo_trend :]) + job.lo_trend
             g0 = job.g0 - self._hp_base
             if self._hp_done < g0:  # the window outran the carried passes (tiny windows)
                 self._reset_carry(job.g0)
@@ -786,11 +785,8 @@ class Online(OnlineKeyframer):
                                    for j in range(2 * s)], axis=1)
             job.minima, job.u, job.counts = tail_minima(trends, s, job.lo_trend, job.start)
         elif i == 2:  # the chains: intensities
-            sizes = np.concatenate([[len(job.cand)], job.counts])
-            k, p = np.abs(np.diff(sizes)), np.minimum(sizes[1:], sizes[:-1])
-            if np.all((k + 1) * p <= BAND_BUDGET):
-                job.total = chain_totals(job.cand, job.minima, job.u, job.counts)
-            else:  # long lookaheads: the windowed DP
+            job.total = chain_totals(job.cand, job.minima, job.u, job.counts, BAND_BUDGET)
+            if len(job.total) != len(job.cand):  # long lookaheads: the windowed DP
                 cuts = np.cumsum(job.counts)[:-1]
                 job.total = intensities(job.cand, list(zip(np.split(job.minima, cuts),
                                                            np.split(job.u, cuts), strict=True)))

@@ -192,10 +192,16 @@ def band_offsets(long_: np.ndarray, short: np.ndarray) -> np.ndarray:
 
 @kernel
 def chain_totals(candidates: np.ndarray, minima: np.ndarray, u: np.ndarray,
-                 counts: np.ndarray) -> np.ndarray:
-    """`speed.intensities` over flat per-scale minima: u summed along each candidate's chain
-    (band DP matching only: the caller checks `speed.BAND_BUDGET`)."""
+                 counts: np.ndarray, budget: int) -> np.ndarray:
+    """`speed.intensities` over flat per-scale minima: u summed along each candidate's chain.
+    Band DP matching only: if a scale's band table would exceed `budget` entries (where
+    `speed.match_minima` turns to its windowed DP), nothing is done and the result is empty."""
     n = len(candidates)
+    size = n
+    for s in range(len(counts)):
+        if (abs(counts[s] - size) + 1) * min(counts[s], size) > budget:
+            return np.zeros(0)
+        size = counts[s]
     total = np.zeros(n)
     chain = np.arange(n)
     alive = np.ones(n, dtype=np.bool_)
@@ -400,7 +406,7 @@ def _warm() -> None:
     trends = hp_tail(v, 0, 0, done, ys, pre, off, conv, lams, np.empty((9, 2)))
     m, u, c = tail_minima(trends, 1, 0, 1)
     tail_minima(np.ascontiguousarray(trends), 1, 0, 1)
-    chain_totals(np.array([1, 3], dtype=np.int64), m, u, c)
+    chain_totals(np.array([1, 3], dtype=np.int64), m, u, c, 100)
     band_offsets(np.array([1, 2, 3], dtype=np.int64), np.array([2], dtype=np.int64))
     alpha, bounds = ward_levels(np.array([0.0, 1.0, 3.0]), 2.0)
     labels = ward_labels(np.array([2, 0, 1], dtype=np.int64), alpha, bounds, 2)
