@@ -25,19 +25,26 @@ Offline: `extract(motion)`. Definitions this module settles (the paper leaves th
   frames (3.2 -> 2.0 s CPU there); online, ~550 values per update: 3.7 -> 1.2 ms.
 
 Online (`Online`): every `hop` frames an analysis of the window (the last `history +
-lookahead + hop` frames) starts; it runs in steps over the next `delay` frames (two thirds of
-the hop: a few HP solves per frame, no burst; issue 13) and decides the candidates whose
-deadline (frame + lookahead) falls after it is done and before the next one is; a decision is
-sent when its deadline frame arrives (latency_frames == lookahead), and `flush()` redoes
-whatever was not sent yet. Windowed replacements of the offline global steps:
+lookahead + hop` frames) starts; it runs in four steps over the next `delay` frames (two
+thirds of the hop; no burst; issue 13) and decides the candidates whose deadline (frame +
+lookahead) falls after it is done and before the next one is; a decision is sent when its
+deadline frame arrives (latency_frames == lookahead), and `flush()` redoes whatever was not
+sent yet. Windowed replacements of the offline global steps:
 
-- HP filters over the whole clip -> HP filters over the window. A regular update re-analyses
-  only the newest `lookahead + 2 hop + 240` frames: the 10 Hz position filter is redone on the
-  newest `hop + settle` speeds (those a frame since the last update can still change, to
-  ~1e-6; older speeds are final), and each scale f is solved on the re-analysed part plus 20
-  lambda^(1/4) frames (the filter's memory; capped by the window, so the 0.1 Hz filter sees
-  20 s), minima outside the part are ignored.
-- Candidate correspondence over the whole clip -> the same DP over the re-analysed part.
+- HP filters over the whole clip -> HP filters over the stream so far, solved where they
+  count. The 10 Hz position filter is redone on the newest `hop + settle` speeds (those a
+  frame since the last update can still change, to ~1e-6); older speeds are final. The
+  forward substitution of every scale's HP system (U'y = v, the factor of `hp_factor`) only
+  looks back, so it is carried from one analysis to the next over the final speeds (those
+  leaving the window included); an analysis adds the fresh speeds and the factor's bottom
+  corner and back-substitutes over the newest `lookahead + 2 hop + 240` frames (the region),
+  all 144 lambdas side by side in one compiled kernel (`speed_kernels.hp_tail`, ~40 µs).
+  Minima outside the region are ignored. Until issue 13 each scale was solved on the region
+  plus 20 lambda^(1/4) frames of the window (the 0.1 Hz half-scale saw 20 s): the trends now
+  see the whole stream, like the offline ones; on the shared clips looped to 30,000 frames
+  the same keys, intensities within 5.4e-5 relative, and the same agreement table.
+- Candidate correspondence over the whole clip -> the same DP over the region (compiled,
+  `speed_kernels.chain_totals`: the band DP of `match_minima`, same ties, same sums).
 - Ward + Mojena over all candidates -> one cut-off per update, re-derived from a bounded sample:
   the candidates decided in the last `cutoff_history` frames (intensities as decided), those
   decided now and the window's pending ones. Applying it to the candidates due (U > cut-off)
@@ -53,13 +60,14 @@ HP factors (`signal.hp_factor`, offline and online alike): LAPACK's banded Chole
 its first 20 lambda^(1/4) columns, then its converged column (within LAPACK's own ~1e-11
 rounding noise there), then the bottom corner: O(n) without a factorisation of length n. Same
 keys as the LAPACK factorisation on every shared clip and at 100,000 frames (intensities within
-1.4e-7 relative); offline 100,000 frames 1.66 -> ~0.8 s CPU. The derived factors are not
-keyframer state: `HPBank` holds the lambdas only and the online factors (one per lambda at its
-regular length, 3.6 MB, plus 2.5 MB of first columns, at 120 fps with the defaults) live in
-module-level caches keyed by (lambda, length), shared by every stream with equal parameters
-and never pickled. Memory per keyframer is bounded by the window (positions, speeds) and the
-cut-off sample (the candidates of `cutoff_history` frames); pickled after 30 s: 0.98 MB, up to
-1.5 MB while an analysis holds its trends.
+1.4e-7 relative). Offline solves go through LAPACK (`HPBank`, which holds its lambdas only);
+the online kernels read the same first and converged columns from `packed_factors` (2.4 MB
+at 120 fps with the defaults, shared by every stream with equal parameters, never pickled).
+Shared compiled steps (`speed_kernels`, offline and online alike, exact): the band DP, the
+1-D Ward (`ward_1d`) and the rest of Mojena's rule. Memory per keyframer is bounded by the
+window (positions, speeds), the carried forward values (the region's rows x 144 lambdas,
+0.47 MB) and the cut-off sample (the candidates of `cutoff_history` frames); pickled after
+30 s: 1.44-1.51 MB.
 """
 
 from __future__ import annotations
@@ -539,8 +547,8 @@ class Online(OnlineKeyframer):
 
     Every `hop` frames (default lookahead // 5, at most 24) an analysis of the window
     (`history` + `lookahead` + `hop` frames) starts; its work is spread over the next `delay`
-    frames (two thirds of the hop, fewer if the lookahead is short: a few HP solves per frame
-    instead of a burst) and it decides the candidates whose deadline (frame + `lookahead`)
+    frames (two thirds of the hop, fewer if the lookahead is short: four steps on four
+    frames instead of a burst) and it decides the candidates whose deadline (frame + `lookahead`)
     comes before the next analysis is done. Each decision is sent when its deadline frame
     arrives, so latency_frames == lookahead for every event except those of `flush()`, which
     analyses the whole window and decides the rest (decisions not yet sent included). A
