@@ -600,6 +600,7 @@ class Online(OnlineKeyframer):
         self._fresh = min(self._region, self.hop + self._pos_settle + 1)
         self._ring = _Ring(self.history + self.lookahead + self.hop + 2, 3 * len(MIURA_ROLES))
         self._bank = HPBank(self._lams)
+        packed_factors(self._lams)  # built now (shared, derived), not on a streaming frame
         self.reset()
 
     def _reset_carry(self, base: int) -> None:

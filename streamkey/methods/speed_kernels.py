@@ -143,23 +143,23 @@ def tail_minima(trends: np.ndarray, n_scales: int, lo: int, start: int
     u = |trend_s - trend_(S+s)| there. Flat (m, u) and per-scale counts."""
     rows = trends.shape[0]
     first = max(1, start - lo)
-    minimum = np.zeros((rows, n_scales), dtype=np.bool_)
+    found = np.empty((n_scales, max(rows // 2, 1)), dtype=np.int64)  # rows of each's minima
     counts = np.zeros(n_scales, dtype=np.int64)
     for i in range(first, rows - 1):  # row by row: the trends' memory order
         before, here, after = trends[i - 1], trends[i], trends[i + 1]
         for s in range(n_scales):
-            if here[s] < before[s] and here[s] <= after[s]:
-                minimum[i, s] = True
+            if (here[s] < before[s]) & (here[s] <= after[s]):
+                found[s, counts[s]] = i
                 counts[s] += 1
     ms = np.empty(counts.sum(), dtype=np.int64)
     us = np.empty(len(ms))
     k = 0
     for s in range(n_scales):
-        for i in range(first, rows - 1):
-            if minimum[i, s]:
-                ms[k] = i + lo
-                us[k] = abs(trends[i, s] - trends[i, n_scales + s])
-                k += 1
+        for j in range(counts[s]):
+            i = found[s, j]
+            ms[k] = i + lo
+            us[k] = abs(trends[i, s] - trends[i, n_scales + s])
+            k += 1
     return ms, us, counts
 
 
