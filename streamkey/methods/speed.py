@@ -783,7 +783,7 @@ class Online(OnlineKeyframer):
             v, g0 = job.v, job.g0 - self._hp_base
             if g0 + len(v) >= 5:
                 pre, off, conv = packed_factors(self._lams)
-                rows = g0 + len(v) - max(0, min(g0 + job.lo_trend, self._hp_done - 2))
+                rows = g0 + len(v) - min(g0 + job.lo_trend, self._hp_done)
                 scratch = _SCRATCH.get(len(self._lams))
                 if scratch is None or len(scratch) < rows:
                     scratch = _SCRATCH[len(self._lams)] = np.empty((rows, len(self._lams)))

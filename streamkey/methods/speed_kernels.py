@@ -84,55 +84,63 @@ def hp_tail(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.
     from the ring `ys` (`hp_advance`); rows done..N-1 are solved here, the last two with the
     factor's bottom corner (the arithmetic of `signal.hp_factor`), then the back
     substitution (U x = y, bottom up) down to row g0 + lo. The result is a view of
-    `scratch` (a buffer of at least N - g0 - lo + 2 rows, reused: no page faults per call)."""
+    `scratch` (at least N - min(g0 + lo, done) rows, reused: no page faults per call)."""
     n_ring, n_lam = ys.shape
     big_n = g0 + len(v)
     lo_g = g0 + lo
-    e0 = max(0, min(lo_g, done - 2))
+    e0 = min(lo_g, done)  # rows before `done` are read from the ring (no copy)
     out = scratch[: big_n - e0]
-    for g in range(e0, done):
-        out[g - e0] = ys[g % n_ring]
     k_max = 0
     for lam in range(n_lam):
         k_max = max(k_max, off[lam + 1] - off[lam])
-    for g in range(done, big_n - 2):  # interior rows
+    for g in range(done, big_n):  # forward rows (the last two: the corner, below)
+        y = out[g - e0]
+        y1 = ys[(g - 1) % n_ring] if g - 1 < done else out[g - 1 - e0]
+        y2 = ys[(g - 2) % n_ring] if g - 2 < done else out[g - 2 - e0]
         x = v[g - g0]
-        i = g - e0
-        if g >= k_max:
-            y, y1, y2 = out[i], out[i - 1], out[i - 2]
+        if g >= big_n - 2:
+            for lam in range(n_lam):  # the bottom corner
+                u0, u1, _ = _column(pre, off, lam, big_n - 2)
+                v0 = _column(pre, off, lam, big_n - 1)[0]
+                d2 = np.sqrt((1.0 + 5.0 * lams[lam]) - u0 * u0 - u1 * u1)
+                if g == big_n - 2:
+                    y[lam] = ((x - u0 * y2[lam]) - u1 * y1[lam]) / d2
+                else:
+                    e = ((-2.0 * lams[lam]) - u1 * v0) / d2
+                    last = np.sqrt((1.0 + lams[lam]) - v0 * v0 - e * e)
+                    y[lam] = ((x - v0 * y2[lam]) - e * y1[lam]) / last
+        elif g >= k_max:
             for lam in range(n_lam):
                 y[lam] = ((x - conv[0, lam] * y2[lam]) - conv[1, lam] * y1[lam]) * conv[3, lam]
         else:
-            _forward_row(x, g, out[i], out[i - 1], out[i - 2], pre, off, conv)
+            _forward_row(x, g, y, y1, y2, pre, off, conv)
     i = big_n - 2 - e0
-    for lam in range(n_lam):  # the bottom corner, forward and back
+    for lam in range(n_lam):  # the corner, back
         u0, u1, _ = _column(pre, off, lam, big_n - 2)
         v0 = _column(pre, off, lam, big_n - 1)[0]
         d2 = np.sqrt((1.0 + 5.0 * lams[lam]) - u0 * u0 - u1 * u1)
         e = ((-2.0 * lams[lam]) - u1 * v0) / d2
         last = np.sqrt((1.0 + lams[lam]) - v0 * v0 - e * e)
-        y2 = ((v[big_n - 2 - g0] - u0 * out[i - 2, lam]) - u1 * out[i - 1, lam]) / d2
-        y1 = ((v[big_n - 1 - g0] - v0 * out[i - 1, lam]) - e * y2) / last
-        out[i + 1, lam] = y1 / last
-        out[i, lam] = (y2 - out[i + 1, lam] * e) / d2
+        out[i + 1, lam] = out[i + 1, lam] / last
+        out[i, lam] = (out[i, lam] - out[i + 1, lam] * e) / d2
     for g in range(big_n - 3, lo_g - 1, -1):
         i = g - e0
+        x0, x1, x2 = out[i], out[i + 1], out[i + 2]
+        y = ys[g % n_ring] if g < done else x0
         if g >= k_max:
-            x0, x1, x2 = out[i], out[i + 1], out[i + 2]
             for lam in range(n_lam):
-                x0[lam] = ((x0[lam] - x2[lam] * conv[0, lam]) - x1[lam] * conv[1, lam]
+                x0[lam] = ((y[lam] - x2[lam] * conv[0, lam]) - x1[lam] * conv[1, lam]
                            ) * conv[3, lam]
         else:
-            x0, x1, x2 = out[i], out[i + 1], out[i + 2]
             for lam in range(n_lam):
                 if g + 1 >= off[lam + 1] - off[lam]:  # columns g..g+2 have converged
-                    x0[lam] = ((x0[lam] - x2[lam] * conv[0, lam]) - x1[lam] * conv[1, lam]
+                    x0[lam] = ((y[lam] - x2[lam] * conv[0, lam]) - x1[lam] * conv[1, lam]
                                ) * conv[3, lam]
                 else:
                     c2 = _column(pre, off, lam, g)[2]
                     c1 = _column(pre, off, lam, g + 1)[1]
                     c0 = _column(pre, off, lam, g + 2)[0]
-                    x0[lam] = ((x0[lam] - x2[lam] * c0) - x1[lam] * c1) / c2
+                    x0[lam] = ((y[lam] - x2[lam] * c0) - x1[lam] * c1) / c2
     return out[lo_g - e0 :]
 
 
