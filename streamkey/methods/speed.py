@@ -134,7 +134,21 @@ _PACKED: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # lambdas 
 # one thread, and a race between threads could at worst build a table twice.
 
 
-_SCRATCH: dict[int, np.ndarray] = {}  # lambdas -> `hp_tail` work rows (consumed at once)
+class _WorkRows:
+    """A keyframer's reused `hp_tail` work rows (no page faults per analysis; per keyframer,
+    as the kernels release the GIL). Derived: pickled empty."""
+
+    def __init__(self) -> None:
+        self.rows = np.empty((0, 0))
+
+    def __reduce__(self) -> tuple[type, tuple[()]]:
+        return (_WorkRows, ())
+
+    def get(self, n: int, width: int) -> np.ndarray:
+        """At least n rows of `width` values (contents undefined)."""
+        if len(self.rows) < n or self.rows.shape[1] != width:
+            self.rows = np.empty((n, width))
+        return self.rows
 
 
 def packed_factors(lams: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -601,6 +615,7 @@ class Online(OnlineKeyframer):
         self._ring = _Ring(self.history + self.lookahead + self.hop + 2, 3 * len(MIURA_ROLES))
         self._bank = HPBank(self._lams)
         packed_factors(self._lams)  # built now (shared, derived), not on a streaming frame
+        self._work = _WorkRows()
         self.reset()
 
     def _reset_carry(self, base: int) -> None:
@@ -784,11 +799,8 @@ class Online(OnlineKeyframer):
             if g0 + len(v) >= 5:
                 pre, off, conv = packed_factors(self._lams)
                 rows = g0 + len(v) - min(g0 + job.lo_trend, self._hp_done)
-                scratch = _SCRATCH.get(len(self._lams))
-                if scratch is None or len(scratch) < rows:
-                    scratch = _SCRATCH[len(self._lams)] = np.empty((rows, len(self._lams)))
                 trends = hp_tail(v, g0, job.lo_trend, self._hp_done, self._hp_y, pre, off,
-                                 conv, self._lams, scratch)
+                                 conv, self._lams, self._work.get(rows, len(self._lams)))
             else:  # a system too short for the corner formulas (g0 is 0): whole solves
                 trends = np.stack([self._bank.solve(v, j)[job.lo_trend :]
                                    for j in range(2 * s)], axis=1)
