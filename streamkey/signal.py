@@ -13,7 +13,7 @@ from scipy.linalg import cholesky_banded, solveh_banded
 from .errors import UsageError
 
 __all__ = ["hp_lambda", "hp_filter", "hp_banded", "hp_settle", "hp_factor", "unwrap_degrees",
-           "unwrap_step", "local_minima", "local_maxima", "hp_prefix"]
+           "unwrap_step", "local_minima", "local_maxima"]
 
 
 def hp_lambda(cutoff_hz: float, frame_time: float) -> float:

@@ -604,7 +604,7 @@ class Online(OnlineKeyframer):
         # Two thirds of the hop: the mean online/offline F1 on the shared clips is 0.867 with
         # no spread, 0.856 / 0.854 / 0.853 / 0.849 spread over 8 / 12 / 16 / 23 frames.
         self.delay = max(0, min(2 * self.hop // 3, self.lookahead - self.hop - 2))
-        self._joints = np.array([self.features.roles[name] for name in MIURA_ROLES])
+        self._joints = [self.features.roles[name] for name in MIURA_ROLES]
         self._height = self.features.body_height
         self._lams = scale_lambdas(scale_frequencies(f_max, f_min, r), 1.0 / self.fps)
         # Region re-analysed by a regular update: the lookahead plus room for the DP context.
@@ -653,16 +653,15 @@ class Online(OnlineKeyframer):
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Append frames, doing each frame's share of the running analysis; every `hop`
         frames start the next one. The block's last frame leaves its share to `idle`."""
-        seqs, n, hop = block.seq, len(block.seq), self.hop
-        # Rows as captured (in the pelvis frame); divided by the body height per analysis.
-        rows = block.pelvis_positions[:, self._joints].reshape(n, -1)
-        if self._resume_after is not None and n:
-            shift = int(seqs[0]) - 1 - self._resume_after
+        rows = block.pelvis_positions[:, self._joints].reshape(len(block), -1) / self._height
+        if self._resume_after is not None and len(block):
+            shift = int(block.seq[0]) - 1 - self._resume_after
             if shift < 0:  # the source started over: the kept history stays in the past
                 self._hist_seq = deque(seq + shift for seq in self._hist_seq)
             self._resume_after = None
         events: list[KeyframeEvent] = []
         i = 0
+        seqs, n, hop = block.seq, len(block.seq), self.hop
         while i < n:
             take = min(n - i, hop - self._count % hop)
             self._ring.extend(int(seqs[i]), rows[i : i + take], block.time[i : i + take])
@@ -745,9 +744,9 @@ class Online(OnlineKeyframer):
         seg = self._fresh + self._pos_settle
         old = self._v[self._ring.dropped_since :][: n - 1 - self._fresh]
         if n <= seg or len(old) < n - 1 - self._fresh:
-            snap, old = rows / self._height, None
+            snap, old = rows.copy(), None
         else:
-            snap = rows[n - seg :] / self._height
+            snap = rows[n - seg :].copy()
         self._g0 += self._ring.dropped_since
         self._ring.dropped_since = 0
         # Decided (sent or not) in the last `cutoff_history` frames: intensities as decided.
@@ -827,7 +826,7 @@ class Online(OnlineKeyframer):
 
     def _speed(self) -> np.ndarray:
         """Speed over the whole window (at flush)."""
-        self._v = speed_signal(self._ring.rows() / self._height, 1.0 / self.fps, self.f_c)
+        self._v = speed_signal(self._ring.rows(), 1.0 / self.fps, self.f_c)
         self._ring.dropped_since = 0
         return self._v
 
