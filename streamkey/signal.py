@@ -70,7 +70,7 @@ _PREFIXES: OrderedDict[float, np.ndarray] = OrderedDict()  # lambda -> LAPACK's 
 _PREFIX_LIMIT = 1024
 
 
-def _prefix(lam: float) -> np.ndarray:
+def hp_prefix(lam: float) -> np.ndarray:
     """LAPACK's upper banded factor of I + lam D'D in its first `hp_settle(lam)` columns."""
     got = _PREFIXES.get(lam)
     if got is not None:
@@ -98,7 +98,7 @@ def hp_factor(n: int, lam: float) -> np.ndarray:
     lam = float(lam)
     if n < 5:
         return cholesky_banded(hp_banded(n, lam), check_finite=False)
-    pre = _prefix(lam)
+    pre = hp_prefix(lam)
     k = min(n, pre.shape[1])
     c = np.empty((3, n), order="F")  # LAPACK's layout: no copy per solve
     c[:, :k] = pre[:, :k]

@@ -25,19 +25,26 @@ Offline: `extract(motion)`. Definitions this module settles (the paper leaves th
   frames (3.2 -> 2.0 s CPU there); online, ~550 values per update: 3.7 -> 1.2 ms.
 
 Online (`Online`): every `hop` frames an analysis of the window (the last `history +
-lookahead + hop` frames) starts; it runs in steps over the next `delay` frames (two thirds of
-the hop: a few HP solves per frame, no burst; issue 13) and decides the candidates whose
-deadline (frame + lookahead) falls after it is done and before the next one is; a decision is
-sent when its deadline frame arrives (latency_frames == lookahead), and `flush()` redoes
-whatever was not sent yet. Windowed replacements of the offline global steps:
+lookahead + hop` frames) starts; it runs in four steps over the next `delay` frames (two
+thirds of the hop; no burst; issue 13) and decides the candidates whose deadline (frame +
+lookahead) falls after it is done and before the next one is; a decision is sent when its
+deadline frame arrives (latency_frames == lookahead), and `flush()` redoes whatever was not
+sent yet. Windowed replacements of the offline global steps:
 
-- HP filters over the whole clip -> HP filters over the window. A regular update re-analyses
-  only the newest `lookahead + 2 hop + 240` frames: the 10 Hz position filter is redone on the
-  newest `hop + settle` speeds (those a frame since the last update can still change, to
-  ~1e-6; older speeds are final), and each scale f is solved on the re-analysed part plus 20
-  lambda^(1/4) frames (the filter's memory; capped by the window, so the 0.1 Hz filter sees
-  20 s), minima outside the part are ignored.
-- Candidate correspondence over the whole clip -> the same DP over the re-analysed part.
+- HP filters over the whole clip -> HP filters over the stream so far, solved where they
+  count. The 10 Hz position filter is redone on the newest `hop + settle` speeds (those a
+  frame since the last update can still change, to ~1e-6); older speeds are final. The
+  forward substitution of every scale's HP system (U'y = v, the factor of `hp_factor`) only
+  looks back, so it is carried from one analysis to the next over the final speeds (those
+  leaving the window included); an analysis adds the fresh speeds and the factor's bottom
+  corner and back-substitutes over the newest `lookahead + 2 hop + 240` frames (the region),
+  all 144 lambdas side by side in one compiled kernel (`speed_kernels.hp_tail`, ~40 µs).
+  Minima outside the region are ignored. Until issue 13 each scale was solved on the region
+  plus 20 lambda^(1/4) frames of the window (the 0.1 Hz half-scale saw 20 s): the trends now
+  see the whole stream, like the offline ones; on the shared clips looped to 30,000 frames
+  the same keys, intensities within 5.4e-5 relative, and the same agreement table.
+- Candidate correspondence over the whole clip -> the same DP over the region (compiled,
+  `speed_kernels.chain_totals`: the band DP of `match_minima`, same ties, same sums).
 - Ward + Mojena over all candidates -> one cut-off per update, re-derived from a bounded sample:
   the candidates decided in the last `cutoff_history` frames (intensities as decided), those
   decided now and the window's pending ones. Applying it to the candidates due (U > cut-off)
@@ -53,19 +60,19 @@ HP factors (`signal.hp_factor`, offline and online alike): LAPACK's banded Chole
 its first 20 lambda^(1/4) columns, then its converged column (within LAPACK's own ~1e-11
 rounding noise there), then the bottom corner: O(n) without a factorisation of length n. Same
 keys as the LAPACK factorisation on every shared clip and at 100,000 frames (intensities within
-1.4e-7 relative); offline 100,000 frames 1.66 -> ~0.8 s CPU. The derived factors are not
-keyframer state: `HPBank` holds the lambdas only and the online factors (one per lambda at its
-regular length, 3.6 MB, plus 2.5 MB of first columns, at 120 fps with the defaults) live in
-module-level caches keyed by (lambda, length), shared by every stream with equal parameters
-and never pickled. Memory per keyframer is bounded by the window (positions, speeds) and the
-cut-off sample (the candidates of `cutoff_history` frames); pickled after 30 s: 0.98 MB, up to
-1.5 MB while an analysis holds its trends.
+1.4e-7 relative). Offline solves go through LAPACK (`HPBank`, which holds its lambdas only);
+the online kernels read the same first and converged columns from `packed_factors` (2.4 MB
+at 120 fps with the defaults, shared by every stream with equal parameters, never pickled).
+Shared compiled steps (`speed_kernels`, offline and online alike, exact): the band DP, the
+1-D Ward (`ward_1d`) and the rest of Mojena's rule. Memory per keyframer is bounded by the
+window (positions, speeds), the carried forward values (the region's rows x 144 lambdas,
+0.47 MB) and the cut-off sample (the candidates of `cutoff_history` frames); pickled after
+30 s: 1.44-1.51 MB.
 """
 
 from __future__ import annotations
 
-import heapq
-from collections import OrderedDict, deque
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -79,12 +86,22 @@ from ..keyframes import KeyframeEvent, Keyframes
 from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
-from ..signal import HP_SETTLE, hp_factor, hp_filter, hp_lambda, hp_settle, local_minima
+from ..signal import HP_SETTLE, hp_factor, hp_filter, hp_lambda, hp_prefix, hp_settle, local_minima
+from .speed_kernels import (
+    band_offsets,
+    chain_totals,
+    dropped_threshold,
+    hp_advance,
+    hp_tail,
+    tail_minima,
+    ward_labels,
+    ward_levels,
+)
 
 __all__ = ["extract", "scale_frequencies", "speed_signal", "HPBank", "scale_minima",
            "match_minima", "intensities", "mojena_threshold", "MojenaResult", "METHOD", "Online",
            "scale_lambdas", "settle_frames", "ward_1d", "WARD_1D_FROM", "scale_minimum", "Chain",
-           "Ward1D", "speed_tail"]
+           "speed_tail", "packed_factors"]
 
 METHOD = "speed"
 _PBTRS = get_lapack_funcs("pbtrs", (np.empty(1),))
@@ -112,11 +129,49 @@ def speed_signal(positions: np.ndarray, frame_time: float, f_c: float = 10.0) ->
     return np.linalg.norm(np.diff(pf, axis=0), axis=1) / frame_time
 
 
-_FACTORS: OrderedDict[tuple[float, int], np.ndarray] = OrderedDict()  # (lambda, n) -> factor
-FACTOR_CACHE_BYTES = 32 * 2**20  # shared by every stream: ~3.8 MB per parameter set at 120 fps
-_cached_bytes = 0
+_PACKED: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # lambdas -> tables
 # No locks (algorithm modules import no threading): the engine drives every keyframer from
-# one thread, and a race between threads could at worst build a factor twice.
+# one thread, and a race between threads could at worst build a table twice.
+
+
+class _WorkRows:
+    """A keyframer's reused `hp_tail` work rows (no page faults per analysis; per keyframer,
+    as the kernels release the GIL). Derived: pickled empty."""
+
+    def __init__(self) -> None:
+        self.rows = np.empty((0, 0))
+
+    def __reduce__(self) -> tuple[type, tuple[()]]:
+        return (_WorkRows, ())
+
+    def get(self, n: int, width: int) -> np.ndarray:
+        """At least n rows of `width` values (contents undefined)."""
+        if len(self.rows) < n or self.rows.shape[1] != width:
+            self.rows = np.empty((n, width))
+        return self.rows
+
+
+def packed_factors(lams: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The interior columns of every lambda's HP factor (`signal.hp_factor`) side by side for
+    `speed_kernels.hp_tail`: LAPACK's first columns of lambda i at `off[i]:off[i + 1]` of
+    `pre` (3, total), and the converged columns `conv` (4, len(lams): the fourth row holds the
+    reciprocals of the diagonal; the kernels multiply where the columns are constant).
+    Derived data shared by every stream with the same lambdas (2.4 MB at 120 fps with the
+    defaults), never pickled.
+    """
+    key = np.asarray(lams, dtype=np.float64).tobytes()
+    got = _PACKED.get(key)
+    if got is None:
+        cols = [hp_prefix(float(lam)) for lam in lams]
+        off = np.concatenate([[0], np.cumsum([c.shape[1] for c in cols])]).astype(np.int64)
+        pre = np.ascontiguousarray(np.concatenate(cols, axis=1))
+        conv = np.stack([c[:, -1] for c in cols], axis=1)
+        conv = np.ascontiguousarray(np.vstack([conv, 1.0 / conv[2:]]))
+        if len(_PACKED) >= 16:
+            _PACKED.clear()
+        got = _PACKED[key] = (pre, off, conv)
+    return got
+
 
 _TAILS: dict[tuple[float, int, int], np.ndarray] = {}  # (lambda, n, k) -> step operator
 
@@ -137,14 +192,8 @@ def speed_tail(positions: np.ndarray, frame_time: float, f_c: float, k: int) -> 
 
 
 class HPBank:
-    """HP solves for several lambdas at any length (factors from `signal.hp_factor`).
-
-    A bank holds its lambdas only. The factors are derived data: `keep` ones (the online
-    keyframer's fixed regular lengths) live in one module-level LRU keyed by (lambda, length),
-    bounded by `FACTOR_CACHE_BYTES` and shared by every bank, so streams with equal parameters
-    share them; the others are built per solve (O(n), no factorisation). Pickling a bank (a
-    snapshot) carries the lambdas only; the factors are re-derived on first use.
-    """
+    """HP solves for several lambdas at any length (factors from `signal.hp_factor`, O(n),
+    no factorisation). A bank holds its lambdas only (a snapshot carries nothing else)."""
 
     def __init__(self, lams: np.ndarray) -> None:
         self.lams = np.asarray(lams, dtype=np.float64)
@@ -152,33 +201,18 @@ class HPBank:
     def __reduce__(self) -> tuple[type, tuple[np.ndarray]]:
         return (HPBank, (self.lams,))
 
-    def factor(self, n: int, i: int, keep: bool = False) -> np.ndarray:
+    def factor(self, n: int, i: int) -> np.ndarray:
         """Upper banded Cholesky factor (3, n) of the length-n HP system for lambda i."""
-        global _cached_bytes
-        key = (float(self.lams[i]), int(n))
-        got = _FACTORS.get(key)
-        if got is not None:
-            _FACTORS.move_to_end(key)
-            return got
-        c = hp_factor(n, key[0])
-        if keep:
-            c.setflags(write=False)
-            if key not in _FACTORS:
-                _FACTORS[key] = c
-                _cached_bytes += c.nbytes
-            while _cached_bytes > FACTOR_CACHE_BYTES and len(_FACTORS) > 1:
-                _cached_bytes -= _FACTORS.popitem(last=False)[1].nbytes
-        return c
+        return hp_factor(int(n), float(self.lams[i]))
 
-    def solve(self, v: np.ndarray, i: int, keep: bool = False, tail: int | None = None
-              ) -> np.ndarray:
+    def solve(self, v: np.ndarray, i: int, tail: int | None = None) -> np.ndarray:
         """HP trend of the 1-D signal `v` for the i-th lambda (its last `tail` values only:
         the back substitution stops there; the same numbers as the whole solve's)."""
         v = np.asarray(v, dtype=np.float64)
         n = len(v)
         if n < 3:
             return v[n - (n if tail is None else min(tail, n)) :].copy()
-        c = self.factor(n, i, keep)
+        c = self.factor(n, i)
         if tail is not None and tail < n:  # dpbtrs is these two dtbsv calls, on all rows
             y = _TBSV(2, c, v, trans=1)
             return np.asarray(_TBSV(2, c[:, n - tail :], y[n - tail :], trans=0,
@@ -194,33 +228,21 @@ def scale_lambdas(freqs: np.ndarray, frame_time: float) -> np.ndarray:
     return np.array([hp_lambda(f, frame_time) for f in np.concatenate([freqs, freqs / 2])])
 
 
-def scale_minima(v: np.ndarray, bank: HPBank, lengths: np.ndarray | None = None,
-                 start: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+def scale_minima(v: np.ndarray, bank: HPBank) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per scale: local minima of HP(v, f) and the speed descent u there (Miura eq. 4).
 
-    `bank` holds the lambdas of `scale_lambdas`: f_i at i, f_i / 2 at S + i. Online, lambda j
-    is solved on the last `lengths[j]` samples only and minima before `start` are ignored.
+    `bank` holds the lambdas of `scale_lambdas`: f_i at i, f_i / 2 at S + i.
     """
-    return [scale_minimum(v, bank, i, lengths, start) for i in range(len(bank.lams) // 2)]
+    return [scale_minimum(v, bank, i) for i in range(len(bank.lams) // 2)]
 
 
-def scale_minimum(v: np.ndarray, bank: HPBank, i: int, lengths: np.ndarray | None = None,
-                  start: int = 0, keep: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Scale i of `scale_minima`: minima of HP(v, f_i) at or after `start`, and u there.
-
-    `keep`: store the factors of the lengths solved in the shared cache (online, once the
-    window has its steady length).
-    """
-    n, s = len(v), len(bank.lams) // 2
-    a = 0 if lengths is None else n - min(int(lengths[i]), n)
-    b = 0 if lengths is None else n - min(int(lengths[s + i]), n)
-    lo = max(start - 1, a)  # a minimum at or after `start` needs its left neighbour
-    trend = bank.solve(v[a:], i, keep, n - lo)  # the trend from lo on
-    m = local_minima(trend) + lo
-    m = m[m >= start]
-    if len(m) == 0:  # no minimum in the part that counts: the f/2 trend is not needed
+def scale_minimum(v: np.ndarray, bank: HPBank, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Scale i of `scale_minima`: minima of HP(v, f_i), and u there."""
+    trend = bank.solve(v, i)
+    m = local_minima(trend)
+    if len(m) == 0:  # no minimum: the f/2 trend is not needed
         return m, np.zeros(0)
-    return m, np.abs(trend[m - lo] - bank.solve(v[b:], s + i, keep, n - start)[m - start])
+    return m, np.abs(trend[m] - bank.solve(v, len(bank.lams) // 2 + i)[m])
 
 
 SETTLE = HP_SETTLE
@@ -327,33 +349,12 @@ def _window_dp(long_: np.ndarray, short: np.ndarray, half: int) -> np.ndarray | 
 def _band_dp(long_: np.ndarray, short: np.ndarray) -> np.ndarray:
     """Offsets d_j (short[j] pairs with long_[j + d_j]), nondecreasing in [0, k], min total cost.
 
-    Column-wise over the band offset d, vectorised over j: C[j, d] = c[j, d] + min(M[j-1, d-1],
-    C[j-1, d]) with M the running minimum over d; the recurrence x_j = c_j + min(b_j, x_{j-1})
-    is solved in closed form with cumulative sums and a cumulative minimum (integer costs, exact).
-    `arg[d, j]` is the first offset <= d reaching M[j, d]; backtracking follows it.
+    C[j, d] = c[j, d] + min(M[j-1, d-1], C[j-1, d]) with M the running minimum over d
+    (integer costs, exact); ties keep the smaller offset (earlier partner). Compiled
+    (`speed_kernels.band_offsets`), shared with the online chains.
     """
-    p, k = len(short), len(long_) - len(short)
-    arg = np.empty((k + 1, p), dtype=np.int64)
-    m_prev = np.full(p, np.inf)
-    arg_prev = np.zeros(p, dtype=np.int64)
-    b = np.empty(p)
-    for d in range(k + 1):
-        c = np.abs(long_[d : d + p] - short).astype(np.float64)
-        b[0] = 0.0
-        b[1:] = m_prev[:-1]
-        s = np.cumsum(c)
-        x = s + np.minimum.accumulate(b - (s - c))
-        better = x < m_prev  # strict: ties keep the smaller offset (earlier partner)
-        arg_prev = np.where(better, d, arg_prev)
-        m_prev = np.where(better, x, m_prev)
-        arg[d] = arg_prev
-    offsets = np.empty(p, dtype=np.int64)
-    flat = arg.ravel()
-    hi = k
-    for j in range(p - 1, -1, -1):
-        hi = int(flat[hi * p + j])
-        offsets[j] = hi
-    return offsets
+    return band_offsets(np.ascontiguousarray(long_, dtype=np.int64),
+                        np.ascontiguousarray(short, dtype=np.int64))
 
 
 def intensities(candidates: np.ndarray, per_scale: list[tuple[np.ndarray, np.ndarray]]
@@ -407,70 +408,23 @@ def ward_1d(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     than merging that third with one of them (with d = n_a n_b / (n_a + n_b) (mu_a - mu_b)^2:
     min(n_a x^2, n_c y^2) <= n_a n_c / (n_a + n_c) (x + y)^2), so the closest pair is always
     adjacent in sorted order and greedy merging of neighbours gives scipy's hierarchy; alpha
-    = 2 d, scipy's squared heights, computed directly instead of by Lance-Williams updates.
+    = 2 d, scipy's squared heights, computed directly instead of by Lance-Williams updates
+    (compiled: `speed_kernels.ward_levels`).
     """
-    ward = Ward1D(u)
-    ward.run()
-    return ward.alpha, ward.order, ward.bounds
+    order = np.argsort(u, kind="stable")
+    alpha, bounds = ward_levels(np.asarray(u, dtype=np.float64)[order], 2.0)
+    return alpha, order, bounds
 
 
-class Ward1D:
-    """`ward_1d` resumable: `run(merges)` does the next merges (plain attributes, picklable)."""
-
-    def __init__(self, u: np.ndarray) -> None:
-        self.order = np.argsort(u, kind="stable")
-        v = np.asarray(u, dtype=np.float64)[self.order].tolist()
-        n = self.n = len(v)
-        self.size, self.total = [1.0] * n, list(v)
-        self.left, self.right = list(range(-1, n - 1)), list(range(1, n + 1))
-        self.alive = [True] * n
-        self.heap = [(0.5 * (v[i + 1] - v[i]) ** 2, i, i + 1, 2.0) for i in range(n - 1)]
-        heapq.heapify(self.heap)
-        self.alpha, self.bounds = np.empty(max(n - 1, 0)), np.empty(max(n - 1, 0), np.int64)
-        self.done = 0
-
-    def run(self, merges: int | None = None) -> bool:
-        """Do `merges` more merges (all if None); True once the hierarchy is complete."""
-        n, heap, size, total = self.n, self.heap, self.size, self.total
-        left, right, alive = self.left, self.right, self.alive
-        stop = n - 1 if merges is None else min(n - 1, self.done + merges)
-        while self.done < stop:
-            d, a, b, both = heapq.heappop(heap)
-            if not (alive[a] and alive[b]) or right[a] != b or size[a] + size[b] != both:
-                continue  # stale: one side has grown since
-            self.alpha[self.done], self.bounds[self.done] = 2.0 * d, b
-            self.done += 1
-            # b joins a (clusters are runs of sorted positions named by their first one)
-            alive[b] = False
-            size[a] += size[b]
-            total[a] += total[b]
-            right[a] = right[b]
-            if right[a] < n:
-                left[right[a]] = a
-            for x, y in ((left[a], a), (a, right[a])):
-                if 0 <= x and y < n:
-                    nx, ny = size[x], size[y]
-                    diff = total[x] / nx - total[y] / ny
-                    heapq.heappush(heap, (nx * ny / (nx + ny) * diff * diff, x, y, nx + ny))
-        return self.done >= n - 1
-
-
-def mojena_threshold(u: np.ndarray, k: float = 2.75, ward: Ward1D | None = None
-                     ) -> MojenaResult:
-    """Ward clustering of intensities, Mojena rule one, dropped cluster -> threshold (§3.2).
-
-    `ward`: the finished `Ward1D` of `u` if already run (online, in steps).
-    """
+def mojena_threshold(u: np.ndarray, k: float = 2.75) -> MojenaResult:
+    """Ward clustering of intensities, Mojena rule one, dropped cluster -> threshold (§3.2)."""
     u = np.asarray(u, dtype=np.float64)
     if len(u) < 2:
         return MojenaResult(0.0, len(u), float("nan"), True)
     if len(u) < 3:  # one fusion level: no spread to judge it by, one cluster
         return MojenaResult(0.0, 1, float("nan"), True)
     if len(u) >= WARD_1D_FROM:
-        if ward is None:
-            ward = Ward1D(u)
-            ward.run()
-        alpha, order, bounds = ward.alpha, ward.order, ward.bounds
+        alpha, order, bounds = ward_1d(u)
     else:
         z = linkage(u.reshape(-1, 1), method="ward")
         alpha = z[:, 2] ** 2  # Lance-Williams fusion levels of squared distances
@@ -480,22 +434,11 @@ def mojena_threshold(u: np.ndarray, k: float = 2.75, ward: Ward1D | None = None
         return MojenaResult(0.0, 1, cutoff, True)
     # Ward is monotone: cutting just above the last level kept gives exactly n_clusters.
     if len(u) >= WARD_1D_FROM:
-        merged = np.zeros(len(u), dtype=bool)  # boundary before sorted position i merged
-        cut = alpha[len(u) - 1 - n_clusters]
-        merged[bounds[alpha <= cut]] = True
-        labels = np.empty(len(u), dtype=np.int64)
-        labels[order] = np.cumsum(~merged) - 1
+        labels = ward_labels(order, alpha, bounds, n_clusters)
     else:
         labels = fcluster(z, z[len(u) - 1 - n_clusters, 2], criterion="distance") - 1
-    zero = np.flatnonzero(u == 0)
-    if len(zero):
-        drop = labels[zero[0]]
-    else:
-        means = np.bincount(labels, weights=u) / np.bincount(labels)
-        drop = int(np.argmin(means))
-    threshold = float(u[labels == drop].max())
-    contiguous = bool(np.all((u > threshold) == (labels != drop)))
-    return MojenaResult(threshold, n_clusters, cutoff, contiguous)
+    threshold, contiguous = dropped_threshold(u, labels.astype(np.int64))
+    return MojenaResult(float(threshold), n_clusters, cutoff, bool(contiguous))
 
 
 def _positions(motion: Motion, features: Features | None) -> np.ndarray:
@@ -557,25 +500,28 @@ class _Ring:
 
     def extend(self, first_seq: int, rows: np.ndarray, times: np.ndarray) -> None:
         """Append consecutive frames starting at `first_seq`; drop the oldest beyond capacity."""
-        if len(self) == 0:
+        k, start, end = len(rows), self._start, self._end
+        held = end - start
+        if held == 0:
             self.first_seq = first_seq
-        need = len(self) + len(rows)
-        if self._end + len(rows) > len(self._rows):
+        if end + k > len(self._rows):
+            need = held + k
             size = max(16, min(2 * self.capacity, 2 * need))
-            keep = slice(self._start, self._end)
             rows_new = np.empty((max(size, need), self.width))
             times_new = np.empty(len(rows_new))
-            rows_new[: len(self)] = self._rows[keep]
-            times_new[: len(self)] = self._times[keep]
+            rows_new[:held] = self._rows[start:end]
+            times_new[:held] = self._times[start:end]
             self._rows, self._times = rows_new, times_new
-            self._start, self._end = 0, len(self)
-        self._rows[self._end : self._end + len(rows)] = rows
-        self._times[self._end : self._end + len(rows)] = times
-        self._end += len(rows)
-        drop = max(0, len(self) - self.capacity)
-        self._start += drop
-        self.first_seq += drop
-        self.dropped_since += drop
+            start, end = 0, held
+        self._rows[end : end + k] = rows
+        self._times[end : end + k] = times
+        self._end = end + k
+        drop = held + k - self.capacity
+        if drop > 0:
+            start += drop
+            self.first_seq += drop
+            self.dropped_since += drop
+        self._start = start
 
     def rows(self) -> np.ndarray:
         """The held rows, oldest first (a view)."""
@@ -586,46 +532,28 @@ class _Ring:
         return float(self._times[self._start + seq - self.first_seq])
 
 
-WARD_STEPS = 6  # steps the online cut-off's Ward agglomeration is split into
-CHAIN_STEPS = 6  # steps of the online minima and chain matching (costs below assume 6)
-
-
-def _tail_minima(tf: np.ndarray, th: np.ndarray, lo: int, start: int
-                 ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """`scale_minimum` for every scale at once from the trends' tails: f trends from `lo`,
-    f/2 trends from `start` (one row per scale); same comparisons as `local_minima`."""
-    mid = tf[:, 1:-1]
-    r, c = np.nonzero((mid < tf[:, :-2]) & (mid <= tf[:, 2:]))
-    m = c + 1 + lo
-    keep = m >= start
-    r, m = r[keep], m[keep]
-    u = np.abs(tf[r, m - lo] - th[r, m - start])
-    cuts = np.cumsum(np.bincount(r, minlength=len(tf)))[:-1]
-    return list(zip(np.split(m, cuts), np.split(u, cuts), strict=True))
-
-
 class _Job:
     """One regular re-analysis, done in steps over the frames after its anchor frame.
 
     Everything it needs is taken at the anchor (the newest position rows, the older speeds,
     the cut-off sample), so when a step runs does not change its result; plain attributes
-    (pickled with the keyframer). Steps: the speed signal and candidates; one per scale (its
-    two HP solves, where they count); the minima of all scales and their chain matching in
-    `CHAIN_STEPS`; Ward in `WARD_STEPS`; the decisions. `cost` is each
-    step's estimated cost (integers, so the schedule is exact).
+    (pickled with the keyframer). Steps (`Online._step`): the speed signal, its candidates and
+    the HP forward passes carried over the speeds that became final; the HP trends of the
+    region and their minima; the chains (intensities); Ward + Mojena and the decisions.
+    `cost` is each step's estimated cost (integers, so the schedule is exact).
     """
 
-    def __init__(self, anchor: int, zone_end: int, lo: int, base: int, rows: np.ndarray,
-                 old: np.ndarray | None, sample: np.ndarray, cost: np.ndarray) -> None:
-        self.anchor, self.zone_end, self.lo, self.base = anchor, zone_end, lo, base
+    def __init__(self, anchor: int, zone_end: int, lo: int, base: int, g0: int,
+                 rows: np.ndarray, old: np.ndarray | None, sample: np.ndarray,
+                 cost: np.ndarray) -> None:
+        self.anchor, self.zone_end, self.lo, self.base, self.g0 = anchor, zone_end, lo, base, g0
         self.rows, self.old, self.sample = rows, old, sample
         self.cum = np.cumsum(cost).tolist()
         self.step = 0
-        self.v = self.cand = self.new = self.cut = self.tf = self.th = np.empty(0)
+        self.v = self.cand = self.new = self.cut = self.total = self.minima = np.empty(0)
+        self.u = np.empty(0)
+        self.counts = np.zeros(0, dtype=np.int64)
         self.start = self.lo_trend = 0
-        self.minima: list[tuple[np.ndarray, np.ndarray]] = []
-        self.chain: Chain | None = None
-        self.ward: Ward1D | None = None
 
 
 class Online(OnlineKeyframer):
@@ -633,8 +561,8 @@ class Online(OnlineKeyframer):
 
     Every `hop` frames (default lookahead // 5, at most 24) an analysis of the window
     (`history` + `lookahead` + `hop` frames) starts; its work is spread over the next `delay`
-    frames (two thirds of the hop, fewer if the lookahead is short: a few HP solves per frame
-    instead of a burst) and it decides the candidates whose deadline (frame + `lookahead`)
+    frames (two thirds of the hop, fewer if the lookahead is short: four steps on four
+    frames instead of a burst) and it decides the candidates whose deadline (frame + `lookahead`)
     comes before the next analysis is done. Each decision is sent when its deadline frame
     arrives, so latency_frames == lookahead for every event except those of `flush()`, which
     analyses the whole window and decides the rest (decisions not yet sent included). A
@@ -681,13 +609,20 @@ class Online(OnlineKeyframer):
         self._lams = scale_lambdas(scale_frequencies(f_max, f_min, r), 1.0 / self.fps)
         # Region re-analysed by a regular update: the lookahead plus room for the DP context.
         self._region = self.lookahead + 2 * self.hop + REGION_MARGIN
-        self._lengths = self._region + settle_frames(self._lams)
         self._pos_settle = int(settle_frames(np.array([hp_lambda(f_c, 1.0 / self.fps)]))[0])
         # Speeds redone by a regular update: those a frame of the last hop can still change.
         self._fresh = min(self._region, self.hop + self._pos_settle + 1)
         self._ring = _Ring(self.history + self.lookahead + self.hop + 2, 3 * len(MIURA_ROLES))
         self._bank = HPBank(self._lams)
+        packed_factors(self._lams)  # built now (shared, derived), not on a streaming frame
+        self._work = _WorkRows()
         self.reset()
+
+    def _reset_carry(self, base: int) -> None:
+        """HP forward passes start afresh at window speed `base` (global numbering)."""
+        self._hp_base = base  # the carried systems' first row: this speed
+        self._hp_done = 0  # rows carried (forward values of the last ones in `_hp_y`)
+        self._hp_y = np.zeros((self._region + 4, len(self._lams)))
 
     def reset(self) -> None:
         """Forget the window and the cut-off history; keep parameters."""
@@ -703,6 +638,8 @@ class Online(OnlineKeyframer):
         self._job: _Job | None = None
         self._resume_after: int | None = None  # last seq before a restart (history kept)
         self._pending: list[tuple[int, float, float]] = []  # provisional hook
+        self._g0 = 0  # speeds dropped from the window since the reset
+        self._reset_carry(0)
 
     def restart(self, keep_statistics: bool = True) -> None:
         """A new window after a long gap or a source restart (after `finish()`): the cut-off
@@ -724,16 +661,18 @@ class Online(OnlineKeyframer):
             self._resume_after = None
         events: list[KeyframeEvent] = []
         i = 0
-        while i < len(block):
-            take = min(len(block) - i, self.hop - self._count % self.hop)
-            self._ring.extend(int(block.seq[i]), rows[i : i + take], block.time[i : i + take])
+        seqs, n, hop = block.seq, len(block.seq), self.hop
+        while i < n:
+            take = min(n - i, hop - self._count % hop)
+            self._ring.extend(int(seqs[i]), rows[i : i + take], block.time[i : i + take])
             self._count += take
             i += take
-            self._last_seq = int(block.seq[i - 1])
-            self._advance(self._count if i < len(block) else self._count - 1)
-            events.extend(self._emit())
-            if self._count % self.hop == 0:
-                if i < len(block):
+            self._last_seq = int(seqs[i - 1])
+            self._advance(self._count if i < n else self._count - 1)
+            if self._scheduled:
+                events.extend(self._emit())
+            if self._count % hop == 0:
+                if i < n:
                     self._schedule()
                     events.extend(self._emit())
                 else:  # the block's last frame: start the analysis in `idle`
@@ -747,7 +686,7 @@ class Online(OnlineKeyframer):
         if self._analysis_due:
             self._analysis_due = False
             self._schedule()
-        return self._emit()
+        return self._emit() if self._scheduled else []
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: analyse the whole window and decide every candidate not yet sent.
@@ -808,22 +747,17 @@ class Online(OnlineKeyframer):
             snap, old = rows.copy(), None
         else:
             snap = rows[n - seg :].copy()
+        self._g0 += self._ring.dropped_since
         self._ring.dropped_since = 0
         # Decided (sent or not) in the last `cutoff_history` frames: intensities as decided.
         sample = np.concatenate([self._history(t), [u for _, u, _ in self._scheduled]])
-        # Step costs, ~ns (measured: a scale's Python overhead weighs as much as its solves;
-        # the first scale matches all candidates; Ward's first step sorts and heaps).
-        solved = np.minimum(self._lengths, n) + min(self._region, n)
-        s = len(self._lams) // 2
-        solves = 30_000 + 6 * (solved[:s] + solved[s:])
-        chains = np.array([350_000, 300_000, 220_000, 150_000, 130_000, 80_000])  # fine: more
-        ward = np.full(WARD_STEPS, 1_000 * (len(sample) + 20) // WARD_STEPS)
-        ward[0] += 500 * (len(sample) + 20)
-        cost = np.concatenate([[200_000 if old is not None else 2_000 * len(snap)], solves,
-                               chains, ward, [200_000]])
+        # Step costs, ~µs (measured at the defaults: speed signal, HP trends, chains,
+        # Ward + Mojena and decisions).
+        cost = np.array([50 if old is not None else 50 + len(snap) // 4,
+                         40 + min(self._region, n) // 4, 40, 60 + len(sample) // 8])
         lo = self._ring.first_seq - 1 if self._scheduled_upto is None else self._scheduled_upto
-        self._job = _Job(self._count, zone_end, lo, self._ring.first_seq, snap, old, sample,
-                         cost)
+        self._job = _Job(self._count, zone_end, lo, self._ring.first_seq, self._g0, snap, old,
+                         sample, cost)
         self._advance(self._count)
 
     def _advance(self, count: int) -> None:
@@ -841,7 +775,7 @@ class Online(OnlineKeyframer):
         s = len(self._lams) // 2
         i = job.step
         job.step += 1
-        if i == 0:  # speed signal and candidates
+        if i == 0:  # speed signal, candidates, the HP forward passes over final speeds
             if job.old is None:
                 v = speed_signal(job.rows, 1.0 / self.fps, self.f_c)
             else:
@@ -849,53 +783,46 @@ class Online(OnlineKeyframer):
                                                         self._fresh)])
             self._v = job.v = v
             job.start = max(0, len(v) - self._region)
-            cand = local_minima(v)
-            job.cand = cand[cand >= job.start]
-            job.chain = Chain(job.cand)
             job.lo_trend = max(job.start - 1, 0)  # a minimum needs its left neighbour
-            job.tf = np.empty((s, len(v) - job.lo_trend))
-            job.th = np.empty((s, len(v) - job.start))
-        elif i <= s:  # both HP solves of scale i - 1, where they count
-            steady = len(job.v) >= self._ring.capacity - 1  # the window's length from now on
-            n, j = len(job.v), i - 1
-            a = n - min(int(self._lengths[j]), n)
-            b = n - min(int(self._lengths[s + j]), n)
-            job.tf[j] = self._bank.solve(job.v[a:], j, steady, n - job.lo_trend)
-            job.th[j] = self._bank.solve(job.v[b:], s + j, steady, n - job.start)
-        elif i <= s + CHAIN_STEPS:  # minima of every scale at once, then their chains
-            assert job.chain is not None
-            k = i - s - 1  # 0: minima; 1: the first scale (all candidates); then the rest
-            if k == 0:
-                job.minima = _tail_minima(job.tf, job.th, job.lo_trend, job.start)
-                job.tf = job.th = np.empty(0)  # done with: snapshots stay small
-            parts = CHAIN_STEPS - 2
-            lo, hi = (0, 1) if k == 1 else (1 + (k - 2) * (s - 1) // parts,
-                                            1 + (k - 1) * (s - 1) // parts) if k else (0, 0)
-            for m, u in job.minima[lo:hi]:
-                job.chain.extend(m, u)
-        elif i <= s + CHAIN_STEPS + WARD_STEPS:
-            if i == s + CHAIN_STEPS + 1:
-                assert job.chain is not None
-                u, seqs = job.chain.total, job.cand + job.base
-                job.new = (seqs > job.lo) & (seqs <= job.zone_end)
-                job.cut = np.concatenate([job.sample, u[job.new], u[seqs > job.zone_end]])
-                if np.any(job.new) and len(job.cut) >= WARD_1D_FROM:
-                    job.ward = Ward1D(job.cut)
-            if job.ward is not None:
-                job.ward.run(-(-(job.ward.n - 1) // WARD_STEPS))
-        else:  # the decisions
+            job.cand = local_minima(v[job.lo_trend :]) + job.lo_trend
+            g0 = job.g0 - self._hp_base
+            if self._hp_done < g0:  # the window outran the carried passes (tiny windows)
+                self._reset_carry(job.g0)
+                g0 = 0
+            upto = g0 + len(v) - self._fresh  # the speeds older than `_fresh` are final
+            if upto > self._hp_done:
+                self._hp_done = hp_advance(v, g0, self._hp_done, upto, self._hp_y,
+                                           *packed_factors(self._lams))
+        elif i == 1:  # HP trends of the region, every scale; their minima
+            v, g0 = job.v, job.g0 - self._hp_base
+            if g0 + len(v) >= 5:
+                pre, off, conv = packed_factors(self._lams)
+                rows = g0 + len(v) - min(g0 + job.lo_trend, self._hp_done)
+                trends = hp_tail(v, g0, job.lo_trend, self._hp_done, self._hp_y, pre, off,
+                                 conv, self._lams, self._work.get(rows, len(self._lams)))
+            else:  # a system too short for the corner formulas (g0 is 0): whole solves
+                trends = np.stack([self._bank.solve(v, j)[job.lo_trend :]
+                                   for j in range(2 * s)], axis=1)
+            job.minima, job.u, job.counts = tail_minima(trends, s, job.lo_trend, job.start)
+        elif i == 2:  # the chains: intensities
+            job.total = chain_totals(job.cand, job.minima, job.u, job.counts, BAND_BUDGET)
+            if len(job.total) != len(job.cand):  # long lookaheads: the windowed DP
+                cuts = np.cumsum(job.counts)[:-1]
+                job.total = intensities(job.cand, list(zip(np.split(job.minima, cuts),
+                                                           np.split(job.u, cuts), strict=True)))
+        else:  # Ward + Mojena, the decisions
             self._scheduled_upto = job.zone_end
             self._job = None
-            if np.any(job.new):
-                assert job.chain is not None
-                u, seqs = job.chain.total[job.new], job.cand[job.new] + job.base
-                threshold = self._threshold(job.cut, False, job.ward)
-                self._scheduled.extend(zip(seqs.tolist(), u.tolist(),
-                                           (u > threshold).tolist(), strict=True))
-                total, later = job.chain.total, job.cand + job.base
-                ahead = (later > job.zone_end) & (total > threshold)
+            u, seqs = job.total, job.cand + job.base
+            new = (seqs > job.lo) & (seqs <= job.zone_end)
+            if np.any(new):
+                cut = np.concatenate([job.sample, u[new], u[seqs > job.zone_end]])
+                threshold = self._threshold(cut, False)
+                self._scheduled.extend(zip(seqs[new].tolist(), u[new].tolist(),
+                                           (u[new] > threshold).tolist(), strict=True))
+                ahead = (seqs > job.zone_end) & (u > threshold)
                 self._pending = [(c, self._ring.time(c), x) for c, x in  # provisional hook
-                                 zip(later[ahead].tolist(), total[ahead].tolist(), strict=True)]
+                                 zip(seqs[ahead].tolist(), u[ahead].tolist(), strict=True)]
 
     def _speed(self) -> np.ndarray:
         """Speed over the whole window (at flush)."""
@@ -911,11 +838,11 @@ class Online(OnlineKeyframer):
             self._hist_u.popleft()
         return np.fromiter(self._hist_u, float, len(self._hist_u))
 
-    def _threshold(self, sample: np.ndarray, final: bool, ward: Ward1D | None = None) -> float:
+    def _threshold(self, sample: np.ndarray, final: bool) -> float:
         """Ward + Mojena threshold over a cut-off sample: the candidates decided in the last
         `cutoff_history` frames (intensities as decided), the ones being decided and the
         window's pending ones (current intensities)."""
-        res = mojena_threshold(sample, self.mojena_k, ward)
+        res = mojena_threshold(sample, self.mojena_k)
         if res.n_clusters == 1 and not final and len(sample) < self.warmup_candidates:
             return _two_cluster_threshold(sample)
         return res.threshold
