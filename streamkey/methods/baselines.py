@@ -35,7 +35,7 @@ from ..jit import kernel, warmer
 from ..keyframes import Keyframes
 from ..kinematics import body_height, forward_kinematics
 from ..motion import Motion
-from .simplify import DEFAULT_SPACE, SPACES, curve, position_rows
+from .simplify import DEFAULT_SPACE, SPACES, chord_sq, curve, position_rows
 
 __all__ = ["uniform", "decimate", "decimation_order", "segment_sse", "reconstruction_sse"]
 
@@ -61,18 +61,9 @@ def uniform(motion: Motion, count: int) -> Keyframes:
 @kernel
 def _segment_sse(x: np.ndarray, a: int, b: int) -> float:
     """`segment_sse`, compiled: rows summed in order, each row's squares in column order."""
-    m = b - a
-    if m < 2:
-        return 0.0
     total = 0.0
-    for i in range(1, m):
-        t = i / m
-        row = 0.0
-        for j in range(x.shape[1]):
-            xa = x[a, j]
-            r = (x[a + i, j] - xa) - t * (x[b, j] - xa)
-            row += r * r
-        total += row
+    for i in range(1, b - a):
+        total += chord_sq(x, a, b, i)
     return total
 
 

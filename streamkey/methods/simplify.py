@@ -116,6 +116,19 @@ def position_rows(positions: np.ndarray, n_joints: int, height: float) -> np.nda
 
 
 @kernel
+def chord_sq(x: np.ndarray, a: int, b: int, i: int) -> float:
+    """Squared distance of row a + i of x to the time-parametrised chord from row a to row b
+    (coordinates summed in column order; shared by the split search and decimation)."""
+    t = i / (b - a)
+    s = 0.0
+    for j in range(x.shape[1]):
+        xa = x[a, j]
+        r = (x[a + i, j] - xa) - t * (x[b, j] - xa)
+        s += r * r
+    return s
+
+
+@kernel
 def _farthest_rows(x: np.ndarray, a: int, b: int) -> tuple[int, float]:
     """Farthest interior row of x[a..b] from its time-parametrised chord, every distance
     computed directly: (row, squared distance); (a, -1.0) without interior rows. Ties: the
@@ -123,12 +136,7 @@ def _farthest_rows(x: np.ndarray, a: int, b: int) -> tuple[int, float]:
     m = b - a
     best, arg = -1.0, a
     for i in range(1, m):
-        t = i / m
-        s = 0.0
-        for j in range(x.shape[1]):
-            xa = x[a, j]
-            r = (x[a + i, j] - xa) - t * (x[b, j] - xa)
-            s += r * r
+        s = chord_sq(x, a, b, i)
         if s > best:
             best, arg = s, a + i
     return arg, best
