@@ -33,7 +33,9 @@ def run_demo(seconds: float = 20.0, offline: bool = False, fast: bool = False,
     counts = dict.fromkeys(ONLINE_METHODS, 0)
     summary = asyncio.run(run_live(
         motion, list(ONLINE_METHODS), [], stream="demo", rate=0.0 if fast else None,
-        on_event=lambda e: _print_event(e, counts, out), on_ready=lambda line: None))
+        on_event=lambda e: _print_event(e, counts, out),
+        on_ready=lambda line: print(line, file=sys.stderr, flush=True)
+        if line.startswith("compiling") else None))
     lat = summary.latency_percentiles()
     print(f"done: {summary.frames_in} frames, keyframes per method: "
           + ", ".join(f"{m} {n}" for m, n in counts.items())

@@ -435,6 +435,9 @@ class Engine:
         push a few rest-pose frames through a throwaway copy of them, so that first-call
         costs (compilation, lazy imports, FK plans, BLAS start-up) are not paid by the first
         real decision's latency."""
+        if jit.cache_is_cold():
+            self.on_ready("compiling the numba kernels for this machine (once, up to a "
+                          "minute; later runs load them from the cache)")
         spare = Pipeline(self.make_keyframers(spec), stream=spec.stream)
         jit.warm_up()
         rest = np.zeros(spec.skeleton.n_channels)

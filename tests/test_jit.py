@@ -48,9 +48,11 @@ def test_kernel_compiles_calls_other_kernels_and_pickles(tmp_path, monkeypatch):
 
     a = np.arange(5.0)
     assert mod.total.compiled is None  # nothing compiled before the first call
+    assert jit.cache_is_cold([mod.total, mod.step])  # a new module: nothing cached yet
     assert mod.total(a) == float(np.sum(2.0 * a + 1.0))
     assert mod.total.compiled is not None and mod.step.compiled is not None
     assert pickle.loads(pickle.dumps(mod.total)) is mod.total
+    assert not jit.cache_is_cold([mod.total, mod.step])  # compiled once: on disk now
     jit.warm_up()
     assert mod.WARMED == [1.0]
     jit._WARMERS.remove(mod.warm)
