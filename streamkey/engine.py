@@ -329,7 +329,8 @@ class Engine:
                 self._warm_up(StreamSpec(self.stream, *known))
                 if not self.source.shared_skeleton:
                     self._open(self.stream, None)
-            if not self._warm:  # the skeleton comes from the wire: freeze what is loaded
+            if not self._warm:  # the skeleton comes from the wire: load the kernels now,
+                self._load_kernels()  # not while its first frames wait; freeze the heap
                 self._freeze_heap()
             self.on_ready(f"listening on {await self.source.start()}")
             if not self._stopping:
@@ -435,17 +436,23 @@ class Engine:
         push a few rest-pose frames through a throwaway copy of them, so that first-call
         costs (compilation, lazy imports, FK plans, BLAS start-up) are not paid by the first
         real decision's latency."""
-        if jit.cache_is_cold():
-            self.on_ready("compiling the numba kernels for this machine (once, up to a "
-                          "minute; later runs load them from the cache)")
+        self._load_kernels()
         spare = Pipeline(self.make_keyframers(spec), stream=spec.stream)
-        jit.warm_up()
+        jit.warm_up()  # modules the keyframers imported just now
         rest = np.zeros(spec.skeleton.n_channels)
         for seq in range(3):
             spare.push(Frame(seq, seq / spec.fps, rest))
         spare.flush()
         self._warm = True
         self._freeze_heap()
+
+    def _load_kernels(self) -> None:
+        """Compile or load every numba kernel imported so far (`jit.warm_up()`), saying so
+        when they compile for a new machine (once, tens of seconds) instead of pausing."""
+        if jit.cache_is_cold():
+            self.on_ready("compiling the numba kernels for this machine (once, up to a "
+                          "minute; later runs load them from the cache)")
+        jit.warm_up()
 
     def _freeze_heap(self) -> None:
         """With `freeze_gc`: collect once, then move every object alive now (modules,
