@@ -24,6 +24,7 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 _WARMERS: list[Callable[[], None]] = []
 _KERNELS: list[_Kernel] = []
+_WARMED: set[Callable[[], None]] = set()
 
 
 class _Kernel:
@@ -94,6 +95,9 @@ def cache_is_cold(kernels: list[Any] | None = None) -> bool:
 
 def warm_up() -> None:
     """Compile or load from the cache every kernel of the modules imported so far (call
-    before a live stream starts, so no frame waits for the compiler)."""
+    before a live stream starts, so no frame waits for the compiler). Each warmer runs once
+    per process; a later call runs only the warmers registered since."""
     for fn in list(_WARMERS):
-        fn()
+        if fn not in _WARMED:
+            fn()
+            _WARMED.add(fn)
