@@ -131,7 +131,7 @@ def test_two_replay_processes_with_stream_ids_feed_one_run_over_osc(tmp_path):
     got = per_stream(read_jsonl(log))
     for name, clip in clips.items():
         expected = single_stream(read_bvh(clip), ["speed", "simplify"], float32=True)
-        assert rounded(got[name]) == rounded(expected), name
+        assert rounded(got[name]) == rounded(expected), (name, err)  # err: frames lost?
     streams = json.loads(summary.read_text())["streams"]
     assert set(streams) == set(clips) and "stream left:" in err
 
