@@ -93,11 +93,11 @@ def cache_is_cold(kernels: list[Any] | None = None) -> bool:
         return False
 
 
-def warm_up() -> None:
-    """Compile or load from the cache every kernel of the modules imported so far (call
-    before a live stream starts, so no frame waits for the compiler). Each warmer runs once
-    per process; a later call runs only the warmers registered since."""
-    for fn in list(_WARMERS):
+def warm_up(*warmers: Callable[[], None]) -> None:
+    """Compile or load from the cache the kernels of `warmers` (default: every registered
+    one, i.e. of the modules imported so far); call before a live stream starts, so no frame
+    waits for the compiler. Each warmer runs once per process."""
+    for fn in warmers or list(_WARMERS):
         if fn not in _WARMED:
             fn()
             _WARMED.add(fn)

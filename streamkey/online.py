@@ -36,6 +36,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .errors import UsageError
+from .jit import warm_up
 from .keyframes import (
     STRENGTH_WINDOW,
     Event,
@@ -268,8 +269,7 @@ class FeatureStage:
         self.unwrap_offset: np.ndarray | None = None
         self.fk_points: frozenset[int] | None = frozenset()
         self._requests: dict[tuple[int, ...], tuple[np.ndarray, frozenset[int]]] = {}
-        warm_kinematics()  # the first frame must not wait for the compiler (or its cache)
-        warm_unwrap()
+        warm_up(warm_kinematics, warm_unwrap)  # once per process: no frame waits to compile
 
     def compute(self, frames: Sequence[Frame]) -> FeatureBlock:
         """Features of consecutive clean frames (unwrapped rotations now; FK on demand)."""
