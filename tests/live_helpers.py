@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -25,6 +26,13 @@ def streamkey(*args: str, **kwargs) -> subprocess.Popen:
     """Start `python -m streamkey ARGS` with stdout and stderr piped."""
     return subprocess.Popen([sys.executable, "-m", "streamkey", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, **kwargs)
+
+
+def interrupt_if_running(proc: subprocess.Popen, timeout: float = 30.0) -> None:
+    """Test cleanup: Ctrl-C a process that is still running and reap it."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=timeout)
 
 
 def wait_ready(proc: subprocess.Popen, needle: str = "listening on",

@@ -9,7 +9,6 @@ gives exactly the keyframes of the online keyframers run on what was sent.
 from __future__ import annotations
 
 import json
-import signal
 import socket
 import time
 
@@ -17,7 +16,15 @@ import numpy as np
 import pytest
 import zmq
 from cmu import DATA, clips
-from live_helpers import MS, free_port, keyframes_of, read_jsonl, streamkey, wait_ready
+from live_helpers import (
+    MS,
+    free_port,
+    interrupt_if_running,
+    keyframes_of,
+    read_jsonl,
+    streamkey,
+    wait_ready,
+)
 from pythonosc.osc_message import OscMessage
 
 from streamkey.amc import bvh_equivalent, read_amc, read_motion
@@ -162,9 +169,7 @@ def test_run_receiving_an_amc_replay_keys_what_was_sent(tmp_path, scheme, skelet
         _, err = run.communicate(timeout=60 * MS)
         assert time.monotonic() - started < 60 * MS
     finally:
-        if run.poll() is None:
-            run.send_signal(signal.SIGINT)
-            run.communicate(timeout=30)
+        interrupt_if_running(run)
     assert run.returncode == 0, err
     assert f"frames in: {read_motion(AMC).n_frames}" in err
     got = keyframes_of(read_jsonl(log))

@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import json
 import random
-import signal
 import socket
 import subprocess
 import sys
@@ -16,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cmu import DATA
-from live_helpers import MS, free_port, keyframes_of, read_jsonl, streamkey
+from live_helpers import MS, free_port, interrupt_if_running, keyframes_of, read_jsonl, streamkey
 
 from streamkey.adapters.axis import (
     AxisLayout,
@@ -213,9 +212,7 @@ def test_a_garbage_server_leaves_run_clean(tmp_path):
     try:
         _, err = run.communicate(timeout=60 * MS)
     finally:
-        if run.poll() is None:
-            run.send_signal(signal.SIGINT)
-            run.communicate(timeout=30)
+        interrupt_if_running(run)
     thread.join(10)
     assert run.returncode == 0, err
     assert "Traceback" not in err

@@ -1,11 +1,17 @@
 from __future__ import annotations
 
-import signal
-
 import numpy as np
 import pytest
 from cmu import DATA
-from live_helpers import MS, free_port, keyframes_of, read_jsonl, streamkey, wait_ready
+from live_helpers import (
+    MS,
+    free_port,
+    interrupt_if_running,
+    keyframes_of,
+    read_jsonl,
+    streamkey,
+    wait_ready,
+)
 
 from streamkey.bvh import read_bvh
 from streamkey.keyframes import KeyframeEvent
@@ -44,9 +50,7 @@ def test_replay_and_run_as_two_processes_lose_no_event(tmp_path, scheme):
         replay.communicate()
         _, err = run.communicate(timeout=60 * MS)
     finally:
-        if run.poll() is None:
-            run.send_signal(signal.SIGINT)
-            run.communicate(timeout=30)
+        interrupt_if_running(run)
     assert run.returncode == 0, err
     got = keyframes_of(read_jsonl(log))
     assert "frames in: 316" in err

@@ -16,6 +16,7 @@ from cmu import DATA, ROOT
 from live_helpers import (
     MS,
     free_port,
+    interrupt_if_running,
     keys_sent_to_osc,
     read_jsonl,
     streamkey,
@@ -187,9 +188,7 @@ def test_frames_sent_with_oscsend_are_accepted_by_streamkey_run(tmp_path):
                         "6", "0.05", "oops"], timeout=10 * MS, check=True)
         _, err = run.communicate(timeout=60 * MS)
     finally:
-        if run.poll() is None:
-            run.send_signal(signal.SIGINT)
-            run.communicate(timeout=30)
+        interrupt_if_running(run)
     assert run.returncode == 0, err
     assert "frames in: 5" in err
     import json

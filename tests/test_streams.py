@@ -5,13 +5,20 @@ from __future__ import annotations
 
 import asyncio
 import json
-import signal
 import time
 
 import numpy as np
 import zmq
 from cmu import DATA
-from live_helpers import MS, free_port, read_jsonl, streamkey, until, wait_ready
+from live_helpers import (
+    MS,
+    free_port,
+    interrupt_if_running,
+    read_jsonl,
+    streamkey,
+    until,
+    wait_ready,
+)
 
 from streamkey.adapters import parse_address
 from streamkey.adapters.osc import OscSource, encode_frame, encode_skeleton, stream_address
@@ -124,9 +131,7 @@ def test_two_replay_processes_with_stream_ids_feed_one_run_over_osc(tmp_path):
             r.communicate()
         _, err = run.communicate(timeout=60 * MS)
     finally:
-        if run.poll() is None:
-            run.send_signal(signal.SIGINT)
-            run.communicate(timeout=30)
+        interrupt_if_running(run)
     assert run.returncode == 0, err
     got = per_stream(read_jsonl(log))
     for name, clip in clips.items():
