@@ -321,6 +321,37 @@ def decode_frame(data: bytes, address: str = FRAME_ADDRESS) -> tuple[int, float,
     if tags_end < 0 or data[head : head + 1] != b",":
         raise OscDecodeError("parse", f"{FRAME_ADDRESS}: no type tag string")
     tags = data[head + 1 : tags_end]
+    plan = _FRAME_PLANS.get(tags)
+    if plan is None:
+        plan = _frame_plan(tags)
+    layout, head_layout, n = plan
+    start = (tags_end + 4) & ~3
+    if len(data) != start + layout.size:
+        kind = "truncated" if len(data) < start + layout.size else "trailing"
+        raise OscDecodeError(kind, f"{FRAME_ADDRESS}: {len(data)} bytes, the type tags "
+                             f"{tags[:40].decode('ascii')!r} need {start + layout.size}")
+    if head_layout is not None:  # our own layout (and most senders'): one vectorised read
+        seq_value, time_value = head_layout.unpack_from(data, start)
+        channels = np.frombuffer(data, ">f4", n, start + head_layout.size).astype(np.float64)
+    else:
+        seq_value, time_value, *values = layout.unpack_from(data, start)
+        channels = np.array(values, dtype=np.float64)
+    if not (math.isfinite(time_value) and np.all(np.isfinite(channels))):
+        raise OscDecodeError("nan", f"{FRAME_ADDRESS}: NaN or infinite value")
+    problem = frame_numbers_problem(seq_value, time_value)
+    if problem is not None:
+        raise OscDecodeError("range", f"{FRAME_ADDRESS}: {problem}")
+    return int(seq_value), float(time_value), channels
+
+
+_FRAME_PLANS: dict[bytes, tuple[struct.Struct, struct.Struct | None, int]] = {}
+_MAX_FRAME_PLANS = 64  # distinct type-tag strings remembered (a sender uses one or two)
+
+
+def _frame_plan(tags: bytes) -> tuple[struct.Struct, struct.Struct | None, int]:
+    """How to read a frame with these type tags: the whole layout, the (seq, time) head
+    when every channel is a float32 (else None), the channel count; remembered, so a
+    stream's frames after its first skip this (the tags repeat frame after frame)."""
     formats = [_ARG_FORMATS.get(t) for t in tags]
     if None in formats:
         raise OscDecodeError("types", f"{FRAME_ADDRESS}: seq, time and channels must be "
@@ -332,25 +363,12 @@ def decode_frame(data: bytes, address: str = FRAME_ADDRESS) -> tuple[int, float,
     if n > MAX_CHANNELS:
         raise OscDecodeError("oversize", f"{FRAME_ADDRESS}: {n} channels, more than the limit "
                              f"of {MAX_CHANNELS}")
-    start = (tags_end + 4) & ~3
     layout = struct.Struct(">" + "".join(f for f in formats if f))
-    if len(data) != start + layout.size:
-        kind = "truncated" if len(data) < start + layout.size else "trailing"
-        raise OscDecodeError(kind, f"{FRAME_ADDRESS}: {len(data)} bytes, the type tags "
-                             f"{tags[:40].decode('ascii')!r} need {start + layout.size}")
-    if tags[2:] == b"f" * n:  # our own layout (and most senders'): one vectorised read
-        seq_value, time_value = struct.unpack_from(f">{formats[0]}{formats[1]}", data, start)
-        offset = start + struct.calcsize(f">{formats[0]}{formats[1]}")
-        channels = np.frombuffer(data, ">f4", n, offset).astype(np.float64)
-    else:
-        seq_value, time_value, *values = layout.unpack_from(data, start)
-        channels = np.array(values, dtype=np.float64)
-    if not (math.isfinite(time_value) and np.all(np.isfinite(channels))):
-        raise OscDecodeError("nan", f"{FRAME_ADDRESS}: NaN or infinite value")
-    problem = frame_numbers_problem(seq_value, time_value)
-    if problem is not None:
-        raise OscDecodeError("range", f"{FRAME_ADDRESS}: {problem}")
-    return int(seq_value), float(time_value), channels
+    head = struct.Struct(f">{formats[0]}{formats[1]}") if tags[2:] == b"f" * n else None
+    if len(_FRAME_PLANS) >= _MAX_FRAME_PLANS:
+        _FRAME_PLANS.clear()
+    plan = _FRAME_PLANS[tags] = (layout, head, n)
+    return plan
 
 
 def _message(data: bytes, address: str | None = None) -> OscMessage:

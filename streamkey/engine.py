@@ -302,6 +302,7 @@ class Engine:
         self._deferred: dict[str, _Stream] = {}  # streams whose re-analysis is pending
         self._said_refused: set[str] = set()
         self._warm = False
+        self._prebuilt: tuple[tuple[Any, float], Pipeline] | None = None  # (skeleton, fps)
         self._last_frame = time.monotonic()
         self._next_retire = 0.0
         self._sink_failures: dict[int, int] = {}
@@ -329,9 +330,10 @@ class Engine:
                 self._warm_up(StreamSpec(self.stream, *known))
                 if not self.source.shared_skeleton:
                     self._open(self.stream, None)
-            if not self._warm:  # the skeleton comes from the wire: load the kernels now,
-                self._load_kernels()  # not while its first frames wait; freeze the heap
-                self._freeze_heap()
+                else:  # it may serve tagged streams only: built now, opened by a frame
+                    self._prebuilt = (known, self._build(StreamSpec(self.stream, *known)))
+            if not self._warm:  # the skeleton comes from the wire: warm up on a built-in
+                self._warm_up_without_skeleton()  # rig, not while its first frames wait
             self.on_ready(f"listening on {await self.source.start()}")
             if not self._stopping:
                 await self._loop()
@@ -375,11 +377,15 @@ class Engine:
             self._waiting_seen.setdefault(name, time.monotonic())
             return None
         spec = StreamSpec(name, *known)
+        prebuilt, self._prebuilt = self._prebuilt, None
         try:
             if not self._warm:
                 self._warm_up(spec)
-            pipeline = Pipeline(self.make_keyframers(spec), stream=name,
-                                reset_on_gap=self.reset_on_gap)
+            if prebuilt is not None and tag is None and prebuilt[0][0] is known[0] and (
+                    prebuilt[0][1] == known[1]):
+                pipeline = prebuilt[1]
+            else:
+                pipeline = self._build(spec)
         except Exception as exc:
             if self.source.shared_skeleton or not isinstance(
                     exc, (StreamkeyError, ArithmeticError, ValueError, IndexError)):
@@ -445,6 +451,23 @@ class Engine:
         spare.flush()
         self._warm = True
         self._freeze_heap()
+
+    def _build(self, spec: StreamSpec) -> Pipeline:
+        return Pipeline(self.make_keyframers(spec), stream=spec.stream,
+                        reset_on_gap=self.reset_on_gap)
+
+    def _warm_up_without_skeleton(self) -> None:
+        """Warm up before listening when the skeleton will come from the wire: on the
+        built-in humanoid rig, so the method modules are imported and their kernels loaded
+        before the first frames wait for them (~0.4 s with all methods). If the keyframers
+        refuse that rig (a `--roles` mapping of another rig), the kernels loaded so far."""
+        from .rigs import humanoid_skeleton
+
+        try:
+            self._warm_up(StreamSpec(self.stream, humanoid_skeleton(), 120.0))
+        except (StreamkeyError, ValueError, KeyError, IndexError):
+            self._load_kernels()
+            self._freeze_heap()
 
     def _load_kernels(self) -> None:
         """Compile or load every numba kernel imported so far (`jit.warm_up()`), saying so

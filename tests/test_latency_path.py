@@ -17,7 +17,7 @@ from streamkey import jit
 from streamkey.adapters import osc as osc_adapter
 from streamkey.adapters import parse_address
 from streamkey.adapters import zmq as zmq_adapter
-from streamkey.adapters.osc import OscSource, encode_skeleton, skeleton_header
+from streamkey.adapters.osc import OscSource, encode_frame, encode_skeleton, skeleton_header
 from streamkey.adapters.zmq import ZmqSource
 from streamkey.bvh import parse_bvh, read_bvh
 from streamkey.live import build_engine
@@ -180,3 +180,55 @@ async def test_keyframes_of_a_streams_end_are_stamped_but_not_timed():
     assert summary.latency.count + at_end == len(keys) == summary.events["speed"] + summary.events[
         "simplify"]
     assert "decided by a stream's end not timed" in summary.text()
+
+
+async def test_with_a_skeleton_from_the_wire_the_keyframers_are_warm_before_listening():
+    """No skeleton yet: the engine warms its keyframers up on a built-in rig before it
+    listens, so the stream's first frames do not wait for imports and kernel loading."""
+    seen = {"warmed": 0, "built": [], "at_listen": None}
+
+    @jit.warmer
+    def probe():
+        seen["warmed"] += 1
+
+    def ready(line):
+        if line.startswith("listening on"):
+            seen["at_listen"] = (seen["warmed"], list(seen["built"]))
+            source.receive(encode_skeleton(MOTION.skeleton, MOTION.fps))
+            for frame in MOTION.frames()[:5]:
+                source.receive(encode_frame(frame.seq, frame.time, frame.channels))
+            source.frames.put(None)
+
+    try:
+        source = OscSource(parse_address("osc://127.0.0.1:0"))
+        engine = build_engine(source, ["saliency", "optimal"], [], on_ready=ready)
+        make = engine.make_keyframers
+        engine.make_keyframers = lambda spec: seen["built"].append(spec.skeleton) or make(spec)
+        summary = await engine.run()
+    finally:
+        jit._WARMERS.remove(probe)
+    warmed, built = seen["at_listen"]
+    assert warmed == 1 and len(built) == 1 and built[0].names != MOTION.skeleton.names
+    assert seen["warmed"] == 1  # the clip's skeleton needed no second warm-up
+    assert seen["built"][-1] is source.skeleton and summary.frames_in == 5
+
+
+async def test_a_given_skeletons_pipeline_is_built_before_listening_and_used():
+    """`--skeleton` given: the unnamed stream's pipeline is built before listening and the
+    first frame finds it ready; a tagged stream gets its own."""
+    pipelines = {}
+
+    def ready(line):
+        if line.startswith("listening on"):
+            pipelines["before"] = engine._prebuilt[1]
+            for frame in MOTION.frames()[:5]:
+                source.receive(encode_frame(frame.seq, frame.time, frame.channels))
+            source.frames.put(None)
+
+    source = OscSource(parse_address("osc://127.0.0.1:0"), skeleton=MOTION.skeleton,
+                       fps=MOTION.fps)
+    engine = build_engine(source, ["simplify"], [], on_ready=ready,
+                          on_frame=lambda f: pipelines.setdefault("used", engine.pipeline))
+    summary = await engine.run()
+    assert pipelines["used"] is pipelines["before"] and summary.frames_in == 5
+    assert engine._prebuilt is None
