@@ -9,6 +9,7 @@ from pythonosc.osc_bundle import OscBundle
 from pythonosc.osc_message import OscMessage
 from pythonosc.osc_message_builder import OscMessageBuilder
 
+from streamkey.adapters import osc as osc_adapter
 from streamkey.adapters.osc import (
     FRAME_ADDRESS,
     OscDecodeError,
@@ -58,6 +59,25 @@ def test_frames_from_other_senders_with_float_seq_and_doubles_decode():
     seq, time, channels = decode_frame(builder.build().dgram)
     assert (seq, time) == (7, 0.5)
     np.testing.assert_array_equal(channels, [1.5, 2.5, 3.0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.lists(st.sampled_from("ihfd"), min_size=1, max_size=90), min_size=1,
+                max_size=120))
+def test_frames_with_many_type_tag_layouts_decode_as_python_osc_reads_them(layouts):
+    """The decoder remembers layouts by type tags: a sender switching between many (more
+    than it keeps) still gets every frame read exactly, and the memory stays bounded."""
+    for i, tags in enumerate(layouts):
+        builder = OscMessageBuilder(FRAME_ADDRESS)
+        builder.add_arg(i, "i")
+        builder.add_arg(i / 8, "d")
+        for j, t in enumerate(tags):
+            builder.add_arg(j if t in "ih" else j + 0.5, t)
+        dgram = builder.build().dgram
+        seq, time, channels = decode_frame(dgram)
+        assert (seq, time) == (i, i / 8)
+        np.testing.assert_array_equal(channels, OscMessage(dgram).params[2:])
+        assert len(osc_adapter._FRAME_PLANS) <= osc_adapter._MAX_FRAME_PLANS
 
 
 def bad(address="/streamkey/frame", args=(("i", 1), ("d", 0.0), ("f", 1.0))):
