@@ -531,7 +531,8 @@ async def run_dashboard(source: Source | Motion, methods: list[str], to: list[st
         logs = [s for s in sinks if isinstance(s, JsonlSink)]
         board.log = logs[0] if logs else None
         engine = build_engine(source, methods, [*sinks, board], params, lookahead, stream,
-                              rate, loop, on_event, ready, idle_exit, on_frame=board.on_frame)
+                              rate, loop, on_event, ready, idle_exit, on_frame=board.on_frame,
+                              freeze_gc=True)
     except BaseException:
         await board.close()
         raise

@@ -13,9 +13,9 @@ from scipy.linalg import cholesky_banded, solveh_banded
 from .errors import UsageError
 from .jit import kernel, warmer
 
-__all__ = ["hp_lambda", "hp_filter", "hp_banded", "hp_settle", "hp_factor", "unwrap_degrees",
-           "unwrap_step", "unwrap_state", "unwrap_columns", "unwrap_into", "local_minima",
-           "local_maxima", "warm_unwrap"]
+__all__ = ["hp_lambda", "hp_filter", "hp_banded", "hp_settle", "hp_factor", "hp_prefix",
+           "unwrap_degrees", "unwrap_step", "unwrap_state", "unwrap_columns", "unwrap_into",
+           "local_minima", "local_maxima", "warm_unwrap"]
 
 
 def hp_lambda(cutoff_hz: float, frame_time: float) -> float:

@@ -7,6 +7,7 @@ it never skips: a missing browser is a failure with the install hint.
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 import os
 import re
@@ -196,6 +197,7 @@ async def test_malformed_client_messages_get_errors_and_the_session_goes_on(
         assert hello["methods"] == METHODS and len(set(hello["colors"].values())) == 4
         key = await next_of(ws, ("keyframe",))
         assert key["pose"] is not None  # the thumbnail of the key's own frame
+        assert gc.get_freeze_count() > 10_000  # its run froze the start-up heap, as `run`
         later = board.hello()  # what a page opened now gets: take name, bones and their sides
         assert later["take"] == "demo" and len(later["sides"]) == len(later["bones"])
         assert {"L", "R", ""} == set(later["sides"])
