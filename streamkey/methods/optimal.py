@@ -184,6 +184,9 @@ class Solver:
             self._grow(len(rows), rows.shape[1])
         lo = self.n - self.base
         self.x[lo : lo + len(rows)] = rows
+        if self.keep_costs:  # online: each frame priced as it arrives, not all at chunk end
+            self.pricer.price(self.x, self.base, self.n, self.n + len(rows),
+                              self.costs[lo : lo + len(rows)])
         self.n += len(rows)
         ends = []
         while self.n - self.done >= om.CHUNK:
@@ -195,9 +198,10 @@ class Solver:
         """Price and solve frames done .. end − 1 (one chunk, or the tail at finish)."""
         self.settle()
         b0, b1 = self.done - self.base, end - self.base
-        costs = self.pricer.price(self.x, self.base, self.done, end)
-        if self.keep_costs:
-            self.costs[b0:b1] = costs
+        if self.keep_costs:  # priced by `add`
+            costs = self.costs[b0:b1]
+        else:
+            costs = self.pricer.price(self.x, self.base, self.done, end)
         start = b0
         if self.done == 0:
             self.f[0], self.bp[0], self.keys[0] = 0.0, -1, 1
