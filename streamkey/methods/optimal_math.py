@@ -168,32 +168,49 @@ def _price_rows(x: np.ndarray, xbase: int, b0: int, b1: int, o: int, c: np.ndarr
         x2[:na] = 0.0
         x3[:na] = 0.0
         x4[:na] = 0.0
-        for k in range(d):
-            p, s, t = wt[k, lb], q0[lb, k], q1[lb, k]
-            for j in range(na):
-                wa = wt[k, la0 + j]
-                x1[j] += wa * p
-                x2[j] += wa * s
-                x3[j] += wa * t
-                x4[j] += mrt[k, la0 + j] * p
+        k = 0
+        while k < d:  # four coordinates a pass, added in order: the bits of one at a time
+            e = min(k + 4, d)
+            p = wt[k:e, lb]
+            s = q0[lb, k:e]
+            t = q1[lb, k:e]
+            if e - k == 4:
+                w0, w1 = wt[k, la0:lb], wt[k + 1, la0:lb]  # rows: contiguous, vectorised
+                w2, w3 = wt[k + 2, la0:lb], wt[k + 3, la0:lb]
+                m0, m1 = mrt[k, la0:lb], mrt[k + 1, la0:lb]
+                m2, m3 = mrt[k + 2, la0:lb], mrt[k + 3, la0:lb]
+                p0, p1, p2, p3 = p[0], p[1], p[2], p[3]
+                s0, s1, s2, s3 = s[0], s[1], s[2], s[3]
+                t0, t1, t2, t3 = t[0], t[1], t[2], t[3]
+                for j in range(na):
+                    v0, v1, v2, v3 = w0[j], w1[j], w2[j], w3[j]
+                    x1[j] = (((x1[j] + v0 * p0) + v1 * p1) + v2 * p2) + v3 * p3
+                    x2[j] = (((x2[j] + v0 * s0) + v1 * s1) + v2 * s2) + v3 * s3
+                    x3[j] = (((x3[j] + v0 * t0) + v1 * t1) + v2 * t2) + v3 * t3
+                    x4[j] = (((x4[j] + m0[j] * p0) + m1[j] * p1) + m2[j] * p2) + m3[j] * p3
+            else:
+                for i in range(e - k):
+                    w, mr = wt[k + i, la0:lb], mrt[k + i, la0:lb]
+                    for j in range(na):
+                        x1[j] += w[j] * p[i]
+                        x2[j] += w[j] * s[i]
+                        x3[j] += w[j] * t[i]
+                        x4[j] += mr[j] * p[i]
+            k = e
         row = out[b - b0]
         ub = float(lb)
         nb, gb = rowdots[0, lb], rowdots[3, lb]
         tail = q2[lb] - 2.0 * gb
         gg = ub * gb - rowdots[4, lb]
-        for j in range(max_len):
-            a = b - max_len + j
-            if a < 0:  # stream start: segments from before frame 0 do not exist
-                row[j] = np.inf
-                continue
-            la = a - o
-            i = la - la0
-            m = b - a
-            cost = (tables[1, m] * x1[i] - 2.0 * x2[i] - q2[la + 1]
-                    + tables[0, m] * (rowdots[0, la] + nb) + tail
-                    + tables[2, m] * (gg + ub * rowdots[1, la] - rowdots[2, la]
-                                      - float(la) * x2[i] + x3[i] - x4[i]))
-            row[j] = 0.0 if cost < 0.0 else cost
+        j0 = max_len - na  # a = b − L + j; a < 0 before j0: segments from before frame 0
+        row[:j0] = np.inf
+        for i in range(na):  # start a = la0 + i (local), m = b − a = na − i
+            la = la0 + i
+            cost = (tables[1, na - i] * x1[i] - 2.0 * x2[i] - q2[la + 1]
+                    + tables[0, na - i] * (rowdots[0, la] + nb) + tail
+                    + tables[2, na - i] * (gg + ub * rowdots[1, la] - rowdots[2, la]
+                                           - float(la) * x2[i] + x3[i] - x4[i]))
+            row[j0 + i] = 0.0 if cost < 0.0 else cost
         row[max_len - 1] = 0.0  # m = 1: no frame inside
 
 
