@@ -273,16 +273,9 @@ class Solver:
         # Frames after d whose best chain skips the decision, or passes through such a frame,
         # are solved again (first to last of them). Any other frame keeps its value and its
         # back-pointer: its other options only got worse.
-        end = self.done - base
-        p = self.bp[hi + 1 : end].tolist()
-        stale = [a <= hi and a != lo for a in p]
-        last = -1
-        for i, a in enumerate(p):  # back-pointers point backwards: one pass
-            if stale[i] or (a > hi and stale[a - hi - 1]):
-                stale[i] = True
-                last = i
-        if last >= 0:  # solved by `settle`, before anything reads them (spreads the work)
-            self.stale = (hi + 1 + stale.index(True) + base, hi + 2 + last + base)
+        first, last = om.broken_chains(self.bp, lo, hi, self.done - base)
+        if first >= 0:  # solved by `settle`, before anything reads them (spreads the work)
+            self.stale = (first + base, last + 1 + base)
         return keys
 
     def settle(self) -> None:
@@ -573,6 +566,12 @@ class Online(OnlineKeyframer):
                 del self.seq[:drop], self.time[:drop]
                 self.t0 += drop
         return events
+
+    def idle(self) -> list[KeyframeEvent]:
+        """Deferred work of the last frame, after its events left: the re-solve its deadline
+        decision left (`Solver.settle`; else the next frame does it first)."""
+        self.solver.settle()
+        return []
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: the chain from the last frame decides the rest."""

@@ -17,7 +17,7 @@ from ..jit import kernel, warmer
 from ..kinematics import root_relative_joints
 
 __all__ = ["CHUNK", "EPOCH", "Pricer", "point_scale", "body_rows", "band_costs", "pair_costs",
-           "chain_costs", "dp_rows", "chain", "best_split", "fill_gaps"]
+           "chain_costs", "dp_rows", "broken_chains", "chain", "best_split", "fill_gaps"]
 
 CHUNK = 16  # frames priced together (online: the DP runs when a chunk of frames is complete)
 EPOCH = 512  # frames between re-based prefix sums (a multiple of CHUNK)
@@ -328,6 +328,7 @@ def _warm() -> None:
     f, bp, keys = np.zeros(4), np.zeros(4, dtype=np.int64), np.zeros(4, dtype=np.int64)
     chain_costs(np.zeros((4, 3)), np.array([0, 3], dtype=np.int64))
     band_costs(np.zeros((4, 3)), 2)
+    broken_chains(np.array([-1, 0, 1, 0], dtype=np.int64), 0, 1, 4)
     for dtype in (np.float64, np.float32):
         _dp_penalised(np.zeros((4, 2), dtype=dtype), f, bp, keys, 1, 4, 1.0, 0, 0)
 
@@ -384,6 +385,23 @@ def _inside(nb: int, max_len: int) -> np.ndarray:
     if key not in _INSIDE:
         _INSIDE[key] = np.arange(max_len)[None, :] >= max_len - np.arange(nb)[:, None]
     return _INSIDE[key]
+
+
+@kernel
+def broken_chains(bp: np.ndarray, lo: int, hi: int, end: int) -> tuple[int, int]:
+    """First and last frame in (hi, end) whose back-pointer chain skips the decided key `lo`
+    (points at or before `hi`, not at `lo`) or passes through such a frame; (−1, −1) if
+    none. One pass: back-pointers point backwards."""
+    broken = np.zeros(max(0, end - hi - 1), dtype=np.bool_)
+    first = last = -1
+    for i in range(len(broken)):
+        a = bp[hi + 1 + i]
+        if (a <= hi and a != lo) or (a > hi and broken[a - hi - 1]):
+            broken[i] = True
+            last = hi + 1 + i
+            if first < 0:
+                first = last
+    return first, last
 
 
 def chain(bp: np.ndarray, end: int, stop: int = -1) -> list[int]:
