@@ -25,8 +25,11 @@ Definitions this module settles:
   mean per-frame error ≤ T (body heights², the evaluation's E / h² of the linear
   interpolation of the curve; so the whole take's mean meets T too), ties to the least cost.
 
-Online (`Online`): frames are priced in chunks of `optimal_math.CHUNK` frames aligned at
-stream index 0 (offline does the same, so costs are bit-identical). F(b) keeps back-pointers.
+Online (`Online`): each frame's segments are priced when it arrives (`optimal_math.Pricer`,
+frame after frame in a fixed order, so offline pricing a chunk or the whole take gets the
+same bits); the DP runs in chunks of `optimal_math.CHUNK` frames aligned at stream index 0,
+as offline does, so the chunk-completing frame only pays for the DP, its decisions and the
+events. F(b) keeps back-pointers.
 A key is final once every back-pointer chain from the frames that could still precede a
 future key (the last L frames) passes through it (Viterbi traceback convergence). When the
 oldest undecided frame is `lookahead` frames old, the chain of the newest priced frame
@@ -178,8 +181,9 @@ class Solver:
         self.base += shift
 
     def add(self, rows: np.ndarray) -> list[int]:
-        """Append rows; price and solve every completed chunk. Returns the stream indices of
-        the chunk ends solved (the frames after which convergence may be checked)."""
+        """Append rows (online: priced now); solve every completed chunk. Returns the stream
+        indices of the chunk ends solved (the frames after which convergence may be
+        checked)."""
         if self.n - self.base + len(rows) > len(self.f):
             self._grow(len(rows), rows.shape[1])
         lo = self.n - self.base
@@ -195,7 +199,8 @@ class Solver:
         return ends
 
     def _solve(self, end: int) -> None:
-        """Price and solve frames done .. end − 1 (one chunk, or the tail at finish)."""
+        """Solve frames done .. end − 1 (one chunk, or the tail at finish); offline, price
+        them first."""
         self.settle()
         b0, b1 = self.done - self.base, end - self.base
         if self.keep_costs:  # priced by `add`
@@ -320,7 +325,7 @@ def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> tuple[np.ndarray, np
 def _rate_keys(x: np.ndarray, max_len: int,
                rate: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Offline rate: λ from every frame's cost (as the online controller ends up with), then
-    one penalised pass (keys, segment costs, λ). Same chunks and sums as `Solver`, so
+    one penalised pass (keys, segment costs, λ). Same costs and chunks as `Solver`, so
     bit-identical to it."""
     solver = Solver(max_len, rate=rate)
     band = np.empty((len(x), max_len))

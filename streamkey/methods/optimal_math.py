@@ -5,8 +5,10 @@ stateful piece (`Pricer`) holds plain arrays.
 
 The curve is x (one row per captured frame, D columns); the cost of a segment (a, b) is
 Σ_{a<f<b} |x_f − x_a − (f−a)/(b−a) (x_b − x_a)|². With prefix sums of x, f·x and |x|² over a
-window this costs O(D) per segment; `Pricer` prices every segment ending in a chunk of
-frames with four matrix products (never materialising a segment).
+window this costs O(D) per segment; `Pricer` prices the L segments ending at a frame when
+it arrives, from four dot products per start (w_a·w_b, w_a·Q0_b, w_a·Q1_b, −R_a·w_b) in
+one compiled loop over the window (never materialising a segment), frame after frame in a
+fixed order: a frame at a time online, a chunk or the whole take offline, the same bits.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from ..kinematics import root_relative_joints
 __all__ = ["CHUNK", "EPOCH", "Pricer", "point_scale", "body_rows", "band_costs", "pair_costs",
            "chain_costs", "dp_rows", "broken_chains", "chain", "best_split", "fill_gaps"]
 
-CHUNK = 16  # frames priced together (online: the DP runs when a chunk of frames is complete)
+CHUNK = 16  # frames solved together (the DP runs when a chunk of frames is complete)
 EPOCH = 512  # frames between re-based prefix sums (a multiple of CHUNK)
 
 
