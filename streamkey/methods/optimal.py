@@ -142,6 +142,7 @@ class Solver:
         self.base = 0
         self.n = 0
         self.done = 0  # frames with F computed
+        self.priced = 0  # online: frames with their costs in `costs`
         self.floor = 0  # last committed key (stream index)
         self.decided = -1  # every frame <= decided is final
         self.stale: tuple[int, int] | None = None  # frames to solve again (stream indices)
@@ -181,16 +182,12 @@ class Solver:
         self.base += shift
 
     def add(self, rows: np.ndarray) -> list[int]:
-        """Append rows (online: priced now); solve every completed chunk. Returns the stream
-        indices of the chunk ends solved (the frames after which convergence may be
-        checked)."""
+        """Append rows; solve every completed chunk. Returns the stream indices of the chunk
+        ends solved (the frames after which convergence may be checked)."""
         if self.n - self.base + len(rows) > len(self.f):
             self._grow(len(rows), rows.shape[1])
         lo = self.n - self.base
         self.x[lo : lo + len(rows)] = rows
-        if self.keep_costs:  # online: each frame priced as it arrives, not all at chunk end
-            self.pricer.price(self.x, self.base, self.n, self.n + len(rows),
-                              self.costs[lo : lo + len(rows)])
         self.n += len(rows)
         ends = []
         while self.n - self.done >= om.CHUNK:
@@ -199,11 +196,12 @@ class Solver:
         return ends
 
     def _solve(self, end: int) -> None:
-        """Solve frames done .. end − 1 (one chunk, or the tail at finish); offline, price
-        them first."""
+        """Solve frames done .. end − 1 (one chunk, or the tail at finish), pricing those not
+        priced yet."""
         self.settle()
         b0, b1 = self.done - self.base, end - self.base
-        if self.keep_costs:  # priced by `add`
+        if self.keep_costs:
+            self.price(end)
             costs = self.costs[b0:b1]
         else:
             costs = self.pricer.price(self.x, self.base, self.done, end)
@@ -218,6 +216,15 @@ class Solver:
             lam = self.rate_lambda(costs)
             if self.keep_costs and abs(math.log(lam / self.lam)) > RESOLVE:
                 self.resolve(lam)
+
+    def price(self, end: int | None = None) -> None:
+        """Online: price the frames appended and not priced yet (up to `end`), so a chunk's
+        completion finds its frames priced (`Online.idle` prices each frame as it arrives)."""
+        end = self.n if end is None else end
+        if self.priced < end:
+            lo, hi = self.priced - self.base, end - self.base
+            self.pricer.price(self.x, self.base, self.priced, end, self.costs[lo:hi])
+            self.priced = end
 
     def rate_lambda(self, costs: np.ndarray) -> float:
         """Rate controller (module docstring): λ from every frame priced so far."""
@@ -574,8 +581,10 @@ class Online(OnlineKeyframer):
 
     def idle(self) -> list[KeyframeEvent]:
         """Deferred work of the last frame, after its events left: the re-solve its deadline
-        decision left (`Solver.settle`; else the next frame does it first)."""
+        decision left (`Solver.settle`) and the pricing of its segments (`Solver.price`);
+        else the next frame, or the chunk's last, does them first."""
         self.solver.settle()
+        self.solver.price()
         return []
 
     def finish(self) -> list[KeyframeEvent]:
