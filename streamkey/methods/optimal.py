@@ -532,6 +532,7 @@ class Online(OnlineKeyframer):
         """Forget the stream; keep parameters."""
         kw = {"rate": self.mode["rate"] / self.fps} if "rate" in self.mode else dict(self.mode)
         self.solver = Solver(self.max_len, keep_costs=True, **kw)
+        self.solver.pricer.prepare(3 * len(self.scale))
         self.seq: list[int] = []
         self.time: list[float] = []
         self.t0 = 0  # stream index of seq[0]

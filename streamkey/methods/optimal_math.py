@@ -85,7 +85,9 @@ class Pricer:
         # per segment length m: Σt² = (m−1)(2m−1)/6m, 2Σt − 2Σt², 2/m
         self.tables = np.stack([s2, (mm - 1.0) - 2.0 * s2, 2.0 / mm])
 
-    def _alloc(self, d: int) -> None:
+    def prepare(self, d: int) -> None:
+        """Allocate (and touch) the buffers for rows of `d` columns now, before the stream,
+        instead of on its first frame."""
         size = EPOCH + self.max_len + CHUNK + 1
         self.wt = np.zeros((d, size))  # centred rows, transposed
         self.mrt = np.zeros((d, size))  # −R, transposed
@@ -95,6 +97,8 @@ class Pricer:
         # per row: |w|², w·Q0 and w·Q1 through the row, w·Q0 and w·Q1 before it
         self.rowdots = np.zeros((5, size))
         self.acc = np.zeros((4, self.max_len))
+        for a in (self.wt, self.mrt, self.q0, self.q1):
+            a.fill(0.0)  # first touch of fresh pages: here, not on a frame
 
     def price(self, x: np.ndarray, xbase: int, b0: int, b1: int,
               out: np.ndarray | None = None) -> np.ndarray:
@@ -104,8 +108,9 @@ class Pricer:
         L = self.max_len
         if out is None:
             out = np.empty((b1 - b0, L))
-        if len(self.wt) == 0:
-            self._alloc(x.shape[1])
+        if self.wt.shape[0] != x.shape[1]:
+            self.prepare(x.shape[1])
+        if len(self.c) == 0:
             self.c = np.array(x[0 - xbase], dtype=np.float64)
         b = b0
         while b < b1:
@@ -329,7 +334,7 @@ def _dp_penalised(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.nda
 def _warm() -> None:
     f, bp, keys = np.zeros(4), np.zeros(4, dtype=np.int64), np.zeros(4, dtype=np.int64)
     chain_costs(np.zeros((4, 3)), np.array([0, 3], dtype=np.int64))
-    band_costs(np.zeros((4, 3)), 2)
+    band_costs(np.zeros((EPOCH + 1, 3)), 2)  # across a re-base: `_append_rows` called alone
     broken_chains(np.array([-1, 0, 1, 0], dtype=np.int64), 0, 1, 4)
     for dtype in (np.float64, np.float32):
         _dp_penalised(np.zeros((4, 2), dtype=dtype), f, bp, keys, 1, 4, 1.0, 0, 0)
