@@ -25,10 +25,11 @@ Definitions this module settles:
   mean per-frame error ≤ T (body heights², the evaluation's E / h² of the linear
   interpolation of the curve; so the whole take's mean meets T too), ties to the least cost.
 
-Online (`Online`): each frame's segments are priced when it arrives (`optimal_math.Pricer`,
-frame after frame in a fixed order, so offline pricing a chunk or the whole take gets the
-same bits); the DP runs in chunks of `optimal_math.CHUNK` frames aligned at stream index 0,
-as offline does, so the chunk-completing frame only pays for the DP, its decisions and the
+Online (`Online`): each frame's segments are priced as it arrives, in `idle` once the push's
+events have left (`optimal_math.Pricer`, frame after frame in a fixed order, so offline
+pricing a chunk or the whole take gets the same bits); the DP runs in chunks of
+`optimal_math.CHUNK` frames aligned at stream index 0, as offline does, so the
+chunk-completing push pays only for its own frame's pricing, the DP, the decisions and the
 events. F(b) keeps back-pointers.
 A key is final once every back-pointer chain from the frames that could still precede a
 future key (the last L frames) passes through it (Viterbi traceback convergence). When the
