@@ -25,8 +25,12 @@ Definitions this module settles:
   mean per-frame error ≤ T (body heights², the evaluation's E / h² of the linear
   interpolation of the curve; so the whole take's mean meets T too), ties to the least cost.
 
-Online (`Online`): frames are priced in chunks of `optimal_math.CHUNK` frames aligned at
-stream index 0 (offline does the same, so costs are bit-identical). F(b) keeps back-pointers.
+Online (`Online`): each frame's segments are priced as it arrives, in `idle` once the push's
+events have left (`optimal_math.Pricer`, frame after frame in a fixed order, so offline
+pricing a chunk or the whole take gets the same bits); the DP runs in chunks of
+`optimal_math.CHUNK` frames aligned at stream index 0, as offline does, so the
+chunk-completing push pays only for its own frame's pricing, the DP, the decisions and the
+events. F(b) keeps back-pointers.
 A key is final once every back-pointer chain from the frames that could still precede a
 future key (the last L frames) passes through it (Viterbi traceback convergence). When the
 oldest undecided frame is `lookahead` frames old, the chain of the newest priced frame
@@ -139,6 +143,7 @@ class Solver:
         self.base = 0
         self.n = 0
         self.done = 0  # frames with F computed
+        self.priced = 0  # online: frames with their costs in `costs`
         self.floor = 0  # last committed key (stream index)
         self.decided = -1  # every frame <= decided is final
         self.stale: tuple[int, int] | None = None  # frames to solve again (stream indices)
@@ -178,8 +183,8 @@ class Solver:
         self.base += shift
 
     def add(self, rows: np.ndarray) -> list[int]:
-        """Append rows; price and solve every completed chunk. Returns the stream indices of
-        the chunk ends solved (the frames after which convergence may be checked)."""
+        """Append rows; solve every completed chunk. Returns the stream indices of the chunk
+        ends solved (the frames after which convergence may be checked)."""
         if self.n - self.base + len(rows) > len(self.f):
             self._grow(len(rows), rows.shape[1])
         lo = self.n - self.base
@@ -192,12 +197,15 @@ class Solver:
         return ends
 
     def _solve(self, end: int) -> None:
-        """Price and solve frames done .. end − 1 (one chunk, or the tail at finish)."""
+        """Solve frames done .. end − 1 (one chunk, or the tail at finish), pricing those not
+        priced yet."""
         self.settle()
         b0, b1 = self.done - self.base, end - self.base
-        costs = self.pricer.price(self.x, self.base, self.done, end)
         if self.keep_costs:
-            self.costs[b0:b1] = costs
+            self.price(end)
+            costs = self.costs[b0:b1]
+        else:
+            costs = self.pricer.price(self.x, self.base, self.done, end)
         start = b0
         if self.done == 0:
             self.f[0], self.bp[0], self.keys[0] = 0.0, -1, 1
@@ -209,6 +217,15 @@ class Solver:
             lam = self.rate_lambda(costs)
             if self.keep_costs and abs(math.log(lam / self.lam)) > RESOLVE:
                 self.resolve(lam)
+
+    def price(self, end: int | None = None) -> None:
+        """Online: price the frames appended and not priced yet (up to `end`), so a chunk's
+        completion finds its frames priced (`Online.idle` prices each frame as it arrives)."""
+        end = self.n if end is None else end
+        if self.priced < end:
+            lo, hi = self.priced - self.base, end - self.base
+            self.pricer.price(self.x, self.base, self.priced, end, self.costs[lo:hi])
+            self.priced = end
 
     def rate_lambda(self, costs: np.ndarray) -> float:
         """Rate controller (module docstring): λ from every frame priced so far."""
@@ -269,16 +286,9 @@ class Solver:
         # Frames after d whose best chain skips the decision, or passes through such a frame,
         # are solved again (first to last of them). Any other frame keeps its value and its
         # back-pointer: its other options only got worse.
-        end = self.done - base
-        p = self.bp[hi + 1 : end].tolist()
-        stale = [a <= hi and a != lo for a in p]
-        last = -1
-        for i, a in enumerate(p):  # back-pointers point backwards: one pass
-            if stale[i] or (a > hi and stale[a - hi - 1]):
-                stale[i] = True
-                last = i
-        if last >= 0:  # solved by `settle`, before anything reads them (spreads the work)
-            self.stale = (hi + 1 + stale.index(True) + base, hi + 2 + last + base)
+        first, last = om.broken_chains(self.bp, lo, hi, self.done - base)
+        if first >= 0:  # solved by `settle`, before anything reads them (spreads the work)
+            self.stale = (first + base, last + 1 + base)
         return keys
 
     def settle(self) -> None:
@@ -323,7 +333,7 @@ def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> tuple[np.ndarray, np
 def _rate_keys(x: np.ndarray, max_len: int,
                rate: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Offline rate: λ from every frame's cost (as the online controller ends up with), then
-    one penalised pass (keys, segment costs, λ). Same chunks and sums as `Solver`, so
+    one penalised pass (keys, segment costs, λ). Same costs and chunks as `Solver`, so
     bit-identical to it."""
     solver = Solver(max_len, rate=rate)
     band = np.empty((len(x), max_len))
@@ -523,6 +533,7 @@ class Online(OnlineKeyframer):
         """Forget the stream; keep parameters."""
         kw = {"rate": self.mode["rate"] / self.fps} if "rate" in self.mode else dict(self.mode)
         self.solver = Solver(self.max_len, keep_costs=True, **kw)
+        self.solver.pricer.prepare(3 * len(self.scale))
         self.seq: list[int] = []
         self.time: list[float] = []
         self.t0 = 0  # stream index of seq[0]
@@ -569,6 +580,14 @@ class Online(OnlineKeyframer):
                 del self.seq[:drop], self.time[:drop]
                 self.t0 += drop
         return events
+
+    def idle(self) -> list[KeyframeEvent]:
+        """Deferred work of the last frame, after its events left: the re-solve its deadline
+        decision left (`Solver.settle`) and the pricing of its segments (`Solver.price`);
+        else the next frame, or the chunk's last, does them first."""
+        self.solver.settle()
+        self.solver.price()
+        return []
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: the chain from the last frame decides the rest."""

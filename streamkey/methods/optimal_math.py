@@ -5,8 +5,10 @@ stateful piece (`Pricer`) holds plain arrays.
 
 The curve is x (one row per captured frame, D columns); the cost of a segment (a, b) is
 Σ_{a<f<b} |x_f − x_a − (f−a)/(b−a) (x_b − x_a)|². With prefix sums of x, f·x and |x|² over a
-window this costs O(D) per segment; `Pricer` prices every segment ending in a chunk of
-frames with four matrix products (never materialising a segment).
+window this costs O(D) per segment; `Pricer` prices the L segments ending at a frame when
+it arrives, from four dot products per start (w_a·w_b, w_a·Q0_b, w_a·Q1_b, −R_a·w_b) in
+one compiled loop over the window (never materialising a segment), frame after frame in a
+fixed order: a frame at a time online, a chunk or the whole take offline, the same bits.
 """
 
 from __future__ import annotations
@@ -17,9 +19,9 @@ from ..jit import kernel, warmer
 from ..kinematics import root_relative_joints
 
 __all__ = ["CHUNK", "EPOCH", "Pricer", "point_scale", "body_rows", "band_costs", "pair_costs",
-           "chain_costs", "dp_rows", "chain", "best_split", "fill_gaps"]
+           "chain_costs", "dp_rows", "broken_chains", "chain", "best_split", "fill_gaps"]
 
-CHUNK = 16  # frames priced together (online: the DP runs when a chunk of frames is complete)
+CHUNK = 16  # frames solved together (the DP runs when a chunk of frames is complete)
 EPOCH = 512  # frames between re-based prefix sums (a multiple of CHUNK)
 
 
@@ -58,19 +60,17 @@ def _prefix(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return q0, q1, q2
 
 
-def _rowdot(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", p, q)
-
-
 class Pricer:
-    """Segment costs of a stream, chunk by chunk (plain attributes).
+    """Segment costs of a stream, frame by frame (plain attributes).
 
-    Prefix sums run from an origin o, re-based every `EPOCH` frames (o = chunk start − L,
-    rows re-centred on x_o: costs are shift invariant and smaller sums round less), so their
-    size stays bounded on endless streams. Every quantity of one frame alone (|x|², x·Q0,
-    x·Q1, R = Σ_{f≤a} (f − a) x_f) is kept per row; a chunk then costs four matrix products
-    over the window and O(window × chunk) elementwise work. Offline and online feed the
-    same chunks, so their costs are bit-identical.
+    Prefix sums run from an origin o, re-based every `EPOCH` frames (o = frame − L, rows
+    re-centred on x_o: costs are shift invariant and smaller sums round less), so their size
+    stays bounded on endless streams. Every quantity of one frame alone (|x|², x·Q0, x·Q1,
+    R = Σ_{f≤a} (f − a) x_f) is kept per row, the rows and −R transposed (one column a
+    frame); pricing frame b's segments then takes four dot products per start a, summed
+    over coordinates in a fixed order (`_price_rows`). Appending and pricing run strictly
+    frame after frame, so any split of the stream into calls (a frame a push online, a
+    chunk or the whole take offline) gives the same bits.
     """
 
     def __init__(self, max_len: int) -> None:
@@ -78,106 +78,153 @@ class Pricer:
         self.o = 0  # stream index of local row 0
         self.n = 0  # rows appended (stream index of the next one)
         self.c = np.empty(0)  # centre row
-        self.w = np.empty((0, 0))
+        self.wt = np.empty((0, 0))
+        m = np.arange(self.max_len + 1, dtype=np.float64)
+        mm = np.where(m >= 1.0, m, 1.0)
+        s2 = (mm - 1.0) * (2.0 * mm - 1.0) / (6.0 * mm)
+        # per segment length m: Σt² = (m−1)(2m−1)/6m, 2Σt − 2Σt², 2/m
+        self.tables = np.stack([s2, (mm - 1.0) - 2.0 * s2, 2.0 / mm])
 
-    def _alloc(self, d: int) -> None:
+    def prepare(self, d: int) -> None:
+        """Allocate (and touch) the buffers for rows of `d` columns now, before the stream,
+        instead of on its first frame."""
         size = EPOCH + self.max_len + CHUNK + 1
-        self.w = np.zeros((size, d))
+        self.wt = np.zeros((d, size))  # centred rows, transposed
+        self.mrt = np.zeros((d, size))  # −R, transposed
         self.q0 = np.zeros((size + 1, d))
         self.q1 = np.zeros((size + 1, d))
         self.q2 = np.zeros(size + 1)
-        self.na = np.zeros(size)
-        self.h1 = np.zeros(size)
-        self.h3 = np.zeros(size)
-        self.mr = np.zeros((size, d))  # -R per row
+        # per row: |w|², w·Q0 and w·Q1 through the row, w·Q0 and w·Q1 before it
+        self.rowdots = np.zeros((5, size))
+        self.acc = np.zeros((4, self.max_len))
+        for a in (self.wt, self.mrt, self.q0, self.q1):
+            a.fill(0.0)  # first touch of fresh pages: here, not on a frame
 
-    def _append(self, rows: np.ndarray) -> None:
-        lo = self.n - self.o
-        hi = lo + len(rows)
-        wc = rows - self.c
-        u = np.arange(lo, hi, dtype=np.float64)[:, None]
-        self.w[lo:hi] = wc
-        self.q0[lo + 1 : hi + 1] = self.q0[lo] + np.cumsum(wc, axis=0)
-        self.q1[lo + 1 : hi + 1] = self.q1[lo] + np.cumsum(u * wc, axis=0)
-        na = _rowdot(wc, wc)
-        self.q2[lo + 1 : hi + 1] = self.q2[lo] + np.cumsum(na)
-        q0, q1 = self.q0[lo + 1 : hi + 1], self.q1[lo + 1 : hi + 1]
-        self.na[lo:hi] = na
-        self.h1[lo:hi] = _rowdot(wc, q0)
-        self.h3[lo:hi] = _rowdot(wc, q1)
-        self.mr[lo:hi] = u * q0 - q1
-        self.n += len(rows)
-
-    def price(self, x: np.ndarray, xbase: int, b0: int, b1: int) -> np.ndarray:
+    def price(self, x: np.ndarray, xbase: int, b0: int, b1: int,
+              out: np.ndarray | None = None) -> np.ndarray:
         """Costs C[i, j] of the segments (a, b), b = b0 + i < b1, a = b − L + j; inf where
-        a < 0. `x` holds the stream's rows from stream index `xbase` (at least from b0 − L).
-        Chunks must come in order, b0 = the previous b1."""
+        a < 0 (into `out` if given). `x` holds the stream's rows from stream index `xbase`
+        (at least from b0 − L). Frames must come in order, b0 = the previous b1."""
         L = self.max_len
-        if len(self.w) == 0:
-            self._alloc(x.shape[1])
-            self.c = x[0 - xbase].copy()
-        if b0 > 0 and b0 % EPOCH == 0:  # re-base: origin b0 - L, rows re-centred
-            self.o = self.n = max(0, b0 - L)
-            self.c = x[self.o - xbase].copy()
-            self._append(x[self.o - xbase : b0 - xbase])
-        self._append(x[b0 - xbase : b1 - xbase])
-        o = self.o
-        ls, lb0, lb1 = max(o, b0 - L) - o, b0 - o, b1 - o
-        nb = lb1 - lb0
-        win = self.w[ls:lb1]
-        pb, q0b, q1b = self.w[lb0:lb1], self.q0[lb0:lb1], self.q1[lb0:lb1]
-        u = np.arange(ls, lb1, dtype=np.float64)[:, None]
-        ub = np.arange(lb0, lb1, dtype=np.float64)
-        # Window space (row: a, column: b), four products (one per right-hand side: a
-        # concatenated one crosses BLAS's threading threshold and runs far slower on a busy
-        # machine).
-        x1, x2, x3 = win @ pb.T, win @ q0b.T, win @ q1b.T
-        x4 = self.mr[ls:lb1] @ pb.T
-        g0, g1 = _rowdot(pb, q0b), _rowdot(pb, q1b)
-        s2, cx1, two_m = (t[L + nb - len(win) :] for t in _tables(L, nb))
-        na = self.na[ls:lb1, None]
-        cost = (cx1 * x1 - 2.0 * x2 - self.q2[ls + 1 : lb1 + 1, None]
-                + s2 * (na + self.na[lb0:lb1]) + (self.q2[lb0:lb1] - 2.0 * g0)
-                + two_m * ((ub * g0 - g1) + ub * self.h1[ls:lb1, None] - self.h3[ls:lb1, None]
-                           - u * x2 + x3 - x4))
-        np.maximum(cost, 0.0, out=cost)
-        if len(win) < L + nb:  # stream start: segments from before frame 0 do not exist
-            cost = np.concatenate([np.full((L + nb - len(win), nb), np.inf), cost])
-        # band[i, j] = cost[i + j, i]: a = b - L + j (a strided view, no gather)
-        step, col = cost.strides
-        band = np.lib.stride_tricks.as_strided(cost, (nb, L), (step + col, step)).copy()
-        band[:, -1] = 0.0  # m = 1: no frame inside
-        return band
+        if out is None:
+            out = np.empty((b1 - b0, L))
+        if self.wt.shape[0] != x.shape[1]:
+            self.prepare(x.shape[1])
+        if len(self.c) == 0:
+            self.c = np.array(x[0 - xbase], dtype=np.float64)
+        b = b0
+        while b < b1:
+            if b > 0 and b % EPOCH == 0:  # re-base: origin b − L, rows re-centred
+                self.o = max(0, b - L)
+                self.c = np.array(x[self.o - xbase], dtype=np.float64)
+                _append_rows(x, xbase, self.o, b, self.o, self.c, self.wt, self.mrt, self.q0,
+                             self.q1, self.q2, self.rowdots)
+            e = min(b1, (b // EPOCH + 1) * EPOCH)
+            _price_rows(x, xbase, b, e, self.o, self.c, self.wt, self.mrt, self.q0, self.q1,
+                        self.q2, self.rowdots, self.tables, self.acc, out[b - b0 : e - b0])
+            b = e
+        self.n = b1
+        return out
 
 
-_TABLES: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+@kernel
+def _append_rows(x: np.ndarray, xbase: int, r0: int, r1: int, o: int, c: np.ndarray,
+                 wt: np.ndarray, mrt: np.ndarray, q0: np.ndarray, q1: np.ndarray,
+                 q2: np.ndarray, rowdots: np.ndarray) -> None:
+    """Append stream rows r0 .. r1 − 1 (x row r − xbase, local row r − o) to the prefix sums,
+    one row after another, each sum over coordinates in order."""
+    d = x.shape[1]
+    for r in range(r0, r1):
+        i = r - o
+        u = float(i)
+        na = h1 = h3 = g0 = g1 = 0.0
+        for k in range(d):
+            v = x[r - xbase, k] - c[k]
+            p0, p1 = q0[i, k], q1[i, k]
+            n0, n1 = p0 + v, p1 + u * v
+            q0[i + 1, k], q1[i + 1, k] = n0, n1
+            wt[k, i], mrt[k, i] = v, u * n0 - n1
+            na += v * v
+            h1 += v * n0
+            h3 += v * n1
+            g0 += v * p0
+            g1 += v * p1
+        q2[i + 1] = q2[i] + na
+        rowdots[0, i], rowdots[1, i], rowdots[2, i] = na, h1, h3
+        rowdots[3, i], rowdots[4, i] = g0, g1
 
 
-def _tables(max_len: int, nb: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Window-space factors of a full chunk window (rows a = 0 .. L + nb − 1, column i the
-    end L + i, m = L + i − a): Σt² = (m−1)(2m−1)/6m, 2Σt − 2Σt², 2/m (0 where m ≤ 0)."""
-    key = (max_len, nb)
-    if key not in _TABLES:
-        m = (max_len + np.arange(nb))[None, :] - np.arange(max_len + nb)[:, None]
-        m = m.astype(np.float64)
-        ok = m >= 1.0
-        mm = np.where(ok, m, 1.0)
-        s2 = np.where(ok, (mm - 1.0) * (2.0 * mm - 1.0) / (6.0 * mm), 0.0)
-        _TABLES[key] = (s2, np.where(ok, (mm - 1.0) - 2.0 * s2, 0.0),
-                        np.where(ok, 2.0 / mm, 0.0))
-    return _TABLES[key]
+@kernel
+def _price_rows(x: np.ndarray, xbase: int, b0: int, b1: int, o: int, c: np.ndarray,
+                wt: np.ndarray, mrt: np.ndarray, q0: np.ndarray, q1: np.ndarray, q2: np.ndarray,
+                rowdots: np.ndarray, tables: np.ndarray, acc: np.ndarray,
+                out: np.ndarray) -> None:
+    """Append and price frames b0 .. b1 − 1, one after another (`Pricer.price`): for end b,
+    the four window products w_a·w_b, w_a·Q0_b, w_a·Q1_b, −R_a·w_b of every start a, summed
+    over coordinates in order (the loop over a innermost, so it vectorises), then the cost
+    of each segment (a, b) from them and the per-row sums."""
+    max_len = out.shape[1]
+    d = x.shape[1]
+    x1, x2, x3, x4 = acc[0], acc[1], acc[2], acc[3]
+    for b in range(b0, b1):
+        _append_rows(x, xbase, b, b + 1, o, c, wt, mrt, q0, q1, q2, rowdots)
+        lb = b - o
+        la0 = max(b - max_len, 0) - o  # first start a (local)
+        na = lb - la0
+        x1[:na] = 0.0
+        x2[:na] = 0.0
+        x3[:na] = 0.0
+        x4[:na] = 0.0
+        k = 0
+        while k < d:  # four coordinates a pass, added in order: the bits of one at a time
+            e = min(k + 4, d)
+            p = wt[k:e, lb]
+            s = q0[lb, k:e]
+            t = q1[lb, k:e]
+            if e - k == 4:
+                w0, w1 = wt[k, la0:lb], wt[k + 1, la0:lb]  # rows: contiguous, vectorised
+                w2, w3 = wt[k + 2, la0:lb], wt[k + 3, la0:lb]
+                m0, m1 = mrt[k, la0:lb], mrt[k + 1, la0:lb]
+                m2, m3 = mrt[k + 2, la0:lb], mrt[k + 3, la0:lb]
+                p0, p1, p2, p3 = p[0], p[1], p[2], p[3]
+                s0, s1, s2, s3 = s[0], s[1], s[2], s[3]
+                t0, t1, t2, t3 = t[0], t[1], t[2], t[3]
+                for j in range(na):
+                    v0, v1, v2, v3 = w0[j], w1[j], w2[j], w3[j]
+                    x1[j] = (((x1[j] + v0 * p0) + v1 * p1) + v2 * p2) + v3 * p3
+                    x2[j] = (((x2[j] + v0 * s0) + v1 * s1) + v2 * s2) + v3 * s3
+                    x3[j] = (((x3[j] + v0 * t0) + v1 * t1) + v2 * t2) + v3 * t3
+                    x4[j] = (((x4[j] + m0[j] * p0) + m1[j] * p1) + m2[j] * p2) + m3[j] * p3
+            else:
+                for i in range(e - k):
+                    w, mr = wt[k + i, la0:lb], mrt[k + i, la0:lb]
+                    for j in range(na):
+                        x1[j] += w[j] * p[i]
+                        x2[j] += w[j] * s[i]
+                        x3[j] += w[j] * t[i]
+                        x4[j] += mr[j] * p[i]
+            k = e
+        row = out[b - b0]
+        ub = float(lb)
+        nb, gb = rowdots[0, lb], rowdots[3, lb]
+        tail = q2[lb] - 2.0 * gb
+        gg = ub * gb - rowdots[4, lb]
+        j0 = max_len - na  # a = b − L + j; a < 0 before j0: segments from before frame 0
+        row[:j0] = np.inf
+        for i in range(na):  # start a = la0 + i (local), m = b − a = na − i
+            la = la0 + i
+            cost = (tables[1, na - i] * x1[i] - 2.0 * x2[i] - q2[la + 1]
+                    + tables[0, na - i] * (rowdots[0, la] + nb) + tail
+                    + tables[2, na - i] * (gg + ub * rowdots[1, la] - rowdots[2, la]
+                                           - float(la) * x2[i] + x3[i] - x4[i]))
+            row[j0 + i] = 0.0 if cost < 0.0 else cost
+        row[max_len - 1] = 0.0  # m = 1: no frame inside
 
 
 def band_costs(x: np.ndarray, max_len: int) -> np.ndarray:
     """Costs of every segment of at most `max_len` frames ending at each frame (n, max_len),
-    priced chunk by chunk as a stream would be."""
-    n = len(x)
-    out = np.empty((n, max_len))
-    pricer = Pricer(max_len)
-    for b0 in range(0, n, CHUNK):
-        b1 = min(n, b0 + CHUNK)
-        out[b0:b1] = pricer.price(x, 0, b0, b1)
-    return out
+    priced frame by frame as a stream would be."""
+    return Pricer(max_len).price(np.asarray(x, dtype=np.float64), 0, 0, len(x))
 
 
 def pair_costs(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -287,6 +334,8 @@ def _dp_penalised(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.nda
 def _warm() -> None:
     f, bp, keys = np.zeros(4), np.zeros(4, dtype=np.int64), np.zeros(4, dtype=np.int64)
     chain_costs(np.zeros((4, 3)), np.array([0, 3], dtype=np.int64))
+    band_costs(np.zeros((EPOCH + 1, 3)), 2)  # across a re-base: `_append_rows` called alone
+    broken_chains(np.array([-1, 0, 1, 0], dtype=np.int64), 0, 1, 4)
     for dtype in (np.float64, np.float32):
         _dp_penalised(np.zeros((4, 2), dtype=dtype), f, bp, keys, 1, 4, 1.0, 0, 0)
 
@@ -343,6 +392,23 @@ def _inside(nb: int, max_len: int) -> np.ndarray:
     if key not in _INSIDE:
         _INSIDE[key] = np.arange(max_len)[None, :] >= max_len - np.arange(nb)[:, None]
     return _INSIDE[key]
+
+
+@kernel
+def broken_chains(bp: np.ndarray, lo: int, hi: int, end: int) -> tuple[int, int]:
+    """First and last frame in (hi, end) whose back-pointer chain skips the decided key `lo`
+    (points at or before `hi`, not at `lo`) or passes through such a frame; (−1, −1) if
+    none. One pass: back-pointers point backwards."""
+    broken = np.zeros(max(0, end - hi - 1), dtype=np.bool_)
+    first = last = -1
+    for i in range(len(broken)):
+        a = bp[hi + 1 + i]
+        if (a <= hi and a != lo) or (a > hi and broken[a - hi - 1]):
+            broken[i] = True
+            last = hi + 1 + i
+            if first < 0:
+                first = last
+    return first, last
 
 
 def chain(bp: np.ndarray, end: int, stop: int = -1) -> list[int]:
