@@ -107,6 +107,12 @@ def reconstruction_sse(x: np.ndarray, keys: np.ndarray) -> float:
 
 
 @kernel
+def _before(c1: float, f1: float, c2: float, f2: float) -> bool:
+    """Heap order: (cost, frame) lexicographic."""
+    return c1 < c2 or (c1 == c2 and f1 < f2)
+
+
+@kernel
 def _place(h: np.ndarray, pos: np.ndarray, i: int, cost: float, frame: float) -> None:
     """Write entry (cost, frame) at heap slot `i` and record the slot."""
     h[i, 0] = cost
@@ -125,12 +131,11 @@ def _sift_down(h: np.ndarray, pos: np.ndarray, i: int, size: int) -> None:
             break
         best = lo
         for ch in range(lo + 1, min(lo + 4, size)):
-            if h[ch, 0] < h[best, 0] or (h[ch, 0] == h[best, 0] and h[ch, 1] < h[best, 1]):
+            if _before(h[ch, 0], h[ch, 1], h[best, 0], h[best, 1]):
                 best = ch
-        bc, bf = h[best, 0], h[best, 1]
-        if not (bc < c or (bc == c and bf < f)):
+        if not _before(h[best, 0], h[best, 1], c, f):
             break
-        _place(h, pos, i, bc, bf)
+        _place(h, pos, i, h[best, 0], h[best, 1])
         i = best
     _place(h, pos, i, c, f)
 
@@ -141,10 +146,9 @@ def _sift_up(h: np.ndarray, pos: np.ndarray, i: int) -> None:
     c, f = h[i, 0], h[i, 1]
     while i > 0:
         up = (i - 1) // 4
-        uc, uf = h[up, 0], h[up, 1]
-        if not (c < uc or (c == uc and f < uf)):
+        if not _before(c, f, h[up, 0], h[up, 1]):
             break
-        _place(h, pos, i, uc, uf)
+        _place(h, pos, i, h[up, 0], h[up, 1])
         i = up
     _place(h, pos, i, c, f)
 
