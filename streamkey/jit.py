@@ -10,6 +10,10 @@ process pays the compilation once per machine, not per start.
 A live process must not compile on its first frame: `warm_up()` runs every registered
 warmer (`@warmer`: a function calling its module's kernels on tiny inputs) before the stream
 starts. Algorithm modules stay sans-I/O; this module only wraps functions.
+
+`prefetch(a, i)`, callable from kernels only, is a cache hint (LLVM's prefetch, built when
+the first kernel calling it compiles): it starts fetching `a[i]`'s cache line early and
+changes no result.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ import types
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["kernel", "warmer", "warm_up", "cache_is_cold"]
+__all__ = ["kernel", "warmer", "warm_up", "cache_is_cold", "prefetch"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
