@@ -10,6 +10,10 @@ process pays the compilation once per machine, not per start.
 A live process must not compile on its first frame: `warm_up()` runs every registered
 warmer (`@warmer`: a function calling its module's kernels on tiny inputs) before the stream
 starts. Algorithm modules stay sans-I/O; this module only wraps functions.
+
+`prefetch(a, i)`, callable from kernels only, is a cache hint (LLVM's prefetch, built when
+the first kernel calling it compiles): it starts fetching `a[i]`'s cache line early and
+changes no result.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ import types
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["kernel", "warmer", "warm_up", "cache_is_cold"]
+__all__ = ["kernel", "warmer", "warm_up", "cache_is_cold", "prefetch"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -101,3 +105,60 @@ def warm_up(*warmers: Callable[[], None]) -> None:
         if fn not in _WARMED:
             fn()
             _WARMED.add(fn)
+
+
+class _Intrinsic(_Kernel):
+    """LLVM code that kernels call by name, built by `build()` (importing numba) when the
+    first kernel calling it compiles; nothing of its own in numba's cache (not listed in
+    `cache_is_cold`)."""
+
+    def __init__(self, build: Callable[[], Any]) -> None:
+        self.py_func = build
+        self.options = {}
+        self.compiled = None
+        self.__name__ = self.__qualname__ = build.__name__.removeprefix("_build_")
+        self.__doc__ = build.__doc__
+        self.__module__ = build.__module__
+
+    def compile(self) -> Callable[..., Any]:
+        """The numba intrinsic."""
+        if self.compiled is None:
+            self.compiled = self.py_func()
+        return self.compiled
+
+
+def _build_prefetch() -> Callable[..., Any]:
+    """`prefetch(a, i)` in a kernel: ask the CPU to start fetching the cache line of `a[i]`
+    (a 1-D array) into every cache level; a hint, no effect on results. For reads whose
+    addresses are known before they are needed but that no hardware prefetcher guesses (a
+    block of rows at a data-dependent place)."""
+    from llvmlite import ir
+    from numba.core import cgutils, types
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def prefetch(typingctx: Any, array: Any, index: Any) -> Any:
+        if not (isinstance(array, types.Array) and array.ndim == 1
+                and isinstance(index, types.Integer)):
+            return None
+
+        def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+            aryty = signature.args[0]
+            ary = context.make_array(aryty)(context, builder, args[0])
+            idx = context.cast(builder, args[1], signature.args[1], types.intp)
+            ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [idx])
+            i8p = ir.IntType(8).as_pointer()
+            i32 = ir.IntType(32)
+            fn = cgutils.get_or_insert_function(
+                builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                "llvm.prefetch.p0i8")
+            # read, keep in every cache level, data cache
+            builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+            return context.get_dummy_value()
+
+        return types.void(array, index), codegen
+
+    return prefetch  # type: ignore[no-any-return]
+
+
+prefetch = _Intrinsic(_build_prefetch)

@@ -149,3 +149,15 @@ def test_segment_sse_kernel_equals_the_numpy_form():
     for a, b in ((0, 1), (0, 2), (10, 60), (5, len(x) - 1)):
         assert baselines.segment_sse(x, a, b) == pytest.approx(
             reference.segment_sse(x, a, b), rel=1e-12, abs=1e-15)
+
+
+def test_segment_sse_sums_the_chord_distances_of_its_rows_bit_for_bit():
+    """Four rows at a time, yet each row's squares in column order and the rows in frame
+    order: the same bits as adding `simplify.chord_sq` row by row (the removal order and
+    keys of decimate do not move)."""
+    x = simplify.curve(load("07_01.bvh"), "positions")
+    for a, b in [(0, m) for m in range(1, 14)] + [(37, 140), (3, len(x) - 1)]:
+        total = 0.0
+        for i in range(1, b - a):
+            total += simplify.chord_sq(x, a, b, i)
+        assert baselines.segment_sse(x, a, b) == total, (a, b)

@@ -56,3 +56,26 @@ def test_kernel_compiles_calls_other_kernels_and_pickles(tmp_path, monkeypatch):
     jit.warm_up()
     assert mod.WARMED == [1.0]
     jit._WARMERS.remove(mod.warm)
+
+
+def test_a_kernel_calls_the_prefetch_hint_by_name_and_keeps_its_result(tmp_path, monkeypatch):
+    module = tmp_path / "jit_prefetch_kernels.py"
+    module.write_text(textwrap.dedent('''
+        from streamkey.jit import kernel, prefetch
+
+        @kernel
+        def strided_sum(a, step):
+            s = 0.0
+            for i in range(0, len(a), step):
+                prefetch(a, min(i + 4 * step, len(a) - 1))
+                s += a[i]
+            return s
+    '''))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    import jit_prefetch_kernels as mod
+
+    a = np.arange(1000.0)
+    assert mod.strided_sum(a, 8) == float(np.sum(a[::8]))
+    assert jit.prefetch not in jit._KERNELS  # nothing of its own in numba's cache
+    assert not jit.cache_is_cold([mod.strided_sum])  # the caller is cached as any kernel
