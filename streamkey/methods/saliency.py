@@ -411,6 +411,7 @@ class Online(OnlineKeyframer):
         self.trace: deque[tuple[int, float]] = deque(maxlen=TRACE_FRAMES)
         self.resume_at = 0  # after a restart with kept statistics: first frame to analyse
         self.spread: _Spread | None = None  # a periodic basis update in progress
+        self.deferred = False  # the newest frame's deferred work (`_deferred`) is pending
 
     def restart(self, keep_statistics: bool = True) -> None:
         """A new window after a long gap or a source restart (after `finish()`): the basis,
@@ -487,6 +488,8 @@ class Online(OnlineKeyframer):
         return events
 
     def _advance(self, x: np.ndarray, foot: np.ndarray, time: float) -> list[KeyframeEvent]:
+        if self.deferred:  # `idle()` was not called after the last frame
+            self._deferred()
         self.t += 1
         t = self.t
         if t - self.base >= self.cap:
@@ -503,19 +506,43 @@ class Online(OnlineKeyframer):
         elif t < self.resume_at:  # restarted with kept statistics: the window fills first
             return []
         elif self.spread is not None:
-            self._spread_step(t)
-        elif t + 1 >= self.next_update:
-            if t - self.window + 1 > 0 and self.window > SPREAD + 2 * self.radius + 2:
-                # a periodic update (the window has moved on): spread over SPREAD frames
-                self._spread_start(t)
-            else:  # stream start (the window still holds the first frame): at once
-                self._catch_up(t - 1)
-                self._update(final=False)
-        elif min(t - self.window + 1, self.s_ready - 1) - self.out_upto >= FOLD_EVERY:
-            self._fold_out(self.out_upto + FOLD_EVERY)  # the past in small pieces
+            if t >= self.spread.u + SPREAD:
+                self._spread_step(t)  # the switch; the other pieces run in `idle()`
+        elif t + 1 >= self.next_update and not self._spreads(t):
+            self._catch_up(t - 1)  # stream start (the window still holds the first frame)
+            self._update(final=False)
         if self.basis is None:
             return []
+        self.deferred = True
         return self._classify_due(t)
+
+    def idle(self) -> list[KeyframeEvent]:
+        """The last frame's deferred work (`_deferred`); it decides nothing."""
+        if self.deferred:
+            self._deferred()
+        return []
+
+    def _deferred(self) -> None:
+        """Work of frame t that no decision of frame t reads, run after them (`idle()`, or
+        first thing at the next frame): frame t's incremental rows (so that the next
+        deciding frame computes only its own), a piece of a spread basis update or its
+        start, a piece of the past folded into the totals."""
+        self.deferred = False
+        t = self.t
+        self._catch_up(t)
+        sp = self.spread
+        if sp is not None:
+            if t < sp.u + SPREAD:
+                self._spread_step(t)
+        elif t + 1 >= self.next_update:  # `_spreads(t)`: else `_advance` updated at once
+            self._spread_start(t)
+        elif min(t - self.window + 1, self.s_ready - 1) - self.out_upto >= FOLD_EVERY:
+            self._fold_out(self.out_upto + FOLD_EVERY)  # the past in small pieces
+
+    def _spreads(self, t: int) -> bool:
+        """Whether a basis update due at frame t is spread over `SPREAD` frames (a periodic
+        one: the window has moved on) rather than made at once (stream start)."""
+        return t - self.window + 1 > 0 and self.window > SPREAD + 2 * self.radius + 2
 
     def _catch_up(self, upto: int) -> None:
         """The incremental rows (curve, curvature, maps, statistics) of frames up to `upto`.
@@ -617,6 +644,8 @@ class Online(OnlineKeyframer):
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: final basis from every frame, then decide every pending frame."""
+        if self.deferred:
+            self._deferred()
         if self.t < 2:
             return []
         self._catch_up(self.t)
