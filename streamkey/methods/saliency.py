@@ -108,6 +108,7 @@ from .saliency_math import (
     Clusterer,
     MapStats,
     Moments,
+    classify_terms,
     cluster_keyframes,
     cluster_size,
     combine,
@@ -119,6 +120,7 @@ from .saliency_math import (
     end_curvature,
     fit_k,
     gaussian_means,
+    itti_factors,
     kernel,
     kernel_bank,
     local_max_mask,
@@ -133,7 +135,6 @@ from .saliency_math import (
     remap_stats,
     ring_curves,
     ring_maps,
-    row_terms,
     scale_maps,
     support_radius,
     truncated_maps,
@@ -295,11 +296,13 @@ def _info(cv: _Curves, cand: np.ndarray, res: dict[str, np.ndarray], thr: np.nda
 
 @dataclass
 class _Spread:
-    """A periodic basis update in progress (`Online._spread_step`): due at frame u, its
-    window w0..u (rows copied), applied at frame u + SPREAD."""
+    """A basis update in progress (`Online._spread_step`): due at frame u, the moments of
+    its window w0..u (rows copied); the window at the switch (frame u + SPREAD - 1) starts
+    at frame lo, and the basis decides from frame u + SPREAD on."""
 
     u: int
     w0: int
+    lo: int
     mom: Moments
     xs: np.ndarray
     ft: np.ndarray
@@ -310,6 +313,7 @@ class _Spread:
     c: np.ndarray | None = None
     s: np.ndarray | None = None
     maps: int = 0
+    staged: dict[str, Any] | None = None  # the state after the switch (`Online._stage`)
 
 
 class Online(OnlineKeyframer):
@@ -446,9 +450,8 @@ class Online(OnlineKeyframer):
             b["s"] = np.zeros((self.cap, kk, 4))
             b["lm"] = np.zeros((self.cap, kk, 4), dtype=bool)
 
-    def _room(self) -> None:
+    def _room(self, t: int) -> None:
         """Make row `t` writable: shift the ring (or grow it) after folding old rows out."""
-        t = self.t
         if t - self.base < self.cap:
             return
         lo = max(self.base, t - self.window + 1)
@@ -490,11 +493,13 @@ class Online(OnlineKeyframer):
     def _advance(self, x: np.ndarray, foot: np.ndarray, time: float) -> list[KeyframeEvent]:
         if self.deferred:  # `idle()` was not called after the last frame
             self._deferred()
+        if self.spread is not None and self.spread.staged is not None:
+            self.__dict__.update(self.spread.staged)  # the switch: the new basis decides
         self.t += 1
         t = self.t
         if t - self.base >= self.cap:
-            self._catch_up(t - 1)
-            self._room()
+            self._catch_up(t - 1)  # before the first basis (else `_deferred` made room)
+            self._room(t)
         r = t - self.base
         b = self.buf
         b["xs"][r] = x
@@ -505,10 +510,7 @@ class Online(OnlineKeyframer):
                 self._update(final=False)
         elif t < self.resume_at:  # restarted with kept statistics: the window fills first
             return []
-        elif self.spread is not None:
-            if t >= self.spread.u + SPREAD:
-                self._spread_step(t)  # the switch; the other pieces run in `idle()`
-        elif t + 1 >= self.next_update and not self._spreads(t):
+        elif self.spread is None and t + 1 >= self.next_update and not self._spreads(t):
             self._catch_up(t - 1)  # stream start (the window still holds the first frame)
             self._update(final=False)
         if self.basis is None:
@@ -526,23 +528,24 @@ class Online(OnlineKeyframer):
         """Work of frame t that no decision of frame t reads, run after them (`idle()`, or
         first thing at the next frame): frame t's incremental rows (so that the next
         deciding frame computes only its own), a piece of a spread basis update or its
-        start, a piece of the past folded into the totals."""
+        start, a piece of the past folded into the totals, room for the next frame's row."""
         self.deferred = False
         t = self.t
         self._catch_up(t)
-        sp = self.spread
-        if sp is not None:
-            if t < sp.u + SPREAD:
-                self._spread_step(t)
+        if t + 1 - self.base >= self.cap:
+            self._room(t + 1)
+        if self.spread is not None:
+            self._spread_step(t)
         elif t + 1 >= self.next_update:  # `_spreads(t)`: else `_advance` updated at once
             self._spread_start(t)
         elif min(t - self.window + 1, self.s_ready - 1) - self.out_upto >= FOLD_EVERY:
             self._fold_out(self.out_upto + FOLD_EVERY)  # the past in small pieces
 
     def _spreads(self, t: int) -> bool:
-        """Whether a basis update due at frame t is spread over `SPREAD` frames (a periodic
-        one: the window has moved on) rather than made at once (stream start)."""
-        return t - self.window + 1 > 0 and self.window > SPREAD + 2 * self.radius + 2
+        """Whether a basis update due at frame t is spread over `SPREAD` frames rather than
+        made at once: every one but the first of a window (`lookahead`, or `resume_at`),
+        once frame t holds the support of the stream-start rows' maps (frame 2 radius + 2)."""
+        return self.window > SPREAD + 2 * self.radius + 2 and t >= 2 * self.radius + 2
 
     def _catch_up(self, upto: int) -> None:
         """The incremental rows (curve, curvature, maps, statistics) of frames up to `upto`.
@@ -660,7 +663,7 @@ class Online(OnlineKeyframer):
         """New basis from the running moments; recompute the window's curves and maps. With
         `spread`, the basis and most rows come from the spread update (`_spread_step`)."""
         t = self.t
-        w0 = max(0, t - self.window + 1)
+        w0 = max(0, t - self.window + 1) if spread is None else spread.lo
         self._fold_out(w0)
         a, e = w0 - self.base, t - self.base + 1
         b = self.buf
@@ -703,8 +706,8 @@ class Online(OnlineKeyframer):
     def _spread_rows(self, sp: _Spread, a: int, e: int
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Switch to the spread update's basis; curves, curvatures and maps of the window
-        (ring rows a..e-1, frames u + 1 - window + SPREAD .. u + SPREAD): the spread's rows,
-        completed by the frames after u and the maps that reach them."""
+        (ring rows a..e-1, frames lo .. u + SPREAD - 1): the spread's rows, completed by the
+        frames after u and the maps that reach them."""
         assert sp.basis is not None and sp.d is not None and sp.c is not None
         assert sp.s is not None
         self._set_basis(sp.basis, sp.perm)
@@ -714,7 +717,7 @@ class Online(OnlineKeyframer):
         c_new = curvature(d[n - 2 :])  # frames u - 1 .. t; the first row is an edge row
         c = np.concatenate([sp.c[: n - 1], c_new[1:]])
         s = np.concatenate([sp.s, np.zeros((e - a - n,) + sp.s.shape[1:])])
-        f0 = sp.maps - (sp.w0 + SPREAD)  # first window row without maps yet
+        f0 = sp.maps - sp.lo  # first window row without maps yet
         cnt = len(c) - R - f0  # up to frame t - radius (the windows inside the window)
         if cnt > 0:
             self._window_maps(c, f0 - R, cnt, self._pick, s[f0 : f0 + cnt])
@@ -763,15 +766,17 @@ class Online(OnlineKeyframer):
 
     # ------------------------------------------------------------------ spread update
     def _spread_start(self, u: int) -> None:
-        """A periodic update due at frame u: fold the window's past out and keep a copy of
-        the window's rows; the work follows one piece a frame (`_spread_step`) and the basis
-        switches at frame u + `SPREAD` (module docstring)."""
-        self._catch_up(u - 1)
-        w0 = u - self.window + 1
+        """A basis update due at frame u (after its decisions): fold the window's past out
+        and keep a copy of the window's rows; the work follows one piece a frame
+        (`_spread_step`, in `idle()`), the switch at frame u + `SPREAD` - 1, so that the
+        new basis decides from frame u + `SPREAD` on (module docstring)."""
+        self._catch_up(u)
+        w0 = max(0, u - self.window + 1)
+        lo = max(0, u + SPREAD - self.window)  # the window's start at the switch
         self._fold_out(w0)
         a, e = w0 - self.base, u - self.base + 1
-        self.spread = _Spread(u, w0, self.out_mom, self.buf["xs"][a:e].copy(),
-                              self.buf["ft"][a + SPREAD : e].copy())
+        self.spread = _Spread(u, w0, lo, self.out_mom, self.buf["xs"][a:e].copy(),
+                              self.buf["ft"][lo - self.base : e].copy())
         self.next_update = u + 1 + min(u + 1, self.update_every)
 
     def _spread_step(self, t: int) -> None:
@@ -779,10 +784,9 @@ class Online(OnlineKeyframer):
         block of maps), or the switch at its last frame."""
         sp = self.spread
         assert sp is not None
-        v = sp.u + SPREAD
+        v = sp.u + SPREAD - 1  # the switch, staged for the next frame
         if t >= v:
-            self._catch_up(t - 1)
-            self._update(final=False, spread=sp)
+            self._stage(sp)
             return
         k = t - sp.u
         if k == 1:
@@ -795,11 +799,11 @@ class Online(OnlineKeyframer):
                              self.contact)
         elif k == 4:
             sp.basis, sp.perm = self._match(sp.basis)
-        elif k in (5, 6):  # curves of frames w0 + SPREAD .. u, half of them a frame
+        elif k in (5, 6):  # curves of frames lo .. u, half of them a frame
             n = len(sp.ft)
             h = n // 2
             rows = slice(0, h) if k == 5 else slice(h, n)
-            d = curves_of(sp.basis, sp.xs[SPREAD:][rows], sp.ft[rows], self.contact)
+            d = curves_of(sp.basis, sp.xs[sp.lo - sp.w0 :][rows], sp.ft[rows], self.contact)
             if k == 5:
                 sp.d = np.empty((n, d.shape[1]))
             assert sp.d is not None
@@ -808,16 +812,31 @@ class Online(OnlineKeyframer):
             assert sp.d is not None
             sp.c = curvature(sp.d)
             sp.s = np.zeros((len(sp.d), sp.d.shape[1], 4))
-            sp.maps = sp.w0 + SPREAD + self.radius + 1  # next frame to map
+            sp.maps = sp.lo + self.radius + 1 if sp.lo > 0 else 0  # next frame to map
+        elif sp.maps == 0:  # stream start: the first radius rows, windows cut at frame 0
+            assert sp.c is not None and sp.s is not None
+            R = self.radius
+            sp.s[:R] = maps_of(sp.c[: 2 * R], self.sigma, self.contact)[:R]
+            sp.maps = R
         else:  # maps of frames whose Gaussian windows end before frame u, a block a frame
             assert sp.c is not None and sp.s is not None
             f0, last = sp.maps, sp.u - 1 - self.radius
             f1 = min(last, f0 + -(-(last - f0 + 1) // (v - t)) - 1)
             if f1 >= f0:
-                lo = sp.w0 + SPREAD
+                lo = sp.lo
                 self._window_maps(sp.c, f0 - self.radius - lo, f1 - f0 + 1,
                                   self._pick_of(sp.basis), sp.s[f0 - lo : f1 - lo + 1])
                 sp.maps = f1 + 1
+
+    def _stage(self, sp: _Spread) -> None:
+        """The switch of a spread update (`_update`), made on a copy of the state at frame
+        u + `SPREAD` - 1 (in `idle()`) and swapped in by the next frame, before its
+        decisions: no decision reads it earlier, and the basis changes with that frame."""
+        new = copy.copy(self)
+        new.buf = {name: arr.copy() if name in ("d", "c", "s", "lm") else arr
+                   for name, arr in self.buf.items()}
+        new._update(final=False, spread=sp)
+        sp.staged = new.__dict__
 
     def _pick_of(self, basis: Basis | None) -> np.ndarray:
         """Flat index of each curve's four maps in the (k, 8) product of `_window_maps`: foot
@@ -891,25 +910,23 @@ class Online(OnlineKeyframer):
         `s` their maps when not the stored ones. With `due` (the newest frame), stop before
         the first frame not yet due (the open cluster's start, or the frame itself, plus the
         lookahead after `due`)."""
-        a, thr, thr_safe = self._normal()
         if s is None:
             s = self.buf["s"][g0 - self.base : g1 - self.base + 1]
-        sal = combine(s, a)
-        cand = sal > thr
-        rel = sal / thr_safe
+        terms = classify_terms(s, *self._normal(), self.weights, self.footmask, self._wsum)
+        hit, wrow, foot, term, level = (x.tolist() for x in terms)
         closed: list[tuple[int, float]] = []
-        level = (rel @ self.weights / self._wsum).tolist()
-        rows = self.clusterer.rows
-        hit, wrow, foot, term = row_terms(cand, rel, self.weights, self.footmask)
-        for i in range(len(s)):
+        cl = self.clusterer
+        rows = cl.rows
+        n = len(hit)
+        for i in range(n):
             if due is not None and due < (rows[0] if rows else g0 + i) + self.lookahead:
-                g1 = g0 + i - 1
+                n = i
                 break
             if hit[i] or rows:  # else the clusterer has nothing to do
-                closed.extend(self.clusterer.add_row(g0 + i, hit[i], wrow[i], foot[i], term[i]))
-                rows = self.clusterer.rows
-            self.trace.append((self.seq0 + g0 + i, level[i]))
-        self.n_class = g1 + 1
+                closed.extend(cl.add_row(g0 + i, hit[i], wrow[i], foot[i], term[i]))
+                rows = cl.rows
+        self.trace.extend(zip(range(self.seq0 + g0, self.seq0 + g0 + n), level[:n], strict=True))
+        self.n_class = g0 + n
         return self._emit(closed)
 
     def _emit(self, closed: list[tuple[int, float]]) -> list[KeyframeEvent]:
@@ -939,9 +956,10 @@ class Online(OnlineKeyframer):
         statistics (the warm-up's while they hold fewer frames), cached until they change."""
         if self._norm is None:
             warm = self.warm
-            a, thr = normalisation(warm if warm is not None and self.st.n < warm.n
-                                   else self.st)
-            self._norm = (a, thr, np.where(thr > 0, thr, 1.0))
+            st = warm if warm is not None and self.st.n < warm.n else self.st
+            h3 = (st.top.max(axis=1, keepdims=True) ** 3).reshape(-1)  # as `normalisation`
+            self._norm = itti_factors(st.top, h3, st.total, st.n, st.lm_n, st.lm_sum,
+                                      st.lm_top)
         return self._norm
 
     def _candidates(self, early: np.ndarray) -> list[tuple[int, float, float]]:

@@ -21,7 +21,7 @@ __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapSta
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
-           "cluster_size", "support_radius", "row_terms",
+           "cluster_size", "support_radius", "row_terms", "itti_factors", "classify_terms",
            "ring_curves", "ring_maps"]
 
 FOOT_SIGMA = 3.0  # Halit §3.3
@@ -352,13 +352,17 @@ def _maps_t(c: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
-    """Halit §3.1.4 / §3.3 choice in one cluster (sequential twin of `cluster_keyframes`)."""
-    r = np.asarray(rows, dtype=np.float64)
-    w = np.asarray(wrow)
-    mean = float((w * r).sum() / w.sum())
-    ft = np.asarray(foot, dtype=bool)
-    dist = np.where(ft if ft.any() else True, np.abs(r - mean), np.inf)
-    return rows[int(np.flatnonzero(dist <= dist.min() + _TIE)[0])]
+    """Halit §3.1.4 / §3.3 choice in one cluster (sequential twin of `cluster_keyframes`,
+    summing in row order as its `bincount` does; plain Python: a cluster is a few rows)."""
+    num = den = 0.0
+    for r, w in zip(rows, wrow, strict=True):
+        num += w * r
+        den += w
+    mean = num / den
+    eligible = foot if any(foot) else [True] * len(rows)
+    dist = [abs(r - mean) if ok else np.inf for r, ok in zip(rows, eligible, strict=True)]
+    best = min(dist) + _TIE
+    return next(r for r, d in zip(rows, dist, strict=True) if d <= best)
 
 
 class Clusterer:
@@ -418,6 +422,71 @@ def row_terms(cand: np.ndarray, rel: np.ndarray, weights: np.ndarray, footmask: 
     return (cand.any(axis=1).tolist(), (cand.astype(np.float64) @ weights).tolist(),
             cand[:, footmask].any(axis=1).tolist(),
             ((np.where(cand, rel, 0.0) @ weights) / float(weights.sum())).tolist())
+
+
+@compiled
+def itti_factors(top: np.ndarray, h3: np.ndarray, total: np.ndarray, n: int,
+                 lm_n: np.ndarray, lm_sum: np.ndarray, lm_top: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`normalisation` of the `MapStats` fields in one compiled loop, with `h3` (k,) =
+    `top.max(axis=1) ** 3` computed by numpy (its `power` is not libm's): the same
+    operations in the same order, so the same bits. Returns (a, thr, thr with its zeros as
+    1)."""
+    k = top.shape[0]
+    a = np.empty((k, 4))
+    thr = np.empty(k)
+    safe_thr = np.empty(k)
+    nn = max(n, 1)
+    for j in range(k):
+        acc = 0.0
+        for i in range(4):
+            t = top[j, i]
+            safe = t if t > 0 else 1.0
+            has = lm_top[j, i] == t
+            m = (lm_sum[j, i] - (t if has else 0.0)) / max(lm_n[j, i] - (1 if has else 0), 1)
+            r = 1.0 - m / safe
+            a[j, i] = h3[j] / safe * (r * r) * (1.0 if t > 0 else 0.0)
+            term = total[j, i] / nn * a[j, i]
+            acc = term if i == 0 else acc + term
+        thr[j] = acc
+        safe_thr[j] = acc if acc > 0 else 1.0
+    return a, thr, safe_thr
+
+
+@compiled
+def classify_terms(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.ndarray,
+                   weights: np.ndarray, footmask: np.ndarray, wsum: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per row of maps `s` (n, k, 4) in one compiled loop: the `Clusterer.add_row` terms
+    (`row_terms` of `combine(s, a) > thr`: any candidate, weight, foot flag, score term)
+    and the trace level (the weighted mean of S_j / mean(S_j), over `wsum`). The saliency
+    and the flags have the bits of `combine`; the sums over curves go in curve order."""
+    n, k = s.shape[0], s.shape[1]
+    hit = np.zeros(n, dtype=np.bool_)
+    foot = np.zeros(n, dtype=np.bool_)
+    wrow = np.zeros(n)
+    term = np.zeros(n)
+    level = np.zeros(n)
+    wtotal = 0.0
+    for j in range(k):
+        wtotal += weights[j]
+    for f in range(n):
+        w_acc, t_acc, l_acc = 0.0, 0.0, 0.0
+        for j in range(k):
+            sal = ((s[f, j, 0] * a[j, 0] + s[f, j, 1] * a[j, 1]) + s[f, j, 2] * a[j, 2]) + (
+                s[f, j, 3] * a[j, 3])
+            rel = sal / thr_safe[j]
+            l_acc += rel * weights[j]
+            if sal > thr[j]:
+                hit[f] = True
+                w_acc += weights[j]
+                t_acc += rel * weights[j]
+                if footmask[j]:
+                    foot[f] = True
+        wrow[f] = w_acc
+        term[f] = t_acc / wtotal
+        level[f] = l_acc / wsum
+    return hit, wrow, foot, term, level
 
 
 def kernel_bank(sigma: float, radius: int) -> np.ndarray:
@@ -554,3 +623,5 @@ def _warm() -> None:
     ring_maps(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
               np.ones((3, 3, 4)), z, z.copy(), np.zeros((3, 4), dtype=np.int64), z.copy(),
               z.copy())
+    a, thr, safe = itti_factors(z, np.ones(3), z, 1, np.zeros((3, 4), dtype=np.int64), z, z)
+    classify_terms(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0)
