@@ -55,14 +55,17 @@ makes the online result equal the offline one when every decision waits for `flu
   disagreement, DESIGN §5) and costs a batch recompute of the window. New components are
   matched to the previous ones (greedy on |cos|, signs aligned) so that curve j stays curve j
   and keeps its running statistics. Frames that left the window are folded in pieces of
-  `FOLD_EVERY` (64) frames. Once the window no longer holds the stream's first frame, an
-  update is spread so that no frame pays for all of it (6.5 ms at once before): due at frame
-  u, it takes the moments of the window at u, and its work (moments, correlation,
-  eigen-decomposition, matching, curves, curvatures, blocks of maps: one piece a frame) runs
-  over the next `SPREAD` (24) frames; the new basis applies at frame u + 24, the frames in
-  between are classified with the previous one. Measured on the shared clips (sigma = 10):
-  mean F1 against offline 0.897 at lookahead 121 and 0.931 at 240 (0.897 and 0.932 with the
-  update at once).
+  `FOLD_EVERY` (64) frames. No decision waits for a basis computation (1.5-6.5 ms at once):
+  the first basis, due with the decisions of frame `lookahead`, is computed in `idle()`
+  after frame `lookahead` - 1 from the frames so far; every later update, once frame
+  2 radius + 2 has arrived (the stream-start rows' support), is spread: due at frame u, it
+  takes the moments of the window at u, and its work (moments, correlation,
+  eigen-decomposition, matching, curves, curvatures, blocks of maps, the switch: one piece a
+  frame, in `idle()`) runs over the next `SPREAD` (24) frames; the new basis decides from
+  frame u + 24 on, the frames in between are classified with the previous one. Measured on
+  the shared clips (sigma = 10): mean F1 against offline 0.895 at lookahead 121 and 0.928 at
+  240 (0.897 and 0.931 with the stream-start updates made at once in the deciding frame; the
+  variants of this timing move it by +-0.005, results/agreement_saliency*.md).
 - Itti maxima M_i and H, mean of the other local maxima, and the mean-saliency threshold ->
   per (curve, scale) running count, sum, maximum, and local-maximum count / sum / maximum of
   the raw maps of every frame so far. Whole-history statistics, not a short window (DESIGN §5:
@@ -321,8 +324,9 @@ class Online(OnlineKeyframer):
 
     Running statistics replace the global ones (module docstring). Between basis updates a
     new frame costs one projection, one curvature row and one row of maps (compiled loops,
-    `saliency_math.ring_curves` / `ring_maps`), computed when a classification next reads
-    them, for every frame since at once; memory is a ring of `window` frames.
+    `saliency_math.ring_curves` / `ring_maps`), computed in `idle()` after its decisions (or
+    first thing at the next frame), so that a deciding frame computes its own row only; a
+    basis update's work runs in `idle()` too; memory is a ring of `window` frames.
 
     Timing: the maps of frame f need frames up to f + `radius` + 1. Frames are classified
     (candidate or not, with the statistics of that moment) in order and as late as allowed: a
@@ -505,17 +509,12 @@ class Online(OnlineKeyframer):
         b["xs"][r] = x
         b["ft"][r] = foot
         b["tm"][r] = time
-        if self.basis is None:
-            if t >= self.lookahead:
-                self._update(final=False)
-        elif t < self.resume_at:  # restarted with kept statistics: the window fills first
-            return []
-        elif self.spread is None and t + 1 >= self.next_update and not self._spreads(t):
-            self._catch_up(t - 1)  # stream start (the window still holds the first frame)
+        if self._update_due(t):  # only below 3 frames: else made early by `_deferred`
+            self._catch_up(t - 1)
             self._update(final=False)
-        if self.basis is None:
-            return []
         self.deferred = True
+        if self.basis is None or t < self.resume_at:  # restarted: the window fills first
+            return []
         return self._classify_due(t)
 
     def idle(self) -> list[KeyframeEvent]:
@@ -524,19 +523,35 @@ class Online(OnlineKeyframer):
             self._deferred()
         return []
 
-    def _deferred(self) -> None:
+    def _update_due(self, t: int) -> bool:
+        """Whether frame t's decisions need a basis update made at once: the first of a
+        window (frame `lookahead`, or `resume_at` after a restart), or one not spread."""
+        if self.basis is None:
+            return t >= self.lookahead
+        if t < self.resume_at or self.spread is not None:
+            return False
+        return t + 1 >= self.next_update and not self._spreads(t)
+
+    def _deferred(self, early: bool = True) -> None:
         """Work of frame t that no decision of frame t reads, run after them (`idle()`, or
-        first thing at the next frame): frame t's incremental rows (so that the next
-        deciding frame computes only its own), a piece of a spread basis update or its
-        start, a piece of the past folded into the totals, room for the next frame's row."""
+        first thing at the next frame): an update made at once that frame t + 1 needs,
+        from the frames up to t (`early`); else frame t's incremental rows (so that the
+        next deciding frame computes only its own), a piece of a spread basis update or
+        its start, a piece of the past folded into the totals, room for the next row."""
         self.deferred = False
         t = self.t
+        if early and t >= 2 and self._update_due(t + 1):
+            self._catch_up(t)
+            self._update(final=False)
+            return
+        if self.basis is None or t < self.resume_at:
+            return
         self._catch_up(t)
         if t + 1 - self.base >= self.cap:
             self._room(t + 1)
         if self.spread is not None:
             self._spread_step(t)
-        elif t + 1 >= self.next_update:  # `_spreads(t)`: else `_advance` updated at once
+        elif t + 1 >= self.next_update:  # `_spreads(t)`: else it was made at once
             self._spread_start(t)
         elif min(t - self.window + 1, self.s_ready - 1) - self.out_upto >= FOLD_EVERY:
             self._fold_out(self.out_upto + FOLD_EVERY)  # the past in small pieces
@@ -648,7 +663,7 @@ class Online(OnlineKeyframer):
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: final basis from every frame, then decide every pending frame."""
         if self.deferred:
-            self._deferred()
+            self._deferred(early=False)  # the final update comes next
         if self.t < 2:
             return []
         self._catch_up(self.t)
