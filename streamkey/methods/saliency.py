@@ -929,17 +929,8 @@ class Online(OnlineKeyframer):
             s = self.buf["s"][g0 - self.base : g1 - self.base + 1]
         terms = classify_terms(s, *self._normal(), self.weights, self.footmask, self._wsum)
         hit, wrow, foot, term, level = (x.tolist() for x in terms)
-        closed: list[tuple[int, float]] = []
-        cl = self.clusterer
-        rows = cl.rows
-        n = len(hit)
-        for i in range(n):
-            if due is not None and due < (rows[0] if rows else g0 + i) + self.lookahead:
-                n = i
-                break
-            if hit[i] or rows:  # else the clusterer has nothing to do
-                closed.extend(cl.add_row(g0 + i, hit[i], wrow[i], foot[i], term[i]))
-                rows = cl.rows
+        closed, n = self.clusterer.add_rows(g0, hit, wrow, foot, term,
+                                            None if due is None else due - self.lookahead)
         self.trace.extend(zip(range(self.seq0 + g0, self.seq0 + g0 + n), level[:n], strict=True))
         self.n_class = g0 + n
         return self._emit(closed)

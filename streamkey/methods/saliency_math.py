@@ -408,6 +408,34 @@ class Clusterer:
                 closed.append(self.close())
         return closed
 
+    def add_rows(self, g0: int, hit: list[bool], wrow: list[float], foot: list[bool],
+                 term: list[float], last_start: int | None = None
+                 ) -> tuple[list[tuple[int, float]], int]:
+        """`add_row` for rows g0, g0 + 1, ... (terms as `row_terms` gives them), in one loop;
+        with `last_start`, stop before the first row where the open cluster (or, none being
+        open, the row itself) starts after `last_start`. Returns (clusters closed, rows
+        added)."""
+        closed = []
+        n = len(hit)
+        for i in range(n):
+            row = g0 + i
+            rows = self.rows
+            if last_start is not None and (rows[0] if rows else row) > last_start:
+                return closed, i
+            h = hit[i]
+            if rows and (not h or row != rows[-1] + 1):
+                closed.append(self.close())
+            if h:
+                self.run = self.run + 1 if row == self.last + 1 else 1
+                self.last = row
+                self.rows.append(row)
+                self.wrow.append(wrow[i])
+                self.foot.append(foot[i])
+                self.score += term[i]
+                if self.run % self.cmax == 0:
+                    closed.append(self.close())
+        return closed, n
+
     def close(self) -> tuple[int, float]:
         """Close the open cluster: (keyframe row, score)."""
         out = (pick_keyframe(self.rows, self.wrow, self.foot), self.score)
