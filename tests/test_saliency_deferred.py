@@ -44,10 +44,12 @@ def test_compiled_itti_factors_and_row_terms_keep_the_bits_of_the_numpy_maths(na
     cv = saliency._curves(xs, feet, 10.0, 7, True, False)
     st = saliency.map_stats(cv.s)
     a, thr = saliency.normalisation(st)
-    h3 = (st.top.max(axis=1, keepdims=True) ** 3).reshape(-1)
-    a2, thr2, safe = saliency_math.itti_factors(st.top, h3, st.total, st.n, st.lm_n,
-                                                st.lm_sum, st.lm_top)
-    assert np.array_equal(a, a2) and np.array_equal(thr, thr2)
+    h = st.top.max(axis=1, keepdims=True)
+    args = (st.total, st.n, st.lm_n, st.lm_sum, st.lm_top)
+    a2, thr2, safe, ok = saliency_math.itti_factors(st.top, h.ravel(), (h**3).ravel(), *args)
+    assert ok and np.array_equal(a, a2) and np.array_equal(thr, thr2)
+    stale = saliency_math.itti_factors(st.top, h.ravel() * 0.5, (h**3).ravel(), *args)
+    assert not stale[3]  # a row maximum that is not the one cubed: recompute
     assert np.array_equal(safe, np.where(thr > 0, thr, 1.0))
     sal = saliency.combine(cv.s, a)
     cand, rel = sal > thr, sal / safe

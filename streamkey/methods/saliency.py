@@ -137,7 +137,7 @@ from .saliency_math import (
     remap,
     remap_stats,
     ring_curves,
-    ring_maps,
+    ring_maps_of,
     scale_maps,
     support_radius,
     truncated_maps,
@@ -412,13 +412,13 @@ class Online(OnlineKeyframer):
         self._norm: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
         self._pick = np.zeros(0, dtype=np.int64)
-        self._curve_bank = np.zeros((2 * self.radius + 1, 0, 4))
+        self._bank_cols = np.zeros(0, dtype=np.int64)
         self._proj: tuple[np.ndarray, ...] = ()
         # (seq, saliency) of each frame as it is classified, for live views: the weighted
         # mean of S_j(f) / mean(S_j) over the curves (> 1 on a candidate of every curve).
         self.trace: deque[tuple[int, float]] = deque(maxlen=TRACE_FRAMES)
         self.resume_at = 0  # after a restart with kept statistics: first frame to analyse
-        self.spread: _Spread | None = None  # a periodic basis update in progress
+        self.spread: _Spread | None = None  # a spread basis update in progress
         self.deferred = False  # the newest frame's deferred work (`_deferred`) is pending
 
     def restart(self, keep_statistics: bool = True) -> None:
@@ -584,8 +584,8 @@ class Online(OnlineKeyframer):
             return
         st = self.st
         st.n += f1 - f0 + 1
-        ring_maps(b["c"], b["s"], b["lm"], f0 - base, f1 - base, self._curve_bank, st.total,
-                  st.top, st.lm_n, st.lm_sum, st.lm_top)
+        ring_maps_of(b["c"], b["s"], b["lm"], f0 - base, f1 - base, self._diff_bank,
+                     self._bank_cols, st.total, st.top, st.lm_n, st.lm_sum, st.lm_top)
         self.s_ready = f1 + 1
         self._norm = None
 
@@ -775,7 +775,7 @@ class Online(OnlineKeyframer):
         self._foot_rows = self.footmask[:, None]
         self._pick = self._pick_of(new)
         cols = self._pick.reshape(kk, 4) - 8 * np.arange(kk)[:, None]  # `_diff_bank` columns
-        self._curve_bank = np.ascontiguousarray(self._diff_bank[:, cols])  # (2 R + 1, k, 4)
+        self._bank_cols = np.ascontiguousarray(cols[:, 0])  # each curve's `_diff_bank` columns
         self._proj = (new.keep, new.mean[new.keep], new.sd[new.keep],
                       np.ascontiguousarray(new.vectors[:, : kk - feet]))
 
@@ -963,9 +963,15 @@ class Online(OnlineKeyframer):
         if self._norm is None:
             warm = self.warm
             st = warm if warm is not None and self.st.n < warm.n else self.st
-            h3 = (st.top.max(axis=1, keepdims=True) ** 3).reshape(-1)  # as `normalisation`
-            self._norm = itti_factors(st.top, h3, st.total, st.n, st.lm_n, st.lm_sum,
-                                      st.lm_top)
+            args = (st.total, st.n, st.lm_n, st.lm_sum, st.lm_top)
+            hmax, h3 = getattr(self, "_h3", (np.zeros(0), np.zeros(0)))
+            a, thr, safe, ok = (itti_factors(st.top, hmax, h3, *args) if len(hmax) == len(st.top)
+                                else (None, None, None, False))
+            if not ok:  # a new row maximum (rare): its cube as `normalisation` takes it
+                h = st.top.max(axis=1, keepdims=True)
+                self._h3 = hmax, h3 = h.reshape(-1), (h**3).reshape(-1)
+                a, thr, safe, ok = itti_factors(st.top, hmax, h3, *args)
+            self._norm = (a, thr, safe)
         return self._norm
 
     def _candidates(self, early: np.ndarray) -> list[tuple[int, float, float]]:

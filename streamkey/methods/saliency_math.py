@@ -22,7 +22,7 @@ __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapSta
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
            "cluster_size", "support_radius", "row_terms", "itti_factors", "classify_terms",
-           "ring_curves", "ring_maps"]
+           "ring_curves", "ring_maps", "ring_maps_of"]
 
 FOOT_SIGMA = 3.0  # Halit §3.3
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
@@ -359,8 +359,10 @@ def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
         num += w * r
         den += w
     mean = num / den
-    eligible = foot if any(foot) else [True] * len(rows)
-    dist = [abs(r - mean) if ok else np.inf for r, ok in zip(rows, eligible, strict=True)]
+    if any(foot):
+        dist = [abs(r - mean) if ok else np.inf for r, ok in zip(rows, foot, strict=True)]
+    else:
+        dist = [abs(r - mean) for r in rows]
     best = min(dist) + _TIE
     return next(r for r, d in zip(rows, dist, strict=True) if d <= best)
 
@@ -416,25 +418,25 @@ class Clusterer:
         open, the row itself) starts after `last_start`. Returns (clusters closed, rows
         added)."""
         closed = []
-        n = len(hit)
-        for i in range(n):
+        rows, cmax = self.rows, self.cmax
+        for i, h in enumerate(hit):
             row = g0 + i
-            rows = self.rows
             if last_start is not None and (rows[0] if rows else row) > last_start:
                 return closed, i
-            h = hit[i]
             if rows and (not h or row != rows[-1] + 1):
                 closed.append(self.close())
+                rows = self.rows
             if h:
                 self.run = self.run + 1 if row == self.last + 1 else 1
                 self.last = row
-                self.rows.append(row)
+                rows.append(row)
                 self.wrow.append(wrow[i])
                 self.foot.append(foot[i])
                 self.score += term[i]
-                if self.run % self.cmax == 0:
+                if self.run % cmax == 0:
                     closed.append(self.close())
-        return closed, n
+                    rows = self.rows
+        return closed, len(hit)
 
     def close(self) -> tuple[int, float]:
         """Close the open cluster: (keyframe row, score)."""
@@ -453,17 +455,24 @@ def row_terms(cand: np.ndarray, rel: np.ndarray, weights: np.ndarray, footmask: 
 
 
 @compiled
-def itti_factors(top: np.ndarray, h3: np.ndarray, total: np.ndarray, n: int,
+def itti_factors(top: np.ndarray, hmax: np.ndarray, h3: np.ndarray, total: np.ndarray, n: int,
                  lm_n: np.ndarray, lm_sum: np.ndarray, lm_top: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`normalisation` of the `MapStats` fields in one compiled loop, with `h3` (k,) =
-    `top.max(axis=1) ** 3` computed by numpy (its `power` is not libm's): the same
-    operations in the same order, so the same bits. Returns (a, thr, thr with its zeros as
-    1)."""
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """`normalisation` of the `MapStats` fields in one compiled loop, given `h3` (k,) =
+    `top.max(axis=1, keepdims=True) ** 3` computed by numpy (its `power` is not libm's) for
+    the row maxima `hmax`: the same operations in the same order, so the same bits. Returns
+    (a, thr, thr with its zeros as 1, True), or False last when a row maximum of `top` is
+    not `hmax` (`h3` is stale: compute it again)."""
     k = top.shape[0]
     a = np.empty((k, 4))
     thr = np.empty(k)
     safe_thr = np.empty(k)
+    for j in range(k):
+        h = top[j, 0]
+        for i in range(1, 4):
+            h = max(h, top[j, i])
+        if h != hmax[j] and (h == h or hmax[j] == hmax[j]):  # (NaN matches NaN)
+            return a, thr, safe_thr, False
     nn = max(n, 1)
     for j in range(k):
         acc = 0.0
@@ -478,7 +487,7 @@ def itti_factors(top: np.ndarray, h3: np.ndarray, total: np.ndarray, n: int,
             acc = term if i == 0 else acc + term
         thr[j] = acc
         safe_thr[j] = acc if acc > 0 else 1.0
-    return a, thr, safe_thr
+    return a, thr, safe_thr, True
 
 
 @compiled
@@ -605,7 +614,6 @@ def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarr
             c[r, j] = abs(num) / (1.0 + d1 * d1) ** 1.5
 
 
-@compiled
 def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, bank: np.ndarray,
               total: np.ndarray, top: np.ndarray, lm_n: np.ndarray, lm_sum: np.ndarray,
               lm_top: np.ndarray) -> None:
@@ -613,7 +621,18 @@ def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, ba
     running statistics in place (`MapStats` fields, frame by frame): S_i of curve j = |sum
     over the window of the curvatures times `bank[:, j, i]`| (`bank` (2 R + 1, k, 4): the
     differences of the normalised Gaussian kernels of each curve's scales, summed in window
-    order), row f - 1's local-maximum flags once row f exists."""
+    order), row f - 1's local-maximum flags once row f exists (`ring_maps_of`)."""
+    k = c.shape[1]
+    ring_maps_of(c, s, lm, f0, f1, bank.reshape(len(bank), 4 * k), 4 * np.arange(k), total,
+                 top, lm_n, lm_sum, lm_top)
+
+
+@compiled
+def ring_maps_of(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int,
+                 bank: np.ndarray, col: np.ndarray, total: np.ndarray, top: np.ndarray,
+                 lm_n: np.ndarray, lm_sum: np.ndarray, lm_top: np.ndarray) -> None:
+    """`ring_maps` with curve j's four kernels in columns col[j] .. col[j] + 3 of `bank`
+    (2 R + 1, columns): the curves sharing a sigma share columns, a smaller table to read."""
     k = c.shape[1]
     acc = np.empty((k, 4))
     for f in range(f0, f1 + 1):
@@ -623,7 +642,7 @@ def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, ba
             for j in range(k):
                 cj = c[r, j]
                 for i in range(4):
-                    acc[j, i] += cj * bank[q, j, i]
+                    acc[j, i] += cj * bank[q, col[j] + i]
         for j in range(k):
             for i in range(4):
                 v = abs(acc[j, i])
@@ -651,5 +670,6 @@ def _warm() -> None:
     ring_maps(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
               np.ones((3, 3, 4)), z, z.copy(), np.zeros((3, 4), dtype=np.int64), z.copy(),
               z.copy())
-    a, thr, safe = itti_factors(z, np.ones(3), z, 1, np.zeros((3, 4), dtype=np.int64), z, z)
+    a, thr, safe, _ = itti_factors(z, np.zeros(3), np.ones(3), z, 1,
+                                   np.zeros((3, 4), dtype=np.int64), z, z)
     classify_terms(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0)
