@@ -111,7 +111,7 @@ from .saliency_math import (
     Clusterer,
     MapStats,
     Moments,
-    classify_terms,
+    classify_block,
     cluster_keyframes,
     cluster_size,
     combine,
@@ -147,6 +147,7 @@ from .saliency_math import (
 TRACE_FRAMES = 2400  # 20 s at 120 Hz of per-frame saliency kept for live views
 CANDIDATE_EVERY = 4  # frames between two derivations of the provisional candidates
 SPREAD = 24  # frames over which a periodic basis update is computed before it applies
+_NO_STOP = 1 << 62  # `classify_block` without a deadline
 FOLD_EVERY = 64  # frames that left the window folded into the totals at once
 
 __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FOOT_SIGMA",
@@ -927,13 +928,21 @@ class Online(OnlineKeyframer):
         lookahead after `due`)."""
         if s is None:
             s = self.buf["s"][g0 - self.base : g1 - self.base + 1]
-        terms = classify_terms(s, *self._normal(), self.weights, self.footmask, self._wsum)
-        hit, wrow, foot, term, level = (x.tolist() for x in terms)
-        closed, n = self.clusterer.add_rows(g0, hit, wrow, foot, term,
-                                            None if due is None else due - self.lookahead)
-        self.trace.extend(zip(range(self.seq0 + g0, self.seq0 + g0 + n), level[:n], strict=True))
+        cl = self.clusterer
+        m = self.cmax + 1  # the open cluster, as `classify_block`'s buffers
+        rows, wrow, foot = np.zeros(m, dtype=np.int64), np.zeros(m), np.zeros(m, dtype=bool)
+        k = len(cl.rows)
+        if k:
+            rows[:k], wrow[:k], foot[:k] = cl.rows, cl.wrow, cl.foot
+        stop = _NO_STOP if due is None else due - self.lookahead
+        n, level, keys, scores, nk, k, cl.score, cl.last, cl.run = classify_block(
+            s, *self._normal(), self.weights, self.footmask, self._wsum, g0, stop, self.cmax,
+            rows, wrow, foot, k, cl.score, cl.last, cl.run)
+        cl.rows, cl.wrow, cl.foot = rows[:k].tolist(), wrow[:k].tolist(), foot[:k].tolist()
+        self.trace.extend(zip(range(self.seq0 + g0, self.seq0 + g0 + n), level[:n].tolist(),
+                              strict=True))
         self.n_class = g0 + n
-        return self._emit(closed)
+        return self._emit(list(zip(keys[:nk].tolist(), scores[:nk].tolist(), strict=True)))
 
     def _emit(self, closed: list[tuple[int, float]]) -> list[KeyframeEvent]:
         tm = self.buf["tm"]

@@ -22,6 +22,7 @@ __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapSta
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
            "cluster_size", "support_radius", "row_terms", "itti_factors", "classify_terms",
+           "classify_block",
            "ring_curves", "ring_maps", "ring_maps_of"]
 
 FOOT_SIGMA = 3.0  # Halit §3.3
@@ -410,34 +411,6 @@ class Clusterer:
                 closed.append(self.close())
         return closed
 
-    def add_rows(self, g0: int, hit: list[bool], wrow: list[float], foot: list[bool],
-                 term: list[float], last_start: int | None = None
-                 ) -> tuple[list[tuple[int, float]], int]:
-        """`add_row` for rows g0, g0 + 1, ... (terms as `row_terms` gives them), in one loop;
-        with `last_start`, stop before the first row where the open cluster (or, none being
-        open, the row itself) starts after `last_start`. Returns (clusters closed, rows
-        added)."""
-        closed = []
-        rows, cmax = self.rows, self.cmax
-        for i, h in enumerate(hit):
-            row = g0 + i
-            if last_start is not None and (rows[0] if rows else row) > last_start:
-                return closed, i
-            if rows and (not h or row != rows[-1] + 1):
-                closed.append(self.close())
-                rows = self.rows
-            if h:
-                self.run = self.run + 1 if row == self.last + 1 else 1
-                self.last = row
-                rows.append(row)
-                self.wrow.append(wrow[i])
-                self.foot.append(foot[i])
-                self.score += term[i]
-                if self.run % cmax == 0:
-                    closed.append(self.close())
-                    rows = self.rows
-        return closed, len(hit)
-
     def close(self) -> tuple[int, float]:
         """Close the open cluster: (keyframe row, score)."""
         out = (pick_keyframe(self.rows, self.wrow, self.foot), self.score)
@@ -524,6 +497,64 @@ def classify_terms(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
         term[f] = t_acc / wtotal
         level[f] = l_acc / wsum
     return hit, wrow, foot, term, level
+
+
+@compiled
+def _pick(rows: np.ndarray, wrow: np.ndarray, foot: np.ndarray, n: int) -> int:
+    """`pick_keyframe` of the first n rows (the same operations, so the same choice)."""
+    num, den, any_foot = 0.0, 0.0, False
+    for i in range(n):
+        num += wrow[i] * rows[i]
+        den += wrow[i]
+        any_foot = any_foot or foot[i]
+    mean = num / den
+    best = np.inf
+    for i in range(n):
+        if foot[i] or not any_foot:
+            best = min(best, abs(rows[i] - mean))
+    for i in range(n):
+        if (foot[i] or not any_foot) and abs(rows[i] - mean) <= best + 1e-9:
+            return rows[i]
+    return rows[0]
+
+
+@compiled
+def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.ndarray,
+                   weights: np.ndarray, footmask: np.ndarray, wsum: float, g0: int,
+                   stop: int, cmax: int, rows: np.ndarray, wrow: np.ndarray,
+                   foot: np.ndarray, n_open: int, score: float, last: int, run: int
+                   ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, int, float, int,
+                              int]:
+    """`classify_terms` of the rows g0.. of maps `s`, fed to the clusterer in the same loop
+    (`Clusterer.add_row` row by row, stopping before the first row whose cluster would start
+    after `stop`): the open cluster's rows / weights / foot flags in the buffers `rows`, `wrow`,
+    `foot` (at least cmax + 1 long, updated in place; its first n_open rows), its score,
+    the last candidate row and the run length. Returns (rows classified, their trace levels,
+    the keyframe rows and scores of the clusters closed, how many, n_open, score, last,
+    run)."""
+    hit, wr, ft, term, level = classify_terms(s, a, thr, thr_safe, weights, footmask, wsum)
+    n = len(hit)
+    keys = np.empty(n + 1, dtype=np.int64)
+    kscore = np.empty(n + 1)
+    nk = 0
+    for i in range(n):
+        row = g0 + i
+        if (rows[0] if n_open > 0 else row) > stop:
+            return i, level, keys, kscore, nk, n_open, score, last, run
+        h = hit[i]
+        if n_open > 0 and (not h or row != rows[n_open - 1] + 1):
+            keys[nk], kscore[nk] = _pick(rows, wrow, foot, n_open), score
+            nk, n_open, score = nk + 1, 0, 0.0
+        if h:
+            run = run + 1 if row == last + 1 else 1
+            last = row
+            rows[n_open], wrow[n_open], foot[n_open] = row, wr[i], ft[i]
+            n_open += 1
+            score += term[i]
+            if run % cmax == 0:
+                keys[nk], kscore[nk] = _pick(rows, wrow, foot, n_open), score
+                nk, n_open, score = nk + 1, 0, 0.0
+    return n, level, keys, kscore, nk, n_open, score, last, run
 
 
 def kernel_bank(sigma: float, radius: int) -> np.ndarray:
@@ -673,3 +704,6 @@ def _warm() -> None:
     a, thr, safe, _ = itti_factors(z, np.zeros(3), np.ones(3), z, 1,
                                    np.zeros((3, 4), dtype=np.int64), z, z)
     classify_terms(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0)
+    classify_block(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0,
+                   0, 1, 2, np.zeros(3, dtype=np.int64), np.zeros(3), np.zeros(3, dtype=bool),
+                   0, 0.0, -2, 0)
