@@ -327,7 +327,9 @@ class Online(OnlineKeyframer):
     new frame costs one projection, one curvature row and one row of maps (compiled loops,
     `saliency_math.ring_curves` / `ring_maps`), computed in `idle()` after its decisions (or
     first thing at the next frame), so that a deciding frame computes its own row only; a
-    basis update's work runs in `idle()` too; memory is a ring of `window` frames.
+    basis update's work runs in `idle()` too. A deciding frame classifies and clusters its
+    due rows in one compiled loop (`saliency_math.classify_block`, the bits of the numpy
+    maths). Memory is a ring of `window` frames.
 
     Timing: the maps of frame f need frames up to f + `radius` + 1. Frames are classified
     (candidate or not, with the statistics of that moment) in order and as late as allowed: a
