@@ -55,14 +55,17 @@ makes the online result equal the offline one when every decision waits for `flu
   disagreement, DESIGN §5) and costs a batch recompute of the window. New components are
   matched to the previous ones (greedy on |cos|, signs aligned) so that curve j stays curve j
   and keeps its running statistics. Frames that left the window are folded in pieces of
-  `FOLD_EVERY` (64) frames. Once the window no longer holds the stream's first frame, an
-  update is spread so that no frame pays for all of it (6.5 ms at once before): due at frame
-  u, it takes the moments of the window at u, and its work (moments, correlation,
-  eigen-decomposition, matching, curves, curvatures, blocks of maps: one piece a frame) runs
-  over the next `SPREAD` (24) frames; the new basis applies at frame u + 24, the frames in
-  between are classified with the previous one. Measured on the shared clips (sigma = 10):
-  mean F1 against offline 0.897 at lookahead 121 and 0.931 at 240 (0.897 and 0.932 with the
-  update at once).
+  `FOLD_EVERY` (64) frames. No decision waits for a basis computation (1.5-6.5 ms at once):
+  the first basis, due with the decisions of frame `lookahead`, is computed in `idle()`
+  after frame `lookahead` - 1 from the frames so far; every later update, once frame
+  2 radius + 2 has arrived (the stream-start rows' support), is spread: due at frame u, it
+  takes the moments of the window at u, and its work (moments, correlation,
+  eigen-decomposition, matching, curves, curvatures, blocks of maps, the switch: one piece a
+  frame, in `idle()`) runs over the next `SPREAD` (24) frames; the new basis decides from
+  frame u + 24 on, the frames in between are classified with the previous one. Measured on
+  the shared clips (sigma = 10): mean F1 against offline 0.895 at lookahead 121 and 0.928 at
+  240 (0.897 and 0.931 with the stream-start updates made at once in the deciding frame; the
+  variants of this timing move it by +-0.005, results/agreement_saliency*.md).
 - Itti maxima M_i and H, mean of the other local maxima, and the mean-saliency threshold ->
   per (curve, scale) running count, sum, maximum, and local-maximum count / sum / maximum of
   the raw maps of every frame so far. Whole-history statistics, not a short window (DESIGN §5:
@@ -108,6 +111,7 @@ from .saliency_math import (
     Clusterer,
     MapStats,
     Moments,
+    classify_block,
     cluster_keyframes,
     cluster_size,
     combine,
@@ -119,6 +123,7 @@ from .saliency_math import (
     end_curvature,
     fit_k,
     gaussian_means,
+    itti_factors,
     kernel,
     kernel_bank,
     local_max_mask,
@@ -132,8 +137,7 @@ from .saliency_math import (
     remap,
     remap_stats,
     ring_curves,
-    ring_maps,
-    row_terms,
+    ring_maps_of,
     scale_maps,
     support_radius,
     truncated_maps,
@@ -143,6 +147,7 @@ from .saliency_math import (
 TRACE_FRAMES = 2400  # 20 s at 120 Hz of per-frame saliency kept for live views
 CANDIDATE_EVERY = 4  # frames between two derivations of the provisional candidates
 SPREAD = 24  # frames over which a periodic basis update is computed before it applies
+_NO_STOP = 1 << 62  # `classify_block` without a deadline
 FOLD_EVERY = 64  # frames that left the window folded into the totals at once
 
 __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FOOT_SIGMA",
@@ -295,11 +300,13 @@ def _info(cv: _Curves, cand: np.ndarray, res: dict[str, np.ndarray], thr: np.nda
 
 @dataclass
 class _Spread:
-    """A periodic basis update in progress (`Online._spread_step`): due at frame u, its
-    window w0..u (rows copied), applied at frame u + SPREAD."""
+    """A basis update in progress (`Online._spread_step`): due at frame u, the moments of
+    its window w0..u (rows copied); the window at the switch (frame u + SPREAD - 1) starts
+    at frame lo, and the basis decides from frame u + SPREAD on."""
 
     u: int
     w0: int
+    lo: int
     mom: Moments
     xs: np.ndarray
     ft: np.ndarray
@@ -310,6 +317,7 @@ class _Spread:
     c: np.ndarray | None = None
     s: np.ndarray | None = None
     maps: int = 0
+    staged: dict[str, Any] | None = None  # the state after the switch (`Online._stage`)
 
 
 class Online(OnlineKeyframer):
@@ -317,8 +325,11 @@ class Online(OnlineKeyframer):
 
     Running statistics replace the global ones (module docstring). Between basis updates a
     new frame costs one projection, one curvature row and one row of maps (compiled loops,
-    `saliency_math.ring_curves` / `ring_maps`), computed when a classification next reads
-    them, for every frame since at once; memory is a ring of `window` frames.
+    `saliency_math.ring_curves` / `ring_maps`), computed in `idle()` after its decisions (or
+    first thing at the next frame), so that a deciding frame computes its own row only; a
+    basis update's work runs in `idle()` too. A deciding frame classifies and clusters its
+    due rows in one compiled loop (`saliency_math.classify_block`, the bits of the numpy
+    maths). Memory is a ring of `window` frames.
 
     Timing: the maps of frame f need frames up to f + `radius` + 1. Frames are classified
     (candidate or not, with the statistics of that moment) in order and as late as allowed: a
@@ -404,13 +415,14 @@ class Online(OnlineKeyframer):
         self._norm: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
         self._pick = np.zeros(0, dtype=np.int64)
-        self._curve_bank = np.zeros((2 * self.radius + 1, 0, 4))
+        self._bank_cols = np.zeros(0, dtype=np.int64)
         self._proj: tuple[np.ndarray, ...] = ()
         # (seq, saliency) of each frame as it is classified, for live views: the weighted
         # mean of S_j(f) / mean(S_j) over the curves (> 1 on a candidate of every curve).
         self.trace: deque[tuple[int, float]] = deque(maxlen=TRACE_FRAMES)
         self.resume_at = 0  # after a restart with kept statistics: first frame to analyse
-        self.spread: _Spread | None = None  # a periodic basis update in progress
+        self.spread: _Spread | None = None  # a spread basis update in progress
+        self.deferred = False  # the newest frame's deferred work (`_deferred`) is pending
 
     def restart(self, keep_statistics: bool = True) -> None:
         """A new window after a long gap or a source restart (after `finish()`): the basis,
@@ -445,9 +457,8 @@ class Online(OnlineKeyframer):
             b["s"] = np.zeros((self.cap, kk, 4))
             b["lm"] = np.zeros((self.cap, kk, 4), dtype=bool)
 
-    def _room(self) -> None:
+    def _room(self, t: int) -> None:
         """Make row `t` writable: shift the ring (or grow it) after folding old rows out."""
-        t = self.t
         if t - self.base < self.cap:
             return
         lo = max(self.base, t - self.window + 1)
@@ -487,35 +498,72 @@ class Online(OnlineKeyframer):
         return events
 
     def _advance(self, x: np.ndarray, foot: np.ndarray, time: float) -> list[KeyframeEvent]:
+        if self.deferred:  # `idle()` was not called after the last frame
+            self._deferred()
+        if self.spread is not None and self.spread.staged is not None:
+            self.__dict__.update(self.spread.staged)  # the switch: the new basis decides
         self.t += 1
         t = self.t
         if t - self.base >= self.cap:
-            self._catch_up(t - 1)
-            self._room()
+            self._catch_up(t - 1)  # before the first basis (else `_deferred` made room)
+            self._room(t)
         r = t - self.base
         b = self.buf
         b["xs"][r] = x
         b["ft"][r] = foot
         b["tm"][r] = time
-        if self.basis is None:
-            if t >= self.lookahead:
-                self._update(final=False)
-        elif t < self.resume_at:  # restarted with kept statistics: the window fills first
-            return []
-        elif self.spread is not None:
-            self._spread_step(t)
-        elif t + 1 >= self.next_update:
-            if t - self.window + 1 > 0 and self.window > SPREAD + 2 * self.radius + 2:
-                # a periodic update (the window has moved on): spread over SPREAD frames
-                self._spread_start(t)
-            else:  # stream start (the window still holds the first frame): at once
-                self._catch_up(t - 1)
-                self._update(final=False)
-        elif min(t - self.window + 1, self.s_ready - 1) - self.out_upto >= FOLD_EVERY:
-            self._fold_out(self.out_upto + FOLD_EVERY)  # the past in small pieces
-        if self.basis is None:
+        if self._update_due(t):  # only below 3 frames: else made early by `_deferred`
+            self._catch_up(t - 1)
+            self._update(final=False)
+        self.deferred = True
+        if self.basis is None or t < self.resume_at:  # restarted: the window fills first
             return []
         return self._classify_due(t)
+
+    def idle(self) -> list[KeyframeEvent]:
+        """The last frame's deferred work (`_deferred`); it decides nothing."""
+        if self.deferred:
+            self._deferred()
+        return []
+
+    def _update_due(self, t: int) -> bool:
+        """Whether frame t's decisions need a basis update made at once: the first of a
+        window (frame `lookahead`, or `resume_at` after a restart), or one not spread."""
+        if self.basis is None:
+            return t >= self.lookahead
+        if t < self.resume_at or self.spread is not None:
+            return False
+        return t + 1 >= self.next_update and not self._spreads(t)
+
+    def _deferred(self, early: bool = True) -> None:
+        """Work of frame t that no decision of frame t reads, run after them (`idle()`, or
+        first thing at the next frame): an update made at once that frame t + 1 needs,
+        from the frames up to t (`early`); else frame t's incremental rows (so that the
+        next deciding frame computes only its own), a piece of a spread basis update or
+        its start, a piece of the past folded into the totals, room for the next row."""
+        self.deferred = False
+        t = self.t
+        if early and t >= 2 and self._update_due(t + 1):
+            self._catch_up(t)
+            self._update(final=False)
+            return
+        if self.basis is None or t < self.resume_at:
+            return
+        self._catch_up(t)
+        if t + 1 - self.base >= self.cap:
+            self._room(t + 1)
+        if self.spread is not None:
+            self._spread_step(t)
+        elif t + 1 >= self.next_update:  # `_spreads(t)`: else it was made at once
+            self._spread_start(t)
+        elif min(t - self.window + 1, self.s_ready - 1) - self.out_upto >= FOLD_EVERY:
+            self._fold_out(self.out_upto + FOLD_EVERY)  # the past in small pieces
+
+    def _spreads(self, t: int) -> bool:
+        """Whether a basis update due at frame t is spread over `SPREAD` frames rather than
+        made at once: every one but the first of a window (`lookahead`, or `resume_at`),
+        once frame t holds the support of the stream-start rows' maps (frame 2 radius + 2)."""
+        return self.window > SPREAD + 2 * self.radius + 2 and t >= 2 * self.radius + 2
 
     def _catch_up(self, upto: int) -> None:
         """The incremental rows (curve, curvature, maps, statistics) of frames up to `upto`.
@@ -539,8 +587,8 @@ class Online(OnlineKeyframer):
             return
         st = self.st
         st.n += f1 - f0 + 1
-        ring_maps(b["c"], b["s"], b["lm"], f0 - base, f1 - base, self._curve_bank, st.total,
-                  st.top, st.lm_n, st.lm_sum, st.lm_top)
+        ring_maps_of(b["c"], b["s"], b["lm"], f0 - base, f1 - base, self._diff_bank,
+                     self._bank_cols, st.total, st.top, st.lm_n, st.lm_sum, st.lm_top)
         self.s_ready = f1 + 1
         self._norm = None
 
@@ -617,6 +665,8 @@ class Online(OnlineKeyframer):
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: final basis from every frame, then decide every pending frame."""
+        if self.deferred:
+            self._deferred(early=False)  # the final update comes next
         if self.t < 2:
             return []
         self._catch_up(self.t)
@@ -631,7 +681,7 @@ class Online(OnlineKeyframer):
         """New basis from the running moments; recompute the window's curves and maps. With
         `spread`, the basis and most rows come from the spread update (`_spread_step`)."""
         t = self.t
-        w0 = max(0, t - self.window + 1)
+        w0 = max(0, t - self.window + 1) if spread is None else spread.lo
         self._fold_out(w0)
         a, e = w0 - self.base, t - self.base + 1
         b = self.buf
@@ -674,8 +724,8 @@ class Online(OnlineKeyframer):
     def _spread_rows(self, sp: _Spread, a: int, e: int
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Switch to the spread update's basis; curves, curvatures and maps of the window
-        (ring rows a..e-1, frames u + 1 - window + SPREAD .. u + SPREAD): the spread's rows,
-        completed by the frames after u and the maps that reach them."""
+        (ring rows a..e-1, frames lo .. u + SPREAD - 1): the spread's rows, completed by the
+        frames after u and the maps that reach them."""
         assert sp.basis is not None and sp.d is not None and sp.c is not None
         assert sp.s is not None
         self._set_basis(sp.basis, sp.perm)
@@ -685,7 +735,7 @@ class Online(OnlineKeyframer):
         c_new = curvature(d[n - 2 :])  # frames u - 1 .. t; the first row is an edge row
         c = np.concatenate([sp.c[: n - 1], c_new[1:]])
         s = np.concatenate([sp.s, np.zeros((e - a - n,) + sp.s.shape[1:])])
-        f0 = sp.maps - (sp.w0 + SPREAD)  # first window row without maps yet
+        f0 = sp.maps - sp.lo  # first window row without maps yet
         cnt = len(c) - R - f0  # up to frame t - radius (the windows inside the window)
         if cnt > 0:
             self._window_maps(c, f0 - R, cnt, self._pick, s[f0 : f0 + cnt])
@@ -728,21 +778,23 @@ class Online(OnlineKeyframer):
         self._foot_rows = self.footmask[:, None]
         self._pick = self._pick_of(new)
         cols = self._pick.reshape(kk, 4) - 8 * np.arange(kk)[:, None]  # `_diff_bank` columns
-        self._curve_bank = np.ascontiguousarray(self._diff_bank[:, cols])  # (2 R + 1, k, 4)
+        self._bank_cols = np.ascontiguousarray(cols[:, 0])  # each curve's `_diff_bank` columns
         self._proj = (new.keep, new.mean[new.keep], new.sd[new.keep],
                       np.ascontiguousarray(new.vectors[:, : kk - feet]))
 
     # ------------------------------------------------------------------ spread update
     def _spread_start(self, u: int) -> None:
-        """A periodic update due at frame u: fold the window's past out and keep a copy of
-        the window's rows; the work follows one piece a frame (`_spread_step`) and the basis
-        switches at frame u + `SPREAD` (module docstring)."""
-        self._catch_up(u - 1)
-        w0 = u - self.window + 1
+        """A basis update due at frame u (after its decisions): fold the window's past out
+        and keep a copy of the window's rows; the work follows one piece a frame
+        (`_spread_step`, in `idle()`), the switch at frame u + `SPREAD` - 1, so that the
+        new basis decides from frame u + `SPREAD` on (module docstring)."""
+        self._catch_up(u)
+        w0 = max(0, u - self.window + 1)
+        lo = max(0, u + SPREAD - self.window)  # the window's start at the switch
         self._fold_out(w0)
         a, e = w0 - self.base, u - self.base + 1
-        self.spread = _Spread(u, w0, self.out_mom, self.buf["xs"][a:e].copy(),
-                              self.buf["ft"][a + SPREAD : e].copy())
+        self.spread = _Spread(u, w0, lo, self.out_mom, self.buf["xs"][a:e].copy(),
+                              self.buf["ft"][lo - self.base : e].copy())
         self.next_update = u + 1 + min(u + 1, self.update_every)
 
     def _spread_step(self, t: int) -> None:
@@ -750,10 +802,9 @@ class Online(OnlineKeyframer):
         block of maps), or the switch at its last frame."""
         sp = self.spread
         assert sp is not None
-        v = sp.u + SPREAD
+        v = sp.u + SPREAD - 1  # the switch, staged for the next frame
         if t >= v:
-            self._catch_up(t - 1)
-            self._update(final=False, spread=sp)
+            self._stage(sp)
             return
         k = t - sp.u
         if k == 1:
@@ -766,11 +817,11 @@ class Online(OnlineKeyframer):
                              self.contact)
         elif k == 4:
             sp.basis, sp.perm = self._match(sp.basis)
-        elif k in (5, 6):  # curves of frames w0 + SPREAD .. u, half of them a frame
+        elif k in (5, 6):  # curves of frames lo .. u, half of them a frame
             n = len(sp.ft)
             h = n // 2
             rows = slice(0, h) if k == 5 else slice(h, n)
-            d = curves_of(sp.basis, sp.xs[SPREAD:][rows], sp.ft[rows], self.contact)
+            d = curves_of(sp.basis, sp.xs[sp.lo - sp.w0 :][rows], sp.ft[rows], self.contact)
             if k == 5:
                 sp.d = np.empty((n, d.shape[1]))
             assert sp.d is not None
@@ -779,16 +830,31 @@ class Online(OnlineKeyframer):
             assert sp.d is not None
             sp.c = curvature(sp.d)
             sp.s = np.zeros((len(sp.d), sp.d.shape[1], 4))
-            sp.maps = sp.w0 + SPREAD + self.radius + 1  # next frame to map
+            sp.maps = sp.lo + self.radius + 1 if sp.lo > 0 else 0  # next frame to map
+        elif sp.maps == 0:  # stream start: the first radius rows, windows cut at frame 0
+            assert sp.c is not None and sp.s is not None
+            R = self.radius
+            sp.s[:R] = maps_of(sp.c[: 2 * R], self.sigma, self.contact)[:R]
+            sp.maps = R
         else:  # maps of frames whose Gaussian windows end before frame u, a block a frame
             assert sp.c is not None and sp.s is not None
             f0, last = sp.maps, sp.u - 1 - self.radius
             f1 = min(last, f0 + -(-(last - f0 + 1) // (v - t)) - 1)
             if f1 >= f0:
-                lo = sp.w0 + SPREAD
+                lo = sp.lo
                 self._window_maps(sp.c, f0 - self.radius - lo, f1 - f0 + 1,
                                   self._pick_of(sp.basis), sp.s[f0 - lo : f1 - lo + 1])
                 sp.maps = f1 + 1
+
+    def _stage(self, sp: _Spread) -> None:
+        """The switch of a spread update (`_update`), made on a copy of the state at frame
+        u + `SPREAD` - 1 (in `idle()`) and swapped in by the next frame, before its
+        decisions: no decision reads it earlier, and the basis changes with that frame."""
+        new = copy.copy(self)
+        new.buf = {name: arr.copy() if name in ("d", "c", "s", "lm") else arr
+                   for name, arr in self.buf.items()}
+        new._update(final=False, spread=sp)
+        sp.staged = new.__dict__
 
     def _pick_of(self, basis: Basis | None) -> np.ndarray:
         """Flat index of each curve's four maps in the (k, 8) product of `_window_maps`: foot
@@ -862,26 +928,23 @@ class Online(OnlineKeyframer):
         `s` their maps when not the stored ones. With `due` (the newest frame), stop before
         the first frame not yet due (the open cluster's start, or the frame itself, plus the
         lookahead after `due`)."""
-        a, thr, thr_safe = self._normal()
         if s is None:
             s = self.buf["s"][g0 - self.base : g1 - self.base + 1]
-        sal = combine(s, a)
-        cand = sal > thr
-        rel = sal / thr_safe
-        closed: list[tuple[int, float]] = []
-        level = (rel @ self.weights / self._wsum).tolist()
-        rows = self.clusterer.rows
-        hit, wrow, foot, term = row_terms(cand, rel, self.weights, self.footmask)
-        for i in range(len(s)):
-            if due is not None and due < (rows[0] if rows else g0 + i) + self.lookahead:
-                g1 = g0 + i - 1
-                break
-            if hit[i] or rows:  # else the clusterer has nothing to do
-                closed.extend(self.clusterer.add_row(g0 + i, hit[i], wrow[i], foot[i], term[i]))
-                rows = self.clusterer.rows
-            self.trace.append((self.seq0 + g0 + i, level[i]))
-        self.n_class = g1 + 1
-        return self._emit(closed)
+        cl = self.clusterer
+        m = self.cmax + 1  # the open cluster, as `classify_block`'s buffers
+        rows, wrow, foot = np.zeros(m, dtype=np.int64), np.zeros(m), np.zeros(m, dtype=bool)
+        k = len(cl.rows)
+        if k:
+            rows[:k], wrow[:k], foot[:k] = cl.rows, cl.wrow, cl.foot
+        stop = _NO_STOP if due is None else due - self.lookahead
+        n, level, keys, scores, nk, k, cl.score, cl.last, cl.run = classify_block(
+            s, *self._normal(), self.weights, self.footmask, self._wsum, g0, stop, self.cmax,
+            rows, wrow, foot, k, cl.score, cl.last, cl.run)
+        cl.rows, cl.wrow, cl.foot = rows[:k].tolist(), wrow[:k].tolist(), foot[:k].tolist()
+        self.trace.extend(zip(range(self.seq0 + g0, self.seq0 + g0 + n), level[:n].tolist(),
+                              strict=True))
+        self.n_class = g0 + n
+        return self._emit(list(zip(keys[:nk].tolist(), scores[:nk].tolist(), strict=True)))
 
     def _emit(self, closed: list[tuple[int, float]]) -> list[KeyframeEvent]:
         tm = self.buf["tm"]
@@ -910,9 +973,16 @@ class Online(OnlineKeyframer):
         statistics (the warm-up's while they hold fewer frames), cached until they change."""
         if self._norm is None:
             warm = self.warm
-            a, thr = normalisation(warm if warm is not None and self.st.n < warm.n
-                                   else self.st)
-            self._norm = (a, thr, np.where(thr > 0, thr, 1.0))
+            st = warm if warm is not None and self.st.n < warm.n else self.st
+            args = (st.total, st.n, st.lm_n, st.lm_sum, st.lm_top)
+            hmax, h3 = getattr(self, "_h3", (np.zeros(0), np.zeros(0)))
+            a, thr, safe, ok = (itti_factors(st.top, hmax, h3, *args) if len(hmax) == len(st.top)
+                                else (None, None, None, False))
+            if not ok:  # a new row maximum (rare): its cube as `normalisation` takes it
+                h = st.top.max(axis=1, keepdims=True)
+                self._h3 = hmax, h3 = h.reshape(-1), (h**3).reshape(-1)
+                a, thr, safe, ok = itti_factors(st.top, hmax, h3, *args)
+            self._norm = (a, thr, safe)
         return self._norm
 
     def _candidates(self, early: np.ndarray) -> list[tuple[int, float, float]]:

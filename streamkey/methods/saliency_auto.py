@@ -82,6 +82,7 @@ class AutoOnline(OnlineKeyframer):
         self.held: list[Any] = []  # "high" events held back until the decision
         self.last = -1  # seq of the last keyframe sent
         self.cut = -1  # after a switch: keys at or before this seq were already covered
+        self.dropped: str | None = None  # the preset not chosen, its state freed in `idle()`
 
     def restart(self, keep_statistics: bool = True) -> None:
         """A new window after a long gap: the decided preset and its keyframer's running
@@ -109,6 +110,7 @@ class AutoOnline(OnlineKeyframer):
     # ------------------------------------------------------------------ stream
     def process(self, block: FeatureBlock) -> list[Any]:
         """Both presets until the decision frame, then the chosen one."""
+        self._free()
         if self.active is not None:
             return self._pass(self.active.process(block))
         need = self.horizon - len(self.rows)
@@ -124,7 +126,8 @@ class AutoOnline(OnlineKeyframer):
         return out
 
     def idle(self) -> list[Any]:
-        """Deferred work of the running keyframer(s)."""
+        """Deferred work of the running keyframer(s); the preset not chosen is freed."""
+        self._free()
         if self.active is not None:
             return self._pass(self.active.idle())
         return self._both(self.inners["low"].idle(), self.inners["high"].idle())
@@ -140,6 +143,11 @@ class AutoOnline(OnlineKeyframer):
         return out + self._pass(self.active.finish())
 
     # ------------------------------------------------------------------ decision
+    def _free(self) -> None:
+        if self.dropped is not None:
+            self.inners[self.dropped].reset()
+            self.dropped = None
+
     def _both(self, low: list[Any], high: list[Any]) -> list[Any]:
         self.held.extend(high)
         return self._pass(low)
@@ -160,10 +168,9 @@ class AutoOnline(OnlineKeyframer):
         self.active = self.inners[name]
         self.params = {**self.active.params, "auto_speed": speed, "auto_seconds": AUTO_SECONDS}
         held, self.held, self.rows = self.held, [], []
+        self.dropped = "high" if name == "low" else "low"  # freed after this frame
         if name == "low":
-            self.inners["high"].reset()
             return []
-        self.inners["low"].reset()
         self.cut = self.last
         due = [replace(e, decided_at=seq) if isinstance(e, KeyframeEvent) else e
                for e in held if seq - getattr(e, "frame", seq) <= self.lookahead]

@@ -21,8 +21,9 @@ __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapSta
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
-           "cluster_size", "support_radius", "row_terms",
-           "ring_curves", "ring_maps"]
+           "cluster_size", "support_radius", "row_terms", "itti_factors", "classify_terms",
+           "classify_block",
+           "ring_curves", "ring_maps", "ring_maps_of"]
 
 FOOT_SIGMA = 3.0  # Halit §3.3
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
@@ -352,13 +353,19 @@ def _maps_t(c: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
-    """Halit §3.1.4 / §3.3 choice in one cluster (sequential twin of `cluster_keyframes`)."""
-    r = np.asarray(rows, dtype=np.float64)
-    w = np.asarray(wrow)
-    mean = float((w * r).sum() / w.sum())
-    ft = np.asarray(foot, dtype=bool)
-    dist = np.where(ft if ft.any() else True, np.abs(r - mean), np.inf)
-    return rows[int(np.flatnonzero(dist <= dist.min() + _TIE)[0])]
+    """Halit §3.1.4 / §3.3 choice in one cluster (sequential twin of `cluster_keyframes`,
+    summing in row order as its `bincount` does; plain Python: a cluster is a few rows)."""
+    num = den = 0.0
+    for r, w in zip(rows, wrow, strict=True):
+        num += w * r
+        den += w
+    mean = num / den
+    if any(foot):
+        dist = [abs(r - mean) if ok else np.inf for r, ok in zip(rows, foot, strict=True)]
+    else:
+        dist = [abs(r - mean) for r in rows]
+    best = min(dist) + _TIE
+    return next(r for r, d in zip(rows, dist, strict=True) if d <= best)
 
 
 class Clusterer:
@@ -418,6 +425,136 @@ def row_terms(cand: np.ndarray, rel: np.ndarray, weights: np.ndarray, footmask: 
     return (cand.any(axis=1).tolist(), (cand.astype(np.float64) @ weights).tolist(),
             cand[:, footmask].any(axis=1).tolist(),
             ((np.where(cand, rel, 0.0) @ weights) / float(weights.sum())).tolist())
+
+
+@compiled
+def itti_factors(top: np.ndarray, hmax: np.ndarray, h3: np.ndarray, total: np.ndarray, n: int,
+                 lm_n: np.ndarray, lm_sum: np.ndarray, lm_top: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """`normalisation` of the `MapStats` fields in one compiled loop, given `h3` (k,) =
+    `top.max(axis=1, keepdims=True) ** 3` computed by numpy (its `power` is not libm's) for
+    the row maxima `hmax`: the same operations in the same order, so the same bits. Returns
+    (a, thr, thr with its zeros as 1, True), or False last when a row maximum of `top` is
+    not `hmax` (`h3` is stale: compute it again)."""
+    k = top.shape[0]
+    a = np.empty((k, 4))
+    thr = np.empty(k)
+    safe_thr = np.empty(k)
+    for j in range(k):
+        h = top[j, 0]
+        for i in range(1, 4):
+            h = max(h, top[j, i])
+        if h != hmax[j] and (h == h or hmax[j] == hmax[j]):  # (NaN matches NaN)
+            return a, thr, safe_thr, False
+    nn = max(n, 1)
+    for j in range(k):
+        acc = 0.0
+        for i in range(4):
+            t = top[j, i]
+            safe = t if t > 0 else 1.0
+            has = lm_top[j, i] == t
+            m = (lm_sum[j, i] - (t if has else 0.0)) / max(lm_n[j, i] - (1 if has else 0), 1)
+            r = 1.0 - m / safe
+            a[j, i] = h3[j] / safe * (r * r) * (1.0 if t > 0 else 0.0)
+            term = total[j, i] / nn * a[j, i]
+            acc = term if i == 0 else acc + term
+        thr[j] = acc
+        safe_thr[j] = acc if acc > 0 else 1.0
+    return a, thr, safe_thr, True
+
+
+@compiled
+def classify_terms(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.ndarray,
+                   weights: np.ndarray, footmask: np.ndarray, wsum: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per row of maps `s` (n, k, 4) in one compiled loop: the `Clusterer.add_row` terms
+    (`row_terms` of `combine(s, a) > thr`: any candidate, weight, foot flag, score term)
+    and the trace level (the weighted mean of S_j / mean(S_j), over `wsum`). The saliency
+    and the flags have the bits of `combine`; the sums over curves go in curve order."""
+    n, k = s.shape[0], s.shape[1]
+    hit = np.zeros(n, dtype=np.bool_)
+    foot = np.zeros(n, dtype=np.bool_)
+    wrow = np.zeros(n)
+    term = np.zeros(n)
+    level = np.zeros(n)
+    wtotal = 0.0
+    for j in range(k):
+        wtotal += weights[j]
+    for f in range(n):
+        w_acc, t_acc, l_acc = 0.0, 0.0, 0.0
+        for j in range(k):
+            sal = ((s[f, j, 0] * a[j, 0] + s[f, j, 1] * a[j, 1]) + s[f, j, 2] * a[j, 2]) + (
+                s[f, j, 3] * a[j, 3])
+            rel = sal / thr_safe[j]
+            l_acc += rel * weights[j]
+            if sal > thr[j]:
+                hit[f] = True
+                w_acc += weights[j]
+                t_acc += rel * weights[j]
+                if footmask[j]:
+                    foot[f] = True
+        wrow[f] = w_acc
+        term[f] = t_acc / wtotal
+        level[f] = l_acc / wsum
+    return hit, wrow, foot, term, level
+
+
+@compiled
+def _pick(rows: np.ndarray, wrow: np.ndarray, foot: np.ndarray, n: int) -> int:
+    """`pick_keyframe` of the first n rows (the same operations, so the same choice)."""
+    num, den, any_foot = 0.0, 0.0, False
+    for i in range(n):
+        num += wrow[i] * rows[i]
+        den += wrow[i]
+        any_foot = any_foot or foot[i]
+    mean = num / den
+    best = np.inf
+    for i in range(n):
+        if foot[i] or not any_foot:
+            best = min(best, abs(rows[i] - mean))
+    for i in range(n):
+        if (foot[i] or not any_foot) and abs(rows[i] - mean) <= best + 1e-9:
+            return rows[i]
+    return rows[0]
+
+
+@compiled
+def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.ndarray,
+                   weights: np.ndarray, footmask: np.ndarray, wsum: float, g0: int,
+                   stop: int, cmax: int, rows: np.ndarray, wrow: np.ndarray,
+                   foot: np.ndarray, n_open: int, score: float, last: int, run: int
+                   ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, int, float, int,
+                              int]:
+    """`classify_terms` of the rows g0.. of maps `s`, fed to the clusterer in the same loop
+    (`Clusterer.add_row` row by row, stopping before the first row whose cluster would start
+    after `stop`): the open cluster's rows / weights / foot flags in the buffers `rows`, `wrow`,
+    `foot` (at least cmax + 1 long, updated in place; its first n_open rows), its score,
+    the last candidate row and the run length. Returns (rows classified, their trace levels,
+    the keyframe rows and scores of the clusters closed, how many, n_open, score, last,
+    run)."""
+    hit, wr, ft, term, level = classify_terms(s, a, thr, thr_safe, weights, footmask, wsum)
+    n = len(hit)
+    keys = np.empty(n + 1, dtype=np.int64)
+    kscore = np.empty(n + 1)
+    nk = 0
+    for i in range(n):
+        row = g0 + i
+        if (rows[0] if n_open > 0 else row) > stop:
+            return i, level, keys, kscore, nk, n_open, score, last, run
+        h = hit[i]
+        if n_open > 0 and (not h or row != rows[n_open - 1] + 1):
+            keys[nk], kscore[nk] = _pick(rows, wrow, foot, n_open), score
+            nk, n_open, score = nk + 1, 0, 0.0
+        if h:
+            run = run + 1 if row == last + 1 else 1
+            last = row
+            rows[n_open], wrow[n_open], foot[n_open] = row, wr[i], ft[i]
+            n_open += 1
+            score += term[i]
+            if run % cmax == 0:
+                keys[nk], kscore[nk] = _pick(rows, wrow, foot, n_open), score
+                nk, n_open, score = nk + 1, 0, 0.0
+    return n, level, keys, kscore, nk, n_open, score, last, run
 
 
 def kernel_bank(sigma: float, radius: int) -> np.ndarray:
@@ -508,7 +645,6 @@ def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarr
             c[r, j] = abs(num) / (1.0 + d1 * d1) ** 1.5
 
 
-@compiled
 def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, bank: np.ndarray,
               total: np.ndarray, top: np.ndarray, lm_n: np.ndarray, lm_sum: np.ndarray,
               lm_top: np.ndarray) -> None:
@@ -516,7 +652,18 @@ def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, ba
     running statistics in place (`MapStats` fields, frame by frame): S_i of curve j = |sum
     over the window of the curvatures times `bank[:, j, i]`| (`bank` (2 R + 1, k, 4): the
     differences of the normalised Gaussian kernels of each curve's scales, summed in window
-    order), row f - 1's local-maximum flags once row f exists."""
+    order), row f - 1's local-maximum flags once row f exists (`ring_maps_of`)."""
+    k = c.shape[1]
+    ring_maps_of(c, s, lm, f0, f1, bank.reshape(len(bank), 4 * k), 4 * np.arange(k), total,
+                 top, lm_n, lm_sum, lm_top)
+
+
+@compiled
+def ring_maps_of(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int,
+                 bank: np.ndarray, col: np.ndarray, total: np.ndarray, top: np.ndarray,
+                 lm_n: np.ndarray, lm_sum: np.ndarray, lm_top: np.ndarray) -> None:
+    """`ring_maps` with curve j's four kernels in columns col[j] .. col[j] + 3 of `bank`
+    (2 R + 1, columns): the curves sharing a sigma share columns, a smaller table to read."""
     k = c.shape[1]
     acc = np.empty((k, 4))
     for f in range(f0, f1 + 1):
@@ -526,7 +673,7 @@ def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, ba
             for j in range(k):
                 cj = c[r, j]
                 for i in range(4):
-                    acc[j, i] += cj * bank[q, j, i]
+                    acc[j, i] += cj * bank[q, col[j] + i]
         for j in range(k):
             for i in range(4):
                 v = abs(acc[j, i])
@@ -554,3 +701,9 @@ def _warm() -> None:
     ring_maps(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
               np.ones((3, 3, 4)), z, z.copy(), np.zeros((3, 4), dtype=np.int64), z.copy(),
               z.copy())
+    a, thr, safe, _ = itti_factors(z, np.zeros(3), np.ones(3), z, 1,
+                                   np.zeros((3, 4), dtype=np.int64), z, z)
+    classify_terms(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0)
+    classify_block(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0,
+                   0, 1, 2, np.zeros(3, dtype=np.int64), np.zeros(3), np.zeros(3, dtype=bool),
+                   0, 0.0, -2, 0)
