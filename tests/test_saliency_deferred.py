@@ -80,7 +80,7 @@ def run_with_idle(name: str, **kw: Any) -> list[KeyframeEvent]:
     return [e for e in events if isinstance(e, KeyframeEvent)]
 
 
-def test_no_push_waits_for_a_basis_update_and_each_switches_spread_frames_later(
+def test_no_push_but_the_first_waits_for_a_basis_update_and_each_switches_spread_later(
         monkeypatch: pytest.MonkeyPatch) -> None:
     m = motion("01_06.bvh")  # 5133 frames: the first basis, stream-start and periodic updates
     kf = saliency.Online(m.skeleton, m.fps, **LOW)  # type: ignore[arg-type]
@@ -108,10 +108,11 @@ def test_no_push_waits_for_a_basis_update_and_each_switches_spread_frames_later(
         events += pipe.idle()
         if kf.spread is not None and not spreading:
             starts.append(i)
-    assert not [c for c in calls if c[2]]  # nothing of a basis update runs in a push
-    first = [t for name, t, _ in calls if name == "_update"][0]
-    assert first == kf.lookahead - 1  # the first basis: after the frame before its decisions
-    assert starts[:3] == [241, 483, 967] and len(starts) >= 5  # stream start, then periodic
+    # The first basis is made in the push of frame `lookahead` (its decisions read it; made
+    # a frame earlier in idle(), agreement at lookahead 240 measured 0.928 against 0.931);
+    # nothing of any later update runs in a push.
+    assert [c for c in calls if c[2]] == [("_update", kf.lookahead, True)]
+    assert starts[:3] == [243, 487, 975] and len(starts) >= 5  # stream start, then periodic
     assert switches == [u + saliency.SPREAD for u in starts]
     assert any(isinstance(e, KeyframeEvent) for e in events)
 

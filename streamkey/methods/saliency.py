@@ -55,17 +55,19 @@ makes the online result equal the offline one when every decision waits for `flu
   disagreement, DESIGN §5) and costs a batch recompute of the window. New components are
   matched to the previous ones (greedy on |cos|, signs aligned) so that curve j stays curve j
   and keeps its running statistics. Frames that left the window are folded in pieces of
-  `FOLD_EVERY` (64) frames. No decision waits for a basis computation (1.5-6.5 ms at once):
-  the first basis, due with the decisions of frame `lookahead`, is computed in `idle()`
-  after frame `lookahead` - 1 from the frames so far; every later update, once frame
-  2 radius + 2 has arrived (the stream-start rows' support), is spread: due at frame u, it
-  takes the moments of the window at u, and its work (moments, correlation,
+  `FOLD_EVERY` (64) frames. Only the first basis is computed in a push (frame `lookahead`,
+  from the frames so far, ~1.5 ms once per window: computed a frame earlier in `idle()`, it
+  measured 0.928 / min 0.802 at lookahead 240 instead of 0.931 / 0.811). Every later update,
+  once frame 2 radius + 2 has arrived (the stream-start rows' support), is spread: due at
+  frame u, it takes the moments of the window at u, and its work (moments, correlation,
   eigen-decomposition, matching, curves, curvatures, blocks of maps, the switch: one piece a
   frame, in `idle()`) runs over the next `SPREAD` (24) frames; the new basis decides from
-  frame u + 24 on, the frames in between are classified with the previous one. Measured on
-  the shared clips (sigma = 10): mean F1 against offline 0.895 at lookahead 121 and 0.928 at
-  240 (0.897 and 0.931 with the stream-start updates made at once in the deciding frame; the
-  variants of this timing move it by +-0.005, results/agreement_saliency*.md).
+  frame u + 24 on, the frames in between are classified with the previous one (at once,
+  the stream-start updates cost 1.5-6.5 ms in a deciding push). Measured on the shared clips
+  (sigma = 10), mean F1 against offline (lowest clip): 0.801 (0.500) at lookahead 30, 0.852
+  (0.615) at 60, 0.895 (0.773) at 121, 0.931 (0.811) at 240; with the stream-start updates
+  made at once 0.804, 0.851, 0.897 (0.773), 0.932 (0.822). Other timings of the same work
+  move these by +-0.005.
 - Itti maxima M_i and H, mean of the other local maxima, and the mean-saliency threshold ->
   per (curve, scale) running count, sum, maximum, and local-maximum count / sum / maximum of
   the raw maps of every frame so far. Whole-history statistics, not a short window (DESIGN §5:
@@ -512,7 +514,8 @@ class Online(OnlineKeyframer):
         b["xs"][r] = x
         b["ft"][r] = foot
         b["tm"][r] = time
-        if self._update_due(t):  # only below 3 frames: else made early by `_deferred`
+        if self._update_due(t):  # the first basis; later ones below 3 frames (else made
+            # early by `_deferred`)
             self._catch_up(t - 1)
             self._update(final=False)
         self.deferred = True
@@ -537,13 +540,14 @@ class Online(OnlineKeyframer):
 
     def _deferred(self, early: bool = True) -> None:
         """Work of frame t that no decision of frame t reads, run after them (`idle()`, or
-        first thing at the next frame): an update made at once that frame t + 1 needs,
-        from the frames up to t (`early`); else frame t's incremental rows (so that the
+        first thing at the next frame): an update made at once that frame t + 1 needs
+        (not the first basis, made in frame `lookahead`'s push), from the frames up to t
+        (`early`); else frame t's incremental rows (so that the
         next deciding frame computes only its own), a piece of a spread basis update or
         its start, a piece of the past folded into the totals, room for the next row."""
         self.deferred = False
         t = self.t
-        if early and t >= 2 and self._update_due(t + 1):
+        if early and t >= 2 and self.basis is not None and self._update_due(t + 1):
             self._catch_up(t)
             self._update(final=False)
             return
