@@ -8,8 +8,9 @@ A snapshot is a small versioned header and a pickle of the keyframer's plain att
 The header names the kind (`keyframer` or `pipeline`), the class, the stream, the params
 digest (a pipeline's digest covers every keyframer's, in order), the last accepted `seq`
 (None before the first frame) and a SHA-256 of the payload. `restore` refuses, with a clear
-`SnapshotError`, another format version, a damaged payload, a different params digest than
-the caller expects, or a snapshot of another kind.
+`SnapshotError`, another format version (it changes whenever a keyframer's state changes
+shape, so an older streamkey's snapshot is refused, never restored half-fitting), a damaged
+payload, a different params digest than the caller expects, or a snapshot of another kind.
 
 Derived caches are not stored: speed's `HPBank` pickles as its lambdas only (its Cholesky
 factors live in a module-level cache shared by every stream with the same parameters and are
@@ -37,7 +38,7 @@ __all__ = ["SnapshotError", "SnapshotHeader", "snapshot", "restore", "read_heade
            "SNAPSHOT_VERSION", "MAGIC"]
 
 MAGIC = b"SKSNAP"
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2  # 2: issue 13 reshaped the state of speed, saliency and optimal
 _PREFIX = struct.Struct(">6sBI")
 MAX_HEADER_BYTES = 1 << 16
 
