@@ -232,3 +232,29 @@ async def test_a_given_skeletons_pipeline_is_built_before_listening_and_used():
     summary = await engine.run()
     assert pipelines["used"] is pipelines["before"] and summary.frames_in == 5
     assert engine._prebuilt is None
+
+
+async def test_keyframers_that_refuse_the_built_in_rig_warm_up_on_the_wire_skeleton():
+    """A `--roles` mapping for another rig (here the CMU skeleton's LHipJoint) makes the
+    keyframers refuse the humanoid rig: the run still listens, and warms up on the real
+    skeleton when it arrives, as before."""
+    seen = {"built": []}
+
+    def ready(line):
+        if line.startswith("listening on"):
+            seen["warm_at_listen"] = engine._warm
+            source.receive(encode_skeleton(MOTION.skeleton, MOTION.fps))
+            for frame in MOTION.frames()[:5]:
+                source.receive(encode_frame(frame.seq, frame.time, frame.channels))
+            source.frames.put(None)
+
+    source = OscSource(parse_address("osc://127.0.0.1:0"))
+    roles = {"left_hip": "LHipJoint"}
+    engine = build_engine(source, ["speed"], [], params={"speed": {"role_mapping": roles}},
+                          on_ready=ready)
+    make = engine.make_keyframers
+    engine.make_keyframers = lambda spec: seen["built"].append(spec.skeleton) or make(spec)
+    summary = await engine.run()
+    assert seen["warm_at_listen"] is False and seen["built"][0] is not source.skeleton
+    assert seen["built"][-1] is source.skeleton and summary.frames_in == 5
+    assert summary.error_count == 0
