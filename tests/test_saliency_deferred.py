@@ -34,6 +34,16 @@ def frames_of(name: str) -> list[Frame]:
     return motion(name).frames()
 
 
+def numpy_row_terms(cand: np.ndarray, rel: np.ndarray, weights: np.ndarray, footmask: np.ndarray
+                    ) -> tuple[list[bool], list[float], list[bool], list[float]]:
+    """The clustering terms of classified rows (n, k) in numpy, as the sequential clusterer
+    computed them before `classify_terms`: any candidate, weight (as `cluster_keyframes`),
+    foot flag, score term."""
+    return (cand.any(axis=1).tolist(), (cand.astype(np.float64) @ weights).tolist(),
+            cand[:, footmask].any(axis=1).tolist(),
+            ((np.where(cand, rel, 0.0) @ weights) / float(weights.sum())).tolist())
+
+
 @pytest.mark.parametrize("name", ["07_01.bvh", "49_18.amc", "05_18.bvh"])
 def test_compiled_itti_factors_and_row_terms_keep_the_bits_of_the_numpy_maths(name: str
                                                                                ) -> None:
@@ -53,7 +63,7 @@ def test_compiled_itti_factors_and_row_terms_keep_the_bits_of_the_numpy_maths(na
     assert np.array_equal(safe, np.where(thr > 0, thr, 1.0))
     sal = saliency.combine(cv.s, a)
     cand, rel = sal > thr, sal / safe
-    hit, wrow, foot, term = saliency_math.row_terms(cand, rel, cv.weights, cv.foot)
+    hit, wrow, foot, term = numpy_row_terms(cand, rel, cv.weights, cv.foot)
     wsum = float(cv.weights.sum())
     got = saliency_math.classify_terms(cv.s, a2, thr2, safe, cv.weights, cv.foot, wsum)
     assert got[0].tolist() == hit and got[2].tolist() == foot

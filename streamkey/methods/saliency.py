@@ -327,7 +327,7 @@ class Online(OnlineKeyframer):
 
     Running statistics replace the global ones (module docstring). Between basis updates a
     new frame costs one projection, one curvature row and one row of maps (compiled loops,
-    `saliency_math.ring_curves` / `ring_maps`), computed in `idle()` after its decisions (or
+    `saliency_math.ring_curves` / `ring_maps_of`), computed in `idle()` after its decisions (or
     first thing at the next frame), so that a deciding frame computes its own row only; a
     basis update's work runs in `idle()` too. A deciding frame classifies and clusters its
     due rows in one compiled loop (`saliency_math.classify_block`, the bits of the numpy
@@ -574,7 +574,7 @@ class Online(OnlineKeyframer):
 
         They are computed when something reads them (a classification, a basis update, the
         ring moving), for all frames since the last time at once, in compiled loops that go
-        frame by frame (`ring_curves`, `ring_maps`): the same bits whatever the split."""
+        frame by frame (`ring_curves`, `ring_maps_of`): the same bits whatever the split."""
         p = self.inc_t + 1
         if self.basis is None or upto < p or p == 0:  # p == 0: a window restarted with the
             return  # basis kept, before its first analysis (`_update` makes every row)
@@ -934,21 +934,29 @@ class Online(OnlineKeyframer):
         lookahead after `due`)."""
         if s is None:
             s = self.buf["s"][g0 - self.base : g1 - self.base + 1]
-        cl = self.clusterer
+        stop = _NO_STOP if due is None else due - self.lookahead
+        n, level, closed = self._feed(self.clusterer, s, g0, stop)
+        self.trace.extend(zip(range(self.seq0 + g0, self.seq0 + g0 + n), level[:n].tolist(),
+                              strict=True))
+        self.n_class = g0 + n
+        return self._emit(closed)
+
+    def _feed(self, cl: Clusterer, s: np.ndarray, g0: int, stop: int
+              ) -> tuple[int, np.ndarray, list[tuple[int, float]]]:
+        """Rows g0.. of maps `s` classified with the current statistics and fed to `cl` in
+        one compiled loop (`classify_block`), up to the first row whose cluster would start
+        after `stop`; `cl` takes the open cluster's new state (new lists: a copy's lists
+        stay the original's). Returns (rows taken, their trace levels, clusters closed)."""
         m = self.cmax + 1  # the open cluster, as `classify_block`'s buffers
         rows, wrow, foot = np.zeros(m, dtype=np.int64), np.zeros(m), np.zeros(m, dtype=bool)
         k = len(cl.rows)
         if k:
             rows[:k], wrow[:k], foot[:k] = cl.rows, cl.wrow, cl.foot
-        stop = _NO_STOP if due is None else due - self.lookahead
         n, level, keys, scores, nk, k, cl.score, cl.last, cl.run = classify_block(
             s, *self._normal(), self.weights, self.footmask, self._wsum, g0, stop, self.cmax,
             rows, wrow, foot, k, cl.score, cl.last, cl.run)
         cl.rows, cl.wrow, cl.foot = rows[:k].tolist(), wrow[:k].tolist(), foot[:k].tolist()
-        self.trace.extend(zip(range(self.seq0 + g0, self.seq0 + g0 + n), level[:n].tolist(),
-                              strict=True))
-        self.n_class = g0 + n
-        return self._emit(list(zip(keys[:nk].tolist(), scores[:nk].tolist(), strict=True)))
+        return n, level, list(zip(keys[:nk].tolist(), scores[:nk].tolist(), strict=True))
 
     def _emit(self, closed: list[tuple[int, float]]) -> list[KeyframeEvent]:
         tm = self.buf["tm"]
@@ -959,7 +967,7 @@ class Online(OnlineKeyframer):
         """Provisional hook: the keys that the open cluster and the frames not yet classified
         point to, with the statistics of this moment (nothing decided): frames with final
         maps, then frames with early maps (`_early_maps`). Re-derived every
-        `CANDIDATE_EVERY` frames (the clustering runs in Python over ~100 frames)."""
+        `CANDIDATE_EVERY` frames (a clustering over ~100 frames)."""
         if self.basis is None or self.inc_t < 0:  # no analysis in this window yet
             return []
         self._peek(self.t)
@@ -990,20 +998,12 @@ class Online(OnlineKeyframer):
         return self._norm
 
     def _candidates(self, early: np.ndarray) -> list[tuple[int, float, float]]:
-        a, thr, thr_safe = self._normal()
-        sim = copy.copy(self.clusterer)
-        sim.rows, sim.wrow, sim.foot = list(sim.rows), list(sim.wrow), list(sim.foot)
+        sim = copy.copy(self.clusterer)  # `_feed` gives it new lists: the clusterer's stay
         closed: list[tuple[int, float]] = []
         lo, hi = self.n_class, self.s_ready
         maps = [self.buf["s"][lo - self.base : max(lo, hi) - self.base], early]
-        hi = lo + len(maps[0]) + len(maps[1])
-        if hi > lo:
-            sal = combine(np.concatenate(maps), a)
-            rel = sal / thr_safe
-            cand = sal > thr
-            for i in np.flatnonzero(cand.any(axis=1)):  # other rows only close clusters
-                closed.extend(sim.add(lo + int(i), cand[i], self.weights, self.footmask,
-                                      rel[i]))
+        if len(maps[0]) + len(maps[1]):
+            closed = self._feed(sim, np.concatenate(maps), lo, _NO_STOP)[2]
         if sim.rows:
             closed.append(sim.close())
         tm = self.buf["tm"]

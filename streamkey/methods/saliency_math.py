@@ -21,9 +21,9 @@ __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapSta
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
-           "cluster_size", "support_radius", "row_terms", "itti_factors", "classify_terms",
+           "cluster_size", "support_radius", "itti_factors", "classify_terms",
            "classify_block",
-           "ring_curves", "ring_maps", "ring_maps_of"]
+           "ring_curves", "ring_maps_of"]
 
 FOOT_SIGMA = 3.0  # Halit §3.3
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
@@ -354,22 +354,14 @@ def _maps_t(c: np.ndarray, sigma: float) -> np.ndarray:
 
 def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
     """Halit §3.1.4 / §3.3 choice in one cluster (sequential twin of `cluster_keyframes`,
-    summing in row order as its `bincount` does; plain Python: a cluster is a few rows)."""
-    num = den = 0.0
-    for r, w in zip(rows, wrow, strict=True):
-        num += w * r
-        den += w
-    mean = num / den
-    if any(foot):
-        dist = [abs(r - mean) if ok else np.inf for r, ok in zip(rows, foot, strict=True)]
-    else:
-        dist = [abs(r - mean) for r in rows]
-    best = min(dist) + _TIE
-    return next(r for r, d in zip(rows, dist, strict=True) if d <= best)
+    summing in row order as its `bincount` does; `_pick`, compiled)."""
+    return int(_pick(np.asarray(rows, dtype=np.int64), np.asarray(wrow, dtype=np.float64),
+                     np.asarray(foot, dtype=np.bool_), len(rows)))
 
 
 class Clusterer:
-    """Sequential clustering of classified frames: runs cut every `cmax` frames (§3.1.4).
+    """Sequential clustering of classified frames: runs cut every `cmax` frames (§3.1.4);
+    the open cluster's state, which `classify_block` advances over a block of rows.
 
     `close()` may also be called early (an online decision deadline); the run then goes on
     in a new cluster that still ends on the run's `cmax` grid, as offline.
@@ -384,47 +376,11 @@ class Clusterer:
         self.last = -2  # last candidate row
         self.run = 0  # candidate rows of the current run so far
 
-    def add(self, row: int, cand: np.ndarray, weights: np.ndarray, footmask: np.ndarray,
-            rel: np.ndarray) -> list[tuple[int, float]]:
-        """Classify `row` (candidate flags per curve); returns the clusters it closed."""
-        if not cand.any():
-            return self.add_row(row, False, 0.0, False, 0.0)
-        return self.add_row(row, True, float(cand.astype(np.float64) @ weights),
-                            bool(cand[footmask].any()),
-                            float(np.where(cand, rel, 0.0) @ weights) / float(weights.sum()))
-
-    def add_row(self, row: int, hit: bool, wrow: float, foot: bool, score: float
-                ) -> list[tuple[int, float]]:
-        """`add` with its per-row terms computed by the caller (for a block of rows at once:
-        `row_terms`): candidate on any curve, weight, foot flag, score term."""
-        closed = []
-        if self.rows and (not hit or row != self.rows[-1] + 1):
-            closed.append(self.close())
-        if hit:
-            self.run = self.run + 1 if row == self.last + 1 else 1
-            self.last = row
-            self.rows.append(row)
-            self.wrow.append(wrow)
-            self.foot.append(foot)
-            self.score += score
-            if self.run % self.cmax == 0:
-                closed.append(self.close())
-        return closed
-
     def close(self) -> tuple[int, float]:
         """Close the open cluster: (keyframe row, score)."""
         out = (pick_keyframe(self.rows, self.wrow, self.foot), self.score)
         self.rows, self.wrow, self.foot, self.score = [], [], [], 0.0
         return out
-
-
-def row_terms(cand: np.ndarray, rel: np.ndarray, weights: np.ndarray, footmask: np.ndarray
-              ) -> tuple[list[bool], list[float], list[bool], list[float]]:
-    """`Clusterer.add_row` terms of classified rows (n, k) at once: any candidate, weight
-    (as `cluster_keyframes`), foot flag, score term."""
-    return (cand.any(axis=1).tolist(), (cand.astype(np.float64) @ weights).tolist(),
-            cand[:, footmask].any(axis=1).tolist(),
-            ((np.where(cand, rel, 0.0) @ weights) / float(weights.sum())).tolist())
 
 
 @compiled
@@ -467,10 +423,10 @@ def itti_factors(top: np.ndarray, hmax: np.ndarray, h3: np.ndarray, total: np.nd
 def classify_terms(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.ndarray,
                    weights: np.ndarray, footmask: np.ndarray, wsum: float
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per row of maps `s` (n, k, 4) in one compiled loop: the `Clusterer.add_row` terms
-    (`row_terms` of `combine(s, a) > thr`: any candidate, weight, foot flag, score term)
-    and the trace level (the weighted mean of S_j / mean(S_j), over `wsum`). The saliency
-    and the flags have the bits of `combine`; the sums over curves go in curve order."""
+    """Per row of maps `s` (n, k, 4) in one compiled loop: the clustering terms of
+    `combine(s, a) > thr` (any candidate, weight, foot flag, score term) and the trace level
+    (the weighted mean of S_j / mean(S_j), over `wsum`). The saliency and the flags have the
+    bits of `combine`; the sums over curves go in curve order."""
     n, k = s.shape[0], s.shape[1]
     hit = np.zeros(n, dtype=np.bool_)
     foot = np.zeros(n, dtype=np.bool_)
@@ -513,7 +469,7 @@ def _pick(rows: np.ndarray, wrow: np.ndarray, foot: np.ndarray, n: int) -> int:
         if foot[i] or not any_foot:
             best = min(best, abs(rows[i] - mean))
     for i in range(n):
-        if (foot[i] or not any_foot) and abs(rows[i] - mean) <= best + 1e-9:
+        if (foot[i] or not any_foot) and abs(rows[i] - mean) <= best + _TIE:
             return rows[i]
     return rows[0]
 
@@ -526,12 +482,12 @@ def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
                    ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, int, float, int,
                               int]:
     """`classify_terms` of the rows g0.. of maps `s`, fed to the clusterer in the same loop
-    (`Clusterer.add_row` row by row, stopping before the first row whose cluster would start
-    after `stop`): the open cluster's rows / weights / foot flags in the buffers `rows`, `wrow`,
-    `foot` (at least cmax + 1 long, updated in place; its first n_open rows), its score,
-    the last candidate row and the run length. Returns (rows classified, their trace levels,
-    the keyframe rows and scores of the clusters closed, how many, n_open, score, last,
-    run)."""
+    (row by row, runs cut every `cmax` rows as `Clusterer`'s, stopping before the first row
+    whose cluster would start after `stop`): the open cluster's rows / weights / foot flags
+    in the buffers `rows`, `wrow`, `foot` (at least cmax + 1 long, updated in place; its
+    first n_open rows), its score, the last candidate row and the run length. Returns (rows
+    classified, their trace levels, the keyframe rows and scores of the clusters closed, how
+    many, n_open, score, last, run)."""
     hit, wr, ft, term, level = classify_terms(s, a, thr, thr_safe, weights, footmask, wsum)
     n = len(hit)
     keys = np.empty(n + 1, dtype=np.int64)
@@ -645,25 +601,15 @@ def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarr
             c[r, j] = abs(num) / (1.0 + d1 * d1) ** 1.5
 
 
-def ring_maps(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int, bank: np.ndarray,
-              total: np.ndarray, top: np.ndarray, lm_n: np.ndarray, lm_sum: np.ndarray,
-              lm_top: np.ndarray) -> None:
-    """Online maps of ring rows f0..f1 (f0 >= 2) from the curvatures around them, and the
-    running statistics in place (`MapStats` fields, frame by frame): S_i of curve j = |sum
-    over the window of the curvatures times `bank[:, j, i]`| (`bank` (2 R + 1, k, 4): the
-    differences of the normalised Gaussian kernels of each curve's scales, summed in window
-    order), row f - 1's local-maximum flags once row f exists (`ring_maps_of`)."""
-    k = c.shape[1]
-    ring_maps_of(c, s, lm, f0, f1, bank.reshape(len(bank), 4 * k), 4 * np.arange(k), total,
-                 top, lm_n, lm_sum, lm_top)
-
-
 @compiled
 def ring_maps_of(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int,
                  bank: np.ndarray, col: np.ndarray, total: np.ndarray, top: np.ndarray,
                  lm_n: np.ndarray, lm_sum: np.ndarray, lm_top: np.ndarray) -> None:
-    """`ring_maps` with curve j's four kernels in columns col[j] .. col[j] + 3 of `bank`
-    (2 R + 1, columns): the curves sharing a sigma share columns, a smaller table to read."""
+    """Maps S of ring rows f0..f1 from their curvatures `c`, and the running statistics in
+    place (`MapStats` fields, frame by frame): S_i of curve j = |sum over the window of the
+    curvatures times column col[j] + i of `bank`| ((2 R + 1, columns): the differences of
+    the normalised Gaussian kernels of each sigma, summed in window order; the curves
+    sharing a sigma share columns), row f - 1's local-maximum flags once row f exists."""
     k = c.shape[1]
     acc = np.empty((k, 4))
     for f in range(f0, f1 + 1):
@@ -698,9 +644,10 @@ def _warm() -> None:
     keep = np.arange(3, dtype=np.int64)
     ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8)
     z = np.zeros((3, 4))
-    ring_maps(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
-              np.ones((3, 3, 4)), z, z.copy(), np.zeros((3, 4), dtype=np.int64), z.copy(),
-              z.copy())
+    ring_maps_of(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
+                 np.ones((3, 12)), 4 * np.arange(3), z, z.copy(),
+                 np.zeros((3, 4), dtype=np.int64), z.copy(), z.copy())
+    pick_keyframe([4, 5], [1.0, 1.0], [False, True])
     a, thr, safe, _ = itti_factors(z, np.zeros(3), np.ones(3), z, 1,
                                    np.zeros((3, 4), dtype=np.int64), z, z)
     classify_terms(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0)
