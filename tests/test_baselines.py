@@ -124,6 +124,7 @@ def test_bad_counts_raise_usage_error():
         baselines.decimate(m, 5, space="euler")
 
 
+@pytest.mark.numeric
 @pytest.mark.slow
 def test_decimation_kernel_removes_in_the_heapq_forms_order_on_every_shared_clip():
     """The compiled loop sums a segment's squares in another order than numpy (costs differ
@@ -143,6 +144,7 @@ def test_decimation_kernel_removes_in_the_heapq_forms_order_on_every_shared_clip
             np.testing.assert_allclose(costs, ref_costs, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.numeric
 def test_segment_sse_kernel_equals_the_numpy_form():
     m = load("07_01.bvh")
     x = simplify.curve(m, "positions")
@@ -151,6 +153,7 @@ def test_segment_sse_kernel_equals_the_numpy_form():
             reference.segment_sse(x, a, b), rel=1e-12, abs=1e-15)
 
 
+@pytest.mark.numeric
 def test_segment_sse_sums_the_chord_distances_of_its_rows_bit_for_bit():
     """Four rows at a time, yet each row's squares in column order and the rows in frame
     order: the same bits as adding `simplify.chord_sq` row by row (the removal order and

@@ -101,6 +101,7 @@ def test_hp_filter_filters_each_column_of_a_2d_signal_on_its_own() -> None:
         assert _rel_err(both[:, j], hpfilter(y[:, j], lam)[1]) < 1e-8
 
 
+@pytest.mark.numeric
 def test_hp_bank_gives_the_same_trends_as_hp_filter() -> None:
     rng = np.random.default_rng(3)
     v = np.abs(rng.normal(size=500)).cumsum()
@@ -113,6 +114,7 @@ def test_hp_bank_gives_the_same_trends_as_hp_filter() -> None:
             assert np.array_equal(bank.solve(v[:n], i), HPBank(lams).solve(v[:n], i))
 
 
+@pytest.mark.numeric
 @pytest.mark.parametrize("cutoff", [8.0, 1.0, 0.1])
 def test_hp_factor_equals_lapacks_factorisation_at_every_length(cutoff: float) -> None:
     lam = hp_lambda(cutoff, DT)

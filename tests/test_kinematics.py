@@ -56,6 +56,7 @@ def test_bone_lengths_stay_constant_over_every_frame(name):
         np.testing.assert_allclose(length, np.linalg.norm(sk.offsets[j]), atol=1e-9)
 
 
+@pytest.mark.numeric
 def test_fk_of_any_block_split_is_bit_identical():
     motion = read_bvh(DATA / "05_06.bvh")
     whole = forward_kinematics(motion.skeleton, motion.channels).positions
@@ -88,6 +89,7 @@ def test_features_give_foot_heights_near_the_floor_during_a_walk():
         assert np.ptp(feet[:, side]) > 0.03 * height
 
 
+@pytest.mark.numeric
 def test_joint_heights_of_a_few_joints_equal_full_fk_bit_for_bit():
     from streamkey.kinematics import joint_heights
 
@@ -101,6 +103,7 @@ def test_joint_heights_of_a_few_joints_equal_full_fk_bit_for_bit():
             np.testing.assert_array_equal(one, full[7:8, list(joints), 1])
 
 
+@pytest.mark.numeric
 def test_unwrap_equals_numpy_for_any_layout_and_block_split():
     from streamkey.signal import unwrap_degrees, unwrap_step
 
@@ -175,6 +178,7 @@ def numpy_fk(skeleton, channels):
     return np.concatenate([pos, np.stack(ends, axis=1)], axis=1), world[:, 0]
 
 
+@pytest.mark.numeric
 @pytest.mark.parametrize("name", ["05_11.amc", "131_04.amc", "05_11.bvh", "16_11.bvh"])
 def test_fk_kernel_matches_the_numpy_reference_with_and_without_asf_axes(name):
     """The kernel's explicit 3x3 arithmetic against numpy products: equal to rounding (a few
@@ -200,6 +204,7 @@ def test_fk_kernel_matches_the_numpy_reference_with_and_without_asf_axes(name):
         np.testing.assert_allclose(local[:, q], ref, rtol=0, atol=1e-15)
 
 
+@pytest.mark.numeric
 def test_pelvis_frame_kernel_matches_numpy_and_any_subset_has_the_same_bits():
     from streamkey.kinematics import to_pelvis
 
@@ -212,6 +217,7 @@ def test_pelvis_frame_kernel_matches_numpy_and_any_subset_has_the_same_bits():
     np.testing.assert_array_equal(pelvis_frame(fk, 0, points), full[:, points])
 
 
+@pytest.mark.numeric
 def test_fk_of_some_points_composes_their_chains_only_with_the_same_bits():
     from streamkey.kinematics import fk_points
 
@@ -227,6 +233,7 @@ def test_fk_of_some_points_composes_their_chains_only_with_the_same_bits():
     np.testing.assert_array_equal(part.root_rotation, full.root_rotation)
 
 
+@pytest.mark.numeric
 def test_unwrap_kernel_equals_numpy_on_exact_half_turns_and_column_subsets():
     """np.unwrap's tie rule (a step of exactly ±180 is kept, +180 stays +180) and any column
     subset read straight from the channels, bit for bit."""

@@ -72,6 +72,7 @@ def test_prefix_sum_costs_equal_direct_sums_across_epochs():
     np.testing.assert_allclose(om.pair_costs(x, a, b), direct, rtol=1e-6, atol=1e-11)
 
 
+@pytest.mark.numeric
 def test_pricing_frame_by_frame_is_bit_identical_to_chunks_and_to_the_whole_take():
     """The online solver prices each frame as it arrives; offline prices a chunk or the whole
     take at once: the same bits, across re-based epochs (also when L > EPOCH re-bases at
@@ -97,6 +98,7 @@ def test_pricing_frame_by_frame_is_bit_identical_to_chunks_and_to_the_whole_take
     assert s.base > 0 and np.array_equal(s.costs[: s.n - s.base], om.band_costs(x, 240)[s.base :])
 
 
+@pytest.mark.numeric
 @pytest.mark.parametrize("name", ["01_01.bvh", *FAST])
 def test_compiled_pricing_agrees_with_the_blas_formulation_to_rounding(name):
     """The old pricing (four window x chunk matrix products, tests/optimal_pricing_reference)
@@ -126,6 +128,7 @@ def _dp_numpy(band: np.ndarray, lam: float, floor: int) -> tuple[np.ndarray, np.
     return f, bp
 
 
+@pytest.mark.numeric
 @pytest.mark.parametrize("floor", [0, 37])
 def test_compiled_dp_is_bit_identical_to_the_numpy_rows_on_a_shared_clip(floor):
     x = optimal.curve(load("05_02.bvh"))

@@ -17,6 +17,7 @@ def per_key(scores: np.ndarray, window: int) -> np.ndarray:
                      for i in range(len(scores))])
 
 
+@pytest.mark.numeric
 @pytest.mark.parametrize("n", [0, 1, 2, 63, 64, 65, 300, 5000])
 @pytest.mark.parametrize("window", [1, 2, 5, STRENGTH_WINDOW])
 def test_rank_strengths_equal_the_per_key_definition(n: int, window: int) -> None:
@@ -28,6 +29,7 @@ def test_rank_strengths_equal_the_per_key_definition(n: int, window: int) -> Non
         np.testing.assert_array_equal(got, per_key(scores, window))
 
 
+@pytest.mark.numeric
 def test_rank_strengths_of_a_real_result_equal_the_per_key_definition() -> None:
     k = curvefit.extract(read_motion(DATA / "07_01.bvh"))  # scores: channels keyed per frame
     assert len(k) > 2 * STRENGTH_WINDOW

@@ -97,6 +97,7 @@ def test_maps_cut_at_the_newest_frame_are_the_offline_maps_of_the_clip_ending_th
     assert np.allclose(got, saliency.maps_of(c, 10.0, True)[frames], rtol=1e-9, atol=1e-15)
 
 
+@pytest.mark.numeric
 def test_compiled_ring_rows_match_the_batch_curves_maps_and_statistics() -> None:
     f = features("05_18.bvh")
     xs = f.rotations - f.rotations[0]

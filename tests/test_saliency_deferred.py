@@ -44,6 +44,7 @@ def numpy_row_terms(cand: np.ndarray, rel: np.ndarray, weights: np.ndarray, foot
             ((np.where(cand, rel, 0.0) @ weights) / float(weights.sum())).tolist())
 
 
+@pytest.mark.numeric
 @pytest.mark.parametrize("name", ["07_01.bvh", "49_18.amc", "05_18.bvh"])
 def test_compiled_itti_factors_and_row_terms_keep_the_bits_of_the_numpy_maths(name: str
                                                                                ) -> None:
@@ -72,6 +73,7 @@ def test_compiled_itti_factors_and_row_terms_keep_the_bits_of_the_numpy_maths(na
     assert np.allclose(got[4], rel @ cv.weights / wsum, rtol=1e-12)
 
 
+@pytest.mark.numeric
 def test_pick_keyframe_equals_the_vectorised_clustering_on_real_clusters() -> None:
     m = motion("05_18.bvh")
     keys = saliency.extract(m, **LOW)  # type: ignore[arg-type]

@@ -167,6 +167,7 @@ def _split_keys_numpy(x: np.ndarray, tolerance: float) -> dict[int, float]:
     return keys
 
 
+@pytest.mark.numeric
 @pytest.mark.parametrize("name", ["02_10.bvh", "131_03.bvh", "09_06.amc"])
 def test_compiled_split_matches_the_numpy_recursion_on_shared_clips(name):
     x = simplify.curve(load(name), "positions", features(name))

@@ -80,6 +80,7 @@ def clip_speed(name: str = "07_01.bvh", frames: int = 0) -> np.ndarray:
     return speed.speed_signal(p.reshape(len(p), -1) / feats.body_height, m.frame_time)
 
 
+@pytest.mark.numeric
 def test_ward_levels_equal_the_heapq_merging_bit_for_bit() -> None:
     rng = np.random.default_rng(15)
     values = np.array([0.0, 0.3, 1.7, 2.25, 9.5, 40.125])
@@ -97,6 +98,7 @@ def test_ward_levels_equal_the_heapq_merging_bit_for_bit() -> None:
         assert np.array_equal(bounds, ref_bounds), case
 
 
+@pytest.mark.numeric
 def test_band_offsets_equal_the_numpy_band_dp() -> None:
     rng = np.random.default_rng(16)
     for case in range(400):
@@ -107,6 +109,7 @@ def test_band_offsets_equal_the_numpy_band_dp() -> None:
         assert np.array_equal(kern.band_offsets(long_, short), numpy_band_dp(long_, short)), case
 
 
+@pytest.mark.numeric
 def test_chain_totals_equal_the_numpy_chains_on_a_clip(monkeypatch: pytest.MonkeyPatch) -> None:
     v = clip_speed()
     bank = speed.HPBank(speed.scale_lambdas(speed.scale_frequencies(), 1.0 / 120.0))
@@ -122,6 +125,7 @@ def test_chain_totals_equal_the_numpy_chains_on_a_clip(monkeypatch: pytest.Monke
     assert np.count_nonzero(got) > len(got) // 2
 
 
+@pytest.mark.numeric
 def test_tail_minima_equal_local_minima_of_each_trend() -> None:
     rng = np.random.default_rng(17)
     trends = np.round(rng.normal(size=(300, 8)), 1)  # flat bottoms too
@@ -138,6 +142,7 @@ def test_tail_minima_equal_local_minima_of_each_trend() -> None:
     assert at == len(ms) > 0
 
 
+@pytest.mark.numeric
 @pytest.mark.parametrize("window", [300, 5000])
 def test_carried_hp_passes_equal_lapack_solves_of_the_stream_so_far(window: int) -> None:
     """Analyses every 24 speeds over a sliding window (rows older than it carried): every
@@ -176,6 +181,7 @@ def test_the_warmer_compiles_every_kernel() -> None:
         assert fn.compiled is not None and fn.compiled.signatures
 
 
+@pytest.mark.numeric
 def test_ward_labels_and_dropped_threshold_equal_the_numpy_steps() -> None:
     rng = np.random.default_rng(18)
     values = np.array([0.0, 0.5, 2.0, 7.25])
