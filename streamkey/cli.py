@@ -215,13 +215,15 @@ def cmd_extract(args: argparse.Namespace) -> int:
         from .cluster.engines import extract_with_engine
 
         methods = parse_methods(args.method, online=args.online)
+        params = _method_params(args, online=args.online)
         if args.online:
             from .streaming import check_online_params
 
-            check_online_params(methods, _method_params(args))
-        results = extract_with_engine(paths, methods, _method_params(args), args.engine,
-                                      args.address, args.workers, _progress(args.quiet),
-                                      _roles(args), args.online, args.lookahead)
+            check_online_params(methods, params)
+        # the lookahead rides in params (per method), as on the local path
+        results = extract_with_engine(paths, methods, params, args.engine, args.address,
+                                      args.workers, _progress(args.quiet), _roles(args),
+                                      args.online)
     elif args.online:
         from .streaming import check_online_params, extract_files_online
 
