@@ -225,28 +225,18 @@ def cmd_extract(args: argparse.Namespace) -> int:
                                       args.workers, _progress(args.quiet), _roles(args),
                                       args.online)
     elif args.online:
-        from .streaming import check_online_params, extract_files_online
+        from .batch import extract_files_online
+        from .streaming import check_online_params
 
         methods = parse_methods(args.method, online=True)
         params = _method_params(args, online=True)
         check_online_params(methods, params)
         results = list(extract_files_online(paths, methods, params, None, _progress(args.quiet),
                                             roles=_roles(args)))
-    else:
+    else:  # --max-gap and --min-interval ride in params["*"], applied by the library
         methods = parse_methods(args.method)
         results = list(extract_files(paths, methods, _method_params(args), _progress(args.quiet),
                                      roles=_roles(args)))
-    if args.max_gap is not None and not args.online:
-        from .methods.optimal import max_gap
-
-        for r in results:
-            if r.motion is not None:
-                r.results = {m: max_gap(r.motion, k, args.max_gap)
-                             for m, k in r.results.items()}
-    if not args.online:  # online, the keyframers debounce themselves
-        from .playable import debounce_results
-
-        debounce_results(results, args.min_interval)
     _write(results_json(results) if args.format == "json" else results_csv(results), args.output)
     _export(results, args)
     failed = [r for r in results if r.error]
