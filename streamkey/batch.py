@@ -19,9 +19,11 @@ from .errors import InputError, StreamkeyError
 from .features import compute_features
 from .keyframes import SCHEMA_VERSION, Keyframes
 from .methods import COUNTED_METHODS, offline_method
+from .methods.params import to_method_units
 from .motion import Motion
 from .playable import debounce
 from .streaming import MinIntervalLike, common_params, run_online
+from .units import DurationLike
 
 __all__ = ["MOTION_SUFFIXES", "find_motion_files", "extract_motion", "FileResult",
            "extract_files", "results_json", "results_csv", "file_error", "per_file",
@@ -108,7 +110,8 @@ def extract_motion(motion: Motion, methods: list[str],
     online keyframers do (both may also come in `params["*"]`, as `streamkey extract` passes
     them).
     """
-    params = common_params(params, max_gap, min_interval)
+    params = {name: to_method_units(name, kwargs, motion.fps) if name != "*" else kwargs
+              for name, kwargs in common_params(params, max_gap, min_interval).items()}
     features = compute_features(motion)
     results: dict[str, Keyframes] = {}
     order = sorted(methods, key=lambda m: m in COUNTED_METHODS)
@@ -175,7 +178,7 @@ def extract_files(paths: list[Path], methods: list[str],
 
 def extract_files_online(paths: list[Path], methods: list[str],
                          params: dict[str, dict[str, Any]] | None = None,
-                         lookahead: int | None = None,
+                         lookahead: DurationLike | None = None,
                          progress: Callable[[int, int, Path], None] | None = None,
                          roles: dict[str, str] | None = None, *, max_gap: float | None = None,
                          min_interval: MinIntervalLike = None) -> Iterator[FileResult]:
@@ -192,7 +195,7 @@ def extract_files_online(paths: list[Path], methods: list[str],
 
 def extract_one(path: Path, methods: list[str], params: dict[str, dict[str, Any]] | None = None,
                 roles: dict[str, str] | None = None, online: bool = False,
-                lookahead: int | None = None) -> FileResult:
+                lookahead: DurationLike | None = None) -> FileResult:
     """One file of a batch, engine-neutral (a local loop, a Ray task or a Dask future run
     exactly this): its keyframes, or its named error. `online` runs the online keyframers
     as if streamed (`extract --online`)."""

@@ -12,9 +12,11 @@ from . import playable_online
 from .errors import UsageError
 from .keyframes import KeyframeEvent, Keyframes
 from .methods import online_class
+from .methods.params import to_method_units
 from .motion import Motion
 from .online import OnlineKeyframer, Pipeline
 from .playable import parse_min_interval
+from .units import DurationLike
 
 __all__ = ["make_keyframers", "run_online", "check_online_params", "common_params",
            "MinIntervalLike"]
@@ -72,10 +74,11 @@ def _bridge_frames(common: dict[str, Any], fps: float) -> int | None:
 
 def make_keyframers(motion: Motion, methods: list[str],
                     params: dict[str, dict[str, Any]] | None = None,
-                    lookahead: int | None = None, stream: str = "default"
+                    lookahead: DurationLike | None = None, stream: str = "default"
                     ) -> list[OnlineKeyframer]:
     """One online keyframer per method name, with its parameters and optional lookahead
-    (`params[name]["lookahead"]` wins); `params["*"]["max_gap"]` (seconds) wraps each in
+    (`params[name]["lookahead"]` wins; a `Duration` in seconds becomes frames at the motion's
+    rate, as every duration parameter does); `params["*"]["max_gap"]` (seconds) wraps each in
     `optimal.MaxGap`, `params["*"]["max_bridge_frames"]` or `["max_bridge_seconds"]` sets the
     longest interpolated hole of every keyframer (and so of a `Pipeline` of them)."""
     params = params or {}
@@ -88,6 +91,7 @@ def make_keyframers(motion: Motion, methods: list[str],
         kwargs = {k: v for k, v in params.get(name, {}).items() if v is not None}
         if lookahead is not None:
             kwargs.setdefault("lookahead", lookahead)
+        kwargs = to_method_units(name, kwargs, motion.fps)  # durations in seconds -> frames
         if bridge is not None:
             kwargs["max_bridge_frames"] = bridge
         kf = online_class(name)(motion.skeleton, motion.fps, stream=stream, **kwargs)
@@ -102,7 +106,7 @@ def make_keyframers(motion: Motion, methods: list[str],
 
 def run_online(motion: Motion, methods: list[str],
                params: dict[str, dict[str, Any]] | None = None,
-               lookahead: int | None = None, *, max_gap: float | None = None,
+               lookahead: DurationLike | None = None, *, max_gap: float | None = None,
                min_interval: MinIntervalLike = None) -> dict[str, Keyframes]:
     """Push every captured frame of `motion` through the online keyframers, then flush.
     `max_gap` and `min_interval` as for `batch.extract_motion` (here the keyframers apply
