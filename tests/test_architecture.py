@@ -7,6 +7,8 @@ import importlib
 import importlib.util
 import pkgutil
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -135,3 +137,17 @@ def test_console_script_and_python_dash_m_reach_the_cli_package():
     text = (ROOT / "pyproject.toml").read_text()
     assert 'streamkey = "streamkey.cli:main"' in text
     assert '"streamkey.cli"' in text and '"streamkey.bench"' in text
+
+
+def test_the_door_plate_is_quick_to_import_and_names_the_public_api():
+    code = ("import sys, streamkey; print(any(m in sys.modules for m in "
+            "('numba', 'scipy', 'streamkey.batch', 'streamkey.engine')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "False"
+    for name in ("read_motion", "extract_motion", "extract_files", "run_online",
+                 "make_keyframers", "Pipeline", "run_live", "Engine", "KeyframeEvent",
+                 "StreamkeyError", "Duration"):
+        assert name in streamkey.__all__ and getattr(streamkey, name) is not None
+    documented = (ROOT / "docs" / "api.md").read_text()
+    assert all(f"`{n}" in documented for n in streamkey.__all__ if n != "__version__")
