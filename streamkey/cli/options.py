@@ -185,19 +185,15 @@ def _max_bridge(text: str | None) -> dict[str, Any]:
     """`--max-bridge FRAMES` or `SECONDSs` as {"max_bridge_frames" | "max_bridge_seconds": v}."""
     if text is None:
         return {}
-    t = text.strip().lower()
     try:
-        if t.endswith("s"):
-            value: float = float(t[:-1])
-            key = "max_bridge_seconds"
-        else:
-            value, key = int(t), "max_bridge_frames"
-    except ValueError:
-        value, key = -1, ""
-    if not key or not 0 <= value <= 1e6:
+        d = parse_duration(text.lower())
+    except UsageError:
+        d = Duration.frames(-1)
+    if not 0 <= d.value <= 1e6:
         raise UsageError(f"--max-bridge: {text!r} is not FRAMES (a whole number >= 0) or "
                          "SECONDS with an s suffix (e.g. 0.1s)")
-    return {key: value}
+    return {"max_bridge_seconds": d.value} if d.unit == "s" else {
+        "max_bridge_frames": int(d.value)}
 
 
 def _own_params(args: argparse.Namespace, methods: list[str], online: bool,
