@@ -19,11 +19,15 @@ from .errors import InputError, StreamkeyError
 from .features import compute_features
 from .keyframes import SCHEMA_VERSION, Keyframes
 from .methods import COUNTED_METHODS, offline_method
+from .methods.params import to_method_units
 from .motion import Motion
+from .playable import debounce
+from .streaming import MinIntervalLike, common_params, run_online
+from .units import DurationLike
 
 __all__ = ["MOTION_SUFFIXES", "find_motion_files", "extract_motion", "FileResult",
            "extract_files", "results_json", "results_csv", "file_error", "per_file",
-           "load_motion", "naming", "extract_one", "merge_results"]
+           "load_motion", "naming", "extract_one", "merge_results", "extract_files_online"]
 
 MOTION_SUFFIXES = (".bvh", ".amc")
 
@@ -94,13 +98,20 @@ def _guarded(work: Callable[[Path], FileResult], path: Path) -> FileResult:
 
 
 def extract_motion(motion: Motion, methods: list[str],
-                   params: dict[str, dict[str, Any]] | None = None) -> dict[str, Keyframes]:
+                   params: dict[str, dict[str, Any]] | None = None, *,
+                   max_gap: float | None = None,
+                   min_interval: MinIntervalLike = None) -> dict[str, Keyframes]:
     """Run the offline `methods` on one motion, sharing its features.
 
     Counted methods (uniform, decimate, and simplify in count mode) without an explicit
-    `count` use the saliency keyframe count, the thesis' equal-count comparison.
+    `count` use the saliency keyframe count, the thesis' equal-count comparison. `max_gap`
+    (seconds) then inserts a key in every longer stretch without one, and `min_interval`
+    (seconds, or {method or "*": seconds}) keeps the stronger of keys closer than that, as the
+    online keyframers do (both may also come in `params["*"]`, as `streamkey extract` passes
+    them).
     """
-    params = params or {}
+    params = {name: to_method_units(name, kwargs, motion.fps) if name != "*" else kwargs
+              for name, kwargs in common_params(params, max_gap, min_interval).items()}
     features = compute_features(motion)
     results: dict[str, Keyframes] = {}
     order = sorted(methods, key=lambda m: m in COUNTED_METHODS)
@@ -120,7 +131,22 @@ def extract_motion(motion: Motion, methods: list[str],
             results[name] = offline_method(name)(motion, **kwargs)
         else:
             results[name] = offline_method(name)(motion, features=features, **kwargs)
-    return {m: results[m] for m in methods}
+    return _playable({m: results[m] for m in methods}, motion, params.get("*", {}))
+
+
+def _playable(results: dict[str, Keyframes], motion: Motion,
+              common: dict[str, Any]) -> dict[str, Keyframes]:
+    """`max_gap`, then the `min_interval` debounce, of `params["*"]` over offline keys."""
+    if common.get("max_gap") is not None:
+        from .methods.optimal import max_gap
+
+        results = {m: max_gap(motion, k, common["max_gap"]) for m, k in results.items()}
+    intervals = common.get("min_interval") or {}
+    for name, keys in results.items():
+        seconds = intervals.get(name, intervals.get("*"))
+        if seconds:
+            results[name] = debounce(keys, seconds, motion.fps)
+    return results
 
 
 @dataclass
@@ -136,9 +162,13 @@ class FileResult:
 def extract_files(paths: list[Path], methods: list[str],
                   params: dict[str, dict[str, Any]] | None = None,
                   progress: Callable[[int, int, Path], None] | None = None,
-                  roles: dict[str, str] | None = None) -> Iterator[FileResult]:
+                  roles: dict[str, str] | None = None, *, max_gap: float | None = None,
+                  min_interval: MinIntervalLike = None) -> Iterator[FileResult]:
     """Extract keyframes from every file; a bad file yields its error and the rest go on.
-    `roles` is a role mapping for skeletons the built-in tables do not name."""
+    `roles` is a role mapping for skeletons the built-in tables do not name; `max_gap` and
+    `min_interval` as in `extract_motion`."""
+    params = common_params(params, max_gap, min_interval)
+
     def work(path: Path) -> FileResult:
         motion = load_motion(path, roles=roles)
         return FileResult(path, motion, extract_motion(motion, methods, params))
@@ -146,17 +176,32 @@ def extract_files(paths: list[Path], methods: list[str],
     return per_file(paths, work, progress)
 
 
+def extract_files_online(paths: list[Path], methods: list[str],
+                         params: dict[str, dict[str, Any]] | None = None,
+                         lookahead: DurationLike | None = None,
+                         progress: Callable[[int, int, Path], None] | None = None,
+                         roles: dict[str, str] | None = None, *, max_gap: float | None = None,
+                         min_interval: MinIntervalLike = None) -> Iterator[FileResult]:
+    """`streaming.run_online` over files (`extract --online`); a bad file yields its error and
+    the rest go on. `roles`, `max_gap` and `min_interval` as in `extract_files`."""
+    params = common_params(params, max_gap, min_interval)
+
+    def work(path: Path) -> FileResult:
+        motion = load_motion(path, roles=roles)
+        return FileResult(path, motion, run_online(motion, methods, params, lookahead))
+
+    return per_file(paths, work, progress)
+
+
 def extract_one(path: Path, methods: list[str], params: dict[str, dict[str, Any]] | None = None,
                 roles: dict[str, str] | None = None, online: bool = False,
-                lookahead: int | None = None) -> FileResult:
+                lookahead: DurationLike | None = None) -> FileResult:
     """One file of a batch, engine-neutral (a local loop, a Ray task or a Dask future run
     exactly this): its keyframes, or its named error. `online` runs the online keyframers
     as if streamed (`extract --online`)."""
     def work(p: Path) -> FileResult:
         motion = load_motion(p, roles=roles)
         if online:
-            from .streaming import run_online
-
             return FileResult(p, motion, run_online(motion, methods, params, lookahead))
         return FileResult(p, motion, extract_motion(motion, methods, params))
 

@@ -52,7 +52,6 @@ that moment are dropped (the `error` status event says so).
 
 from __future__ import annotations
 
-import argparse
 import math
 from typing import Any
 
@@ -63,7 +62,7 @@ from .keyframes import Keyframes
 from .methods import OFFLINE_METHODS
 
 __all__ = ["debounce", "debounce_rows", "Debouncer", "parse_min_interval", "interval_frames",
-           "add_playable_options", "playable_params", "debounce_results", "RADIUS_SECONDS",
+           "debounce_results", "RADIUS_SECONDS",
            "SIGNAL_SMOOTHING_SECONDS"]
 
 RADIUS_SECONDS = 0.05  # a provisional and a final key this close are the same key
@@ -150,29 +149,6 @@ def parse_min_interval(text: str | None) -> dict[str, float] | None:
                              f"{', '.join(OFFLINE_METHODS)}")
         out[name] = seconds
     return out
-
-
-def add_playable_options(p: argparse.ArgumentParser, live: bool = True) -> None:
-    """`--min-interval` (and, live, `--provisional`, `--signal [N]`)."""
-    p.add_argument("--min-interval", metavar="SECONDS",
-                   help="any method: of keys closer than SECONDS keep the stronger; one "
-                        "value or METHOD=SECONDS,... (online: adds SECONDS to the latency)")
-    if live:
-        p.add_argument("--provisional", action="store_true",
-                       help="also send a provisional event as soon as a method sees a likely "
-                            "key, then exactly one confirm (the keyframe event) or cancel")
-        p.add_argument("--signal", type=int, nargs="?", const=1, metavar="N",
-                       help="send a signal event (body speed, each method's keyness) every "
-                            "N frames (default 1: every frame)")
-
-
-def playable_params(args: argparse.Namespace) -> dict[str, Any]:
-    """The playable options of parsed CLI args, for `params["*"]`."""
-    signal = getattr(args, "signal", None)
-    if signal is not None and signal < 1:
-        raise UsageError(f"--signal: N must be >= 1 frame, got {signal}")
-    return {"min_interval": parse_min_interval(getattr(args, "min_interval", None)),
-            "provisional": bool(getattr(args, "provisional", False)), "signal": signal or 0}
 
 
 def debounce_results(results: list[Any], text: str | None) -> None:

@@ -293,7 +293,7 @@ class Playable(OnlineKeyframer):
 
 
 def wrap(kf: OnlineKeyframer, options: dict[str, Any]) -> OnlineKeyframer:
-    """`kf` with the playable options of `params["*"]` (`playable_params`): min_interval
+    """`kf` with the playable options of `params["*"]`: min_interval
     ({method or "*": seconds}), provisional (bool), signal (every N frames, 0 = off)."""
     intervals = options.get("min_interval") or {}
     seconds = intervals.get(kf.method, intervals.get("*"))

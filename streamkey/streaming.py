@@ -3,21 +3,44 @@
 from __future__ import annotations
 
 import inspect
-from collections.abc import Callable, Iterator
-from pathlib import Path
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from . import playable_online
-from .batch import FileResult, load_motion, per_file
 from .errors import UsageError
 from .keyframes import KeyframeEvent, Keyframes
 from .methods import online_class
+from .methods.params import to_method_units
 from .motion import Motion
 from .online import OnlineKeyframer, Pipeline
+from .playable import parse_min_interval
+from .units import DurationLike
 
-__all__ = ["make_keyframers", "run_online", "extract_files_online"]
+__all__ = ["make_keyframers", "run_online", "check_online_params", "common_params",
+           "MinIntervalLike"]
+
+# `min_interval`: seconds for every method, {method or "*": seconds}, or the CLI's text
+MinIntervalLike = float | Mapping[str, float] | str | None
+
+
+def common_params(params: dict[str, dict[str, Any]] | None, max_gap: float | None = None,
+                  min_interval: MinIntervalLike = None) -> dict[str, dict[str, Any]]:
+    """`params` with `max_gap` (seconds) and `min_interval` put in `params["*"]`, the options
+    every method shares; a value given here wins over one already there."""
+    out = dict(params or {})
+    common = dict(out.get("*", {}))
+    if max_gap is not None:
+        common["max_gap"] = max_gap
+    if isinstance(min_interval, str):
+        min_interval = parse_min_interval(min_interval)
+    if isinstance(min_interval, int | float):
+        min_interval = {"*": float(min_interval)}
+    if min_interval is not None:
+        common["min_interval"] = dict(min_interval)
+    out["*"] = common
+    return out
 
 
 def check_online_params(methods: list[str], params: dict[str, dict[str, Any]] | None) -> None:
@@ -51,10 +74,11 @@ def _bridge_frames(common: dict[str, Any], fps: float) -> int | None:
 
 def make_keyframers(motion: Motion, methods: list[str],
                     params: dict[str, dict[str, Any]] | None = None,
-                    lookahead: int | None = None, stream: str = "default"
+                    lookahead: DurationLike | None = None, stream: str = "default"
                     ) -> list[OnlineKeyframer]:
     """One online keyframer per method name, with its parameters and optional lookahead
-    (`params[name]["lookahead"]` wins); `params["*"]["max_gap"]` (seconds) wraps each in
+    (`params[name]["lookahead"]` wins; a `Duration` in seconds becomes frames at the motion's
+    rate, as every duration parameter does); `params["*"]["max_gap"]` (seconds) wraps each in
     `optimal.MaxGap`, `params["*"]["max_bridge_frames"]` or `["max_bridge_seconds"]` sets the
     longest interpolated hole of every keyframer (and so of a `Pipeline` of them)."""
     params = params or {}
@@ -67,6 +91,7 @@ def make_keyframers(motion: Motion, methods: list[str],
         kwargs = {k: v for k, v in params.get(name, {}).items() if v is not None}
         if lookahead is not None:
             kwargs.setdefault("lookahead", lookahead)
+        kwargs = to_method_units(name, kwargs, motion.fps)  # durations in seconds -> frames
         if bridge is not None:
             kwargs["max_bridge_frames"] = bridge
         kf = online_class(name)(motion.skeleton, motion.fps, stream=stream, **kwargs)
@@ -81,8 +106,12 @@ def make_keyframers(motion: Motion, methods: list[str],
 
 def run_online(motion: Motion, methods: list[str],
                params: dict[str, dict[str, Any]] | None = None,
-               lookahead: int | None = None) -> dict[str, Keyframes]:
-    """Push every captured frame of `motion` through the online keyframers, then flush."""
+               lookahead: DurationLike | None = None, *, max_gap: float | None = None,
+               min_interval: MinIntervalLike = None) -> dict[str, Keyframes]:
+    """Push every captured frame of `motion` through the online keyframers, then flush.
+    `max_gap` and `min_interval` as for `batch.extract_motion` (here the keyframers apply
+    them as frames arrive)."""
+    params = common_params(params, max_gap, min_interval)
     keyframers = make_keyframers(motion, methods, params, lookahead)
     pipeline = Pipeline(keyframers)
     events = pipeline.push_block(motion.frames()) + pipeline.flush()
@@ -97,17 +126,3 @@ def run_online(motion: Motion, methods: list[str],
             info={"latency_frames_max": max(latency, default=0), "lookahead": kf.lookahead},
             strength=[e.strength for e in mine])
     return out
-
-
-def extract_files_online(paths: list[Path], methods: list[str],
-                         params: dict[str, dict[str, Any]] | None = None,
-                         lookahead: int | None = None,
-                         progress: Callable[[int, int, Path], None] | None = None,
-                         roles: dict[str, str] | None = None) -> Iterator[FileResult]:
-    """`run_online` over files; a bad file yields its error and the rest go on. `roles` is a
-    role mapping for skeletons the built-in tables do not name."""
-    def work(path: Path) -> FileResult:
-        motion = load_motion(path, roles=roles)
-        return FileResult(path, motion, run_online(motion, methods, params, lookahead))
-
-    return per_file(paths, work, progress)

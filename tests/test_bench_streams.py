@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from streamkey.bench_streams import simulate
+from streamkey.bench.streams import simulate
 
 
 def test_the_simulated_worker_puts_every_streams_due_work_before_any_re_analysis():

@@ -110,3 +110,30 @@ def test_count_on_an_online_method_that_cannot_honour_it_is_refused_up_front(cap
         assert err.startswith("error: --count: online simplify and optimal cannot aim at a "
                               "key count")
         assert "Traceback" not in err and err.count("\n") == 1
+
+
+def test_library_extract_equals_the_cli_with_max_gap_and_min_interval(tmp_path):
+    """`--max-gap` and `--min-interval` are library options: `batch.extract_files(...)` and
+    `extract_files_online(...)` with them give the bytes `streamkey extract` writes."""
+    from pathlib import Path
+
+    from streamkey.batch import extract_files, extract_files_online, results_json
+
+    paths = [DATA / "07_01.bvh", DATA / "05_06.bvh"]
+    methods = ["saliency", "speed"]
+    for online in (False, True):
+        out = tmp_path / f"cli{online}.json"
+        argv = ["extract", *map(str, paths), "--method", ",".join(methods), "-q", "-o",
+                str(out), "--max-gap", "0.8", "--min-interval", "saliency=0.3,speed=0.2"]
+        assert main(argv + (["--online"] if online else [])) == 0
+        run = extract_files_online if online else extract_files
+        results = list(run([Path(p) for p in paths], methods, max_gap=0.8,
+                           min_interval={"saliency": 0.3, "speed": 0.2}))
+        lib = results_json(results)
+        assert lib == out.read_text(), online
+        params = [m["params"] for f in json.loads(lib)["files"] for m in f["methods"].values()]
+        assert all(p["max_gap"] == 0.8 and p["min_interval"] in (0.3, 0.2) for p in params)
+        if not online:  # both did something: keys added in long gaps, close keys dropped
+            infos = [k.info for r in results for k in r.results.values()]
+            assert any(i["max_gap_added"] for i in infos)
+            assert any(i["min_interval_dropped"] for i in infos)

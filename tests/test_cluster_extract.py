@@ -59,3 +59,26 @@ def test_engine_options_are_checked(data_dir):
     run = _extract(str(data_dir / "02_01.bvh"), "--address", "127.0.0.1:1")
     assert run.returncode == 2
     assert run.stderr.decode().strip() == "error: --address needs --engine ray or dask"
+
+
+@pytest.mark.parametrize("option", [["--update-every", "600"], ["--lookahead", "60"]])
+def test_online_engine_takes_the_online_options_and_matches_the_local_run(data_dir, tmp_path,
+                                                                          option):
+    """`extract DIR --online --engine dask` with an online-only option runs (it used to be
+    refused with "online only; add --online") and gives the local run's bytes."""
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    for name in ("09_01.bvh", "02_01.bvh"):
+        (folder / name).symlink_to(data_dir / name)
+    argv = [str(folder), "--online", "--method", "saliency,speed", "-q", *option]
+    local = _extract(*argv)
+    assert local.returncode == 0, local.stderr.decode()[-2000:]
+    run = _extract(*argv, "--engine", "dask", "--workers", "1")
+    assert run.returncode == 0, run.stderr.decode()[-2000:]
+    assert run.stdout == local.stdout
+    want = 60 if option[0] == "--lookahead" else None
+    if want is not None:
+        import json
+
+        files = json.loads(run.stdout)["files"]
+        assert {m["params"]["lookahead"] for f in files for m in f["methods"].values()} == {want}

@@ -12,7 +12,7 @@ from cmu import DATA, clips
 
 from streamkey.amc import read_motion
 from streamkey.batch import extract_motion
-from streamkey.bench_playable import measure
+from streamkey.bench.playable import measure
 from streamkey.cli import main
 from streamkey.keyframes import (
     CancelEvent,

@@ -32,14 +32,14 @@ from typing import Any
 
 import numpy as np
 
-from .bvh import read_bvh
-from .engine import Engine
-from .io import FrameQueue, Source, StreamSpec
-from .keyframes import KeyframeEvent
-from .motion import Motion
-from .online import Pipeline
-from .replay.pacing import frame_stream
-from .streaming import make_keyframers
+from ..bvh import read_bvh
+from ..engine import Engine
+from ..io import FrameQueue, Source, StreamSpec
+from ..keyframes import KeyframeEvent
+from ..motion import Motion
+from ..online import Pipeline
+from ..replay.pacing import frame_stream
+from ..streaming import make_keyframers
 
 __all__ = ["bench_streams", "readme_table", "simulate", "STREAM_COUNTS", "METHODS"]
 
@@ -84,7 +84,7 @@ class _Stage(Source):
 
 def _clips(data: Path | None, n: int) -> list[Motion]:
     if data is None:
-        from .replay.demo import demo_motion
+        from ..replay.demo import demo_motion
 
         return [demo_motion()] * n
     paths = sorted(p for p in data.glob("*.bvh"))

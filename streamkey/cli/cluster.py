@@ -1,4 +1,5 @@
-"""The `streamkey cluster run` command: parse, start a `ClusterRun`, wait, stop, summarise."""
+"""`streamkey cluster run`: many live streams on Ray shard actors (`streamkey.cluster`): start a
+`ClusterRun`, wait, stop, summarise."""
 
 from __future__ import annotations
 
@@ -10,14 +11,15 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from ..cluster import require
 from ..errors import UsageError
-from . import require
+from .options import add_roles_option, online_params, roles_of
 
-__all__ = ["add_cluster_parser", "cmd_cluster_run"]
+__all__ = ["add_parser", "run"]
 
 
-def add_cluster_parser(sub: Any) -> argparse.ArgumentParser:
-    """The `cluster run` subcommand's parser (method options are added by the CLI)."""
+def add_parser(sub: Any) -> None:
+    """The `cluster run` subcommand."""
     p = sub.add_parser("cluster", help="live keyframes of many streams on a Ray cluster")
     runs = p.add_subparsers(dest="cluster_command", required=True, metavar="COMMAND")
     r = runs.add_parser("run", help="shard actors on Ray: ZeroMQ in, Redis log/snapshots, "
@@ -47,15 +49,17 @@ def add_cluster_parser(sub: Any) -> argparse.ArgumentParser:
                    "each stream's skeleton message)")
     r.add_argument("--method", default="all", help="online methods, a list, or all")
     r.add_argument("--lookahead", type=int, help="lookahead in frames (default: method's)")
-    return r
+    add_roles_option(r)
+    r.set_defaults(func=run)
 
 
-def cmd_cluster_run(args: argparse.Namespace, params: dict[str, dict[str, Any]],
-                    roles: dict[str, str] | None) -> int:
+def run(args: argparse.Namespace) -> int:
     """Run until Ctrl-C / SIGTERM (or `--idle-exit`), then flush every stream."""
     from ..adapters import parse_address
     from ..methods import parse_methods
     from ..streaming import check_online_params
+
+    params, roles = online_params(args), roles_of(args)
 
     require("ray", "cluster run")
     require("redis", "cluster run")
@@ -69,7 +73,7 @@ def cmd_cluster_run(args: argparse.Namespace, params: dict[str, dict[str, Any]],
             raise UsageError(f"{name} must be at least 1, got {value}")
     methods = parse_methods(args.method, online=True)
     check_online_params(methods, params)
-    from .live import ClusterConfig
+    from ..cluster.live import ClusterConfig
 
     config = ClusterConfig(source.zmq_endpoint, args.redis, args.shards, methods, params,
                            args.lookahead, args.run, args.snapshot_every,
@@ -82,7 +86,7 @@ def cmd_cluster_run(args: argparse.Namespace, params: dict[str, dict[str, Any]],
         motion.skeleton.roles = roles or motion.skeleton.roles
         config.skeleton, config.skeleton_fps = motion.skeleton, motion.fps
     _check_redis(args.redis)
-    from .ray_run import ClusterRun
+    from ..cluster.ray_run import ClusterRun
 
     run = ClusterRun(config, args.address, args.actor_cpus)
     stop = threading.Event()

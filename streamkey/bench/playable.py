@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from .keyframes import CancelEvent, KeyframeEvent, ProvisionalEvent
+from ..keyframes import CancelEvent, KeyframeEvent, ProvisionalEvent
 
 __all__ = ["measure", "bench_playable"]
 
@@ -23,8 +23,8 @@ def measure(motion: Any, method: str, params: dict[str, Any] | None = None
     pose-to-announcement delay (ms), per final key its pose-to-event delay (ms). `mismatch`
     counts broken promises (must be 0): final keys that differ from a run without provisional
     events (run alongside), provisionals not resolved exactly once."""
-    from .online import Pipeline
-    from .streaming import make_keyframers
+    from ..online import Pipeline
+    from ..streaming import make_keyframers
 
     opts = {**(params or {}), "*": {"provisional": True}}
     pipeline = Pipeline(make_keyframers(motion, [method], params, stream="plain")
@@ -52,8 +52,8 @@ def measure(motion: Any, method: str, params: dict[str, Any] | None = None
 def bench_playable(data: Path, output: Path) -> list[Path]:
     """`bench --playable`: the provisional lead, cancel share and pose-to-event delay per
     online method over every clip of `data`; writes bench_playable.json and .md."""
-    from .batch import find_motion_files, load_motion
-    from .methods import ONLINE_METHODS
+    from ..batch import find_motion_files, load_motion
+    from ..methods import ONLINE_METHODS
 
     paths = find_motion_files([str(data)])
     rows: dict[str, dict[str, Any]] = {}

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from .bvh import read_bvh
-from .motion import Motion
+from ..bvh import read_bvh
+from ..motion import Motion
 
 __all__ = ["run_bench", "long_motion", "default_data_dir", "BenchInterrupted", "QUICK"]
 
@@ -60,7 +60,7 @@ def long_motion(frames: int, data: Path | None) -> tuple[Motion, str]:
     if clips:
         source = f"{len(clips)} cgspeed clips from {data}, looped"
     else:
-        from .replay.demo import demo_motion
+        from ..replay.demo import demo_motion
 
         clips = [demo_motion()]
         source = "embedded demo motion, looped"
@@ -93,8 +93,8 @@ def bench_offline(frames: int, data: Path | None, rows: list[dict[str, Any]] | N
                   say: Say = _quiet) -> dict[str, Any]:
     """Time and peak memory of every offline method on one long motion (rows appended to
     `rows` as they finish, each reported to `say`)."""
-    from .features import compute_features
-    from .methods import offline_method
+    from ..features import compute_features
+    from ..methods import offline_method
 
     motion, source = long_motion(frames, data)
     rows = _Rows(rows, say, "offline", "seconds")
@@ -166,14 +166,14 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
                  frames_long: int = 100_000, rows: list[dict[str, Any]] | None = None,
                  say: Say = _quiet) -> dict[str, Any]:
     """Per-frame push cost of each online keyframer and memory over a long looped stream."""
-    from .methods import ONLINE_METHODS, online_class
-    from .online import Pipeline
+    from ..methods import ONLINE_METHODS, online_class
+    from ..online import Pipeline
 
     clip_path = data / "05_06.bvh" if data is not None else None
     if clip_path is not None and clip_path.exists():
         motion, source = read_bvh(clip_path), str(clip_path)
     else:
-        from .replay.demo import demo_motion
+        from ..replay.demo import demo_motion
 
         motion, source = demo_motion(), "embedded demo motion"
     frames = motion.frames()
@@ -210,7 +210,7 @@ class _FeaturesOnly:
     """Baseline of the per-frame cost: the guard and the shared feature stage, no method."""
 
     def __init__(self, skeleton: Any, fps: float, positions: bool = False) -> None:
-        from .online import FeatureStage, StreamGuard
+        from ..online import FeatureStage, StreamGuard
 
         self.guard = StreamGuard(skeleton.n_channels)
         self.stage = FeatureStage(skeleton, fps)
@@ -234,9 +234,9 @@ def _engine_latency(motion: Motion, seconds: float = 60.0) -> dict[str, Any]:
     import asyncio
     import tempfile
 
-    from .live import run_live
-    from .methods import ONLINE_METHODS
-    from .replay.source import MotionSource
+    from ..live import run_live
+    from ..methods import ONLINE_METHODS
+    from ..replay.source import MotionSource
 
     with tempfile.TemporaryDirectory() as tmp:
         source = MotionSource(motion, loop=True, count=int(seconds * motion.fps))
@@ -251,7 +251,7 @@ def _engine_latency(motion: Motion, seconds: float = 60.0) -> dict[str, Any]:
 
 
 def _stream_memory(make: Callable[[], Any], motion: Motion, total: int) -> dict[str, Any]:
-    from .motion import Frame
+    from ..motion import Frame
 
     target = make()
     rows = motion.captured().channels
@@ -279,9 +279,9 @@ def _bench_agreement(data: Path | None, output: Path) -> list[Path]:
     """F1 of online against offline for each method and lookahead over every shared clip."""
     import sys
 
-    from .agreement import LOOKAHEADS, lookahead_table, write_lookahead_table
-    from .amc import read_motion
-    from .errors import UsageError
+    from ..agreement import LOOKAHEADS, lookahead_table, write_lookahead_table
+    from ..amc import read_motion
+    from ..errors import UsageError
 
     if data is None:
         raise UsageError("bench --agreement needs the CMU clips (--data DIR)")
@@ -320,7 +320,7 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
 
     `quick` shortens every benchmark (`QUICK`). Progress goes to `say`. On Ctrl-C the rows
     measured so far are written (marked `"partial": true`) and `BenchInterrupted` is raised."""
-    from .bench_live import LIVE_KINDS, run_live_bench
+    from .live import LIVE_KINDS, run_live_bench
 
     if quick:
         frames, stream_frames = min(frames, QUICK["frames"]), min(stream_frames,
@@ -338,7 +338,7 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
             if kind in LIVE_KINDS:  # live engine benches (memory, latency, ws_clients)
                 result = run_live_bench(kind, data_dir, quick)
             elif kind == "streams":  # many streams in one engine, due-first on and off
-                from .bench_streams import bench_streams
+                from .streams import bench_streams
 
                 result = bench_streams(data_dir, quick)
             elif kind == "offline":
@@ -382,7 +382,7 @@ PERF_OFFLINE_GOALS = {"features": 0.5, "saliency": 0.5, "speed": 1.0, "simplify"
 def _cpu_push_costs(make: Callable[[], Any], frames: list[Any], push: str = "push"
                     ) -> dict[str, float]:
     """Per-push CPU time of the calling thread (µs): mean, p50, p99, max."""
-    from .jit import warm_up
+    from ..jit import warm_up
 
     target = make()
     warm_up()  # every kernel imported so far compiled (or loaded) before the clock runs
@@ -403,8 +403,8 @@ def bench_perf_online(frames: int, data: Path | None, methods: list[str] | None 
                       rows: list[dict[str, Any]] | None = None, say: Say = _quiet
                       ) -> dict[str, Any]:
     """One frame per push on a long stream of the shared clips concatenated (CPU time)."""
-    from .methods import ONLINE_METHODS, online_class
-    from .online import FeatureStage, Pipeline
+    from ..methods import ONLINE_METHODS, online_class
+    from ..online import FeatureStage, Pipeline
 
     motion, source = long_motion(frames, data)
     stream = motion.frames()
@@ -447,8 +447,8 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
     project's 2-core VM charges at ~10 ms per MB (against ~0.1 ms on bare metal), and a
     batch over a library pays only on its first clip. Rows land in `rows` once every size is
     done; each timing is reported to `say`."""
-    from .features import compute_features
-    from .methods import offline_method
+    from ..features import compute_features
+    from ..methods import offline_method
 
     names = methods or [m for m in PERF_OFFLINE_GOALS if m != "features"]
     motion, source = long_motion(max(sizes), data)
@@ -512,7 +512,7 @@ def bench_perf_memory(data: Path | None, frames: int = 36_000,
                       ) -> dict[str, Any]:
     """Traced memory (MB) held by each online keyframer after `frames` frames (every window
     and history full) and its peak growth over the last half (flat: near zero)."""
-    from .methods import ONLINE_METHODS, online_class
+    from ..methods import ONLINE_METHODS, online_class
 
     motion, _ = long_motion(frames, data)
     stream = motion.frames()

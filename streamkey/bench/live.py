@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from .bvh import read_bvh
-from .motion import Motion
+from ..bvh import read_bvh
+from ..motion import Motion
 
 __all__ = ["bench_memory", "bench_latency", "bench_ws_clients", "LIVE_KINDS", "run_live_bench"]
 
@@ -61,17 +61,17 @@ def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
 def _clip(data: Path | None) -> Motion:
     if data is not None and (data / _LATENCY_CLIP).exists():
         return read_bvh(data / _LATENCY_CLIP)
-    from .replay.demo import demo_motion
+    from ..replay.demo import demo_motion
 
     return demo_motion()
 
 
 def bench_memory(data: Path | None, quick: bool = False) -> dict[str, Any]:
     """RSS over an accelerated stream of an hour (10 min if `quick`) with every sink."""
-    from .adapters import make_sink, parse_address
-    from .live import build_engine
-    from .methods import ONLINE_METHODS
-    from .replay.source import MotionSource
+    from ..adapters import make_sink, parse_address
+    from ..live import build_engine
+    from ..methods import ONLINE_METHODS
+    from ..replay.source import MotionSource
 
     motion = _clip(data)
     total = 72_000 if quick else 432_000
@@ -194,7 +194,7 @@ class _Receiver:
 
 def _realtime(pid: int) -> None:
     """SCHED_RR at `run --realtime`'s priority for a thread or process (0: this thread)."""
-    from .live import REALTIME_PRIORITY
+    from ..live import REALTIME_PRIORITY
 
     with contextlib.suppress(AttributeError, OSError):
         os.sched_setscheduler(pid, os.SCHED_RR, os.sched_param(REALTIME_PRIORITY))
@@ -341,10 +341,10 @@ asyncio.run(main(sys.argv[1], int(sys.argv[2])))
 
 
 def _ws_run(motion: Motion, clients: int, seconds: float) -> dict[str, Any]:
-    from .adapters import make_sink, parse_address
-    from .live import build_engine
-    from .methods import ONLINE_METHODS
-    from .replay.source import MotionSource
+    from ..adapters import make_sink, parse_address
+    from ..live import build_engine
+    from ..methods import ONLINE_METHODS
+    from ..replay.source import MotionSource
 
     class Gated(MotionSource):
         gate = asyncio.Event()

@@ -1,0 +1,141 @@
+"""`streamkey run`: live keyframes from a source through the keyframers to the sinks."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from .common import dashboard, read
+from .options import (
+    add_dashboard_options,
+    add_method_options,
+    add_playable_options,
+    add_roles_option,
+    online_params,
+    roles_of,
+)
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub: Any) -> None:
+    """The `run` subcommand."""
+    p = sub.add_parser("run", help="live keyframes: a source -> keyframers -> sinks")
+    p.add_argument("--from", dest="source", required=True, metavar="ADDR",
+                   help="osc://HOST:PORT, zmq+tcp://HOST:PORT[?pattern=pull], a file, - "
+                        "(JSON Lines on stdin), axis+tcp://HOST:7001 (Axis Neuron), "
+                        "vmc://127.0.0.1:39539 (VMC)")
+    p.add_argument("--skeleton", help="BVH/AMC file with the stream's skeleton (else it comes "
+                   "from a /streamkey/skeleton message, the stdin skeleton line, or the "
+                   "built-in Axis / humanoid table)")
+    p.add_argument("--method", default="all",
+                   help="saliency, speed, simplify, optimal, a list, or all")
+    p.add_argument("--to", action="append", metavar="ADDR",
+                   help="osc://, zmq+tcp://, ws://, jsonl:PATH or - (default: -)")
+    p.add_argument("--listen", help="let listeners bind to this host instead of 127.0.0.1")
+    p.add_argument("--stream", default="default",
+                   help="name of the unnamed stream (frames without a stream id)")
+    p.add_argument("--max-streams", type=int, default=64, metavar="N",
+                   help="serve at most N streams at once; frames of more are refused and "
+                        "counted (default 64)")
+    p.add_argument("--stream-idle", type=float, metavar="SECONDS",
+                   help="retire a stream (flush its keyframers) after SECONDS without a "
+                        "frame; it starts afresh if it comes back (default: never)")
+    p.add_argument("--osc-layout", choices=("numeric", "compact"),
+                   help="osc:// sinks: numeric (default: /streamkey/STREAM/METHOD/keyframe "
+                        "i f f i, one bundle per frame) or compact (/streamkey/keyframe "
+                        "s s i f f i); same as osc://HOST:PORT?layout=...")
+    p.add_argument("--summary", help="also write the run summary as JSON to this file")
+    p.add_argument("--reset-on-gap", action="store_true",
+                   help="a gap too long to bridge (or a source restart) forgets the methods' "
+                        "running statistics too (default: only the windows restart)")
+    p.add_argument("--fast", action="store_true", help="file source: as fast as possible")
+    p.add_argument("--idle-exit", type=float, metavar="SECONDS",
+                   help="stop once frames have flowed and then none came for SECONDS "
+                        "(default: run until Ctrl-C / SIGTERM)")
+    p.add_argument("--realtime", action="store_true",
+                   help="run ahead of ordinary processes (SCHED_RR 10 where allowed, else "
+                        "nice -10), so frames do not wait for a busy machine's other work")
+    add_playable_options(p)
+    add_dashboard_options(p)
+    add_roles_option(p)
+    add_method_options(p, online=True)
+    p.set_defaults(func=run)
+
+
+def _source(args: argparse.Namespace, methods: list[str], skeleton: Any) -> Any:
+    """The frame source: a file read and checked before the engine starts, or a listener
+    (with the `--skeleton` motion, if given)."""
+    from ..adapters import make_source, parse_address
+
+    if Path(args.source).suffix.lower() in (".bvh", ".amc"):
+        motion = read(args.source, args)
+        _check_keyframers(motion, methods, args)
+        return motion
+    return make_source(parse_address(args.source), args.listen,
+                       skeleton.skeleton if skeleton else None,
+                       skeleton.fps if skeleton else None)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Live keyframes until the source ends, `--idle-exit`, Ctrl-C or SIGTERM."""
+    import asyncio
+    import json
+
+    from ..adapters.osc import with_layout
+    from ..amc import bvh_equivalent, read_motion
+    from ..live import run_live
+    from ..methods import parse_methods
+    from ..streaming import check_online_params
+
+    args.to = with_layout(args.to or [], args.osc_layout) or None
+    methods = parse_methods(args.method, online=True)
+    # Frames on the wire come from `replay`, which sends AMC clips as their BVH equivalent.
+    skeleton = bvh_equivalent(read_motion(args.skeleton)) if args.skeleton else None
+    if skeleton is not None:
+        skeleton.skeleton.roles = roles_of(args) or skeleton.skeleton.roles
+    check_online_params(methods, online_params(args))
+    source = _source(args, methods, skeleton)
+    if args.realtime:
+        from ..live import raise_priority
+
+        print(f"priority: {raise_priority()}", file=sys.stderr, flush=True)
+    if args.dashboard is not None:
+        return dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
+                         stream=args.stream)
+    _check_streams(args)
+    summary = asyncio.run(run_live(source, methods, args.to or ["-"], online_params(args),
+                                   None, args.listen, args.stream,
+                                   rate=0.0 if args.fast else None,
+                                   idle_exit=args.idle_exit,
+                                   reset_on_gap=args.reset_on_gap, max_streams=args.max_streams,
+                                   stream_idle=args.stream_idle))
+    print(summary.text(), file=sys.stderr)
+    if args.summary:
+        Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
+    if summary.source_error:  # the source died: say so and fail, never idle on
+        print(f"error: {args.source}: {summary.source_error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _check_streams(args: argparse.Namespace) -> None:
+    """`--max-streams / --stream-idle` in range, or a usage error."""
+    from ..errors import UsageError
+
+    if not 1 <= args.max_streams <= 10_000:
+        raise UsageError(f"run --max-streams must lie in 1..10000, got {args.max_streams}")
+    if args.stream_idle is not None and not 0.01 <= args.stream_idle <= 86_400:
+        raise UsageError(f"run --stream-idle must lie in 0.01..86400 seconds, got "
+                         f"{args.stream_idle:g}")
+
+
+def _check_keyframers(motion: Any, methods: list[str], args: argparse.Namespace) -> None:
+    """The keyframers can be built on this file's skeleton (roles, parameters), or its error."""
+    from ..batch import naming
+    from ..streaming import make_keyframers
+
+    with naming(args.source):
+        make_keyframers(motion, methods, online_params(args))
