@@ -423,6 +423,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """`streamkey bench`: time and memory of the offline and/or online methods, to files."""
     from .bench import BenchInterrupted, run_bench
 
+    if args.robustness:
+        from .bench_robustness import main as bench_robustness
+
+        return bench_robustness(args)
     if args.playable:
         from .bench_playable import bench_playable
 
@@ -802,6 +806,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "and pose-to-event delay per online method over every clip of --data")
     p.add_argument("--perf", action="store_true",
                    help="per-frame CPU time on a long stream and offline growth exponents")
+    from .bench_robustness import add_arguments as robustness_arguments
+
+    robustness_arguments(p)  # --robustness, --clips, --variants
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")
     p.add_argument("--data", help="folder of CMU clips (default: ../shared/data/cmu if present)")
     p.add_argument("-o", "--output", default="results", help="output folder")

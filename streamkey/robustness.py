@@ -31,8 +31,17 @@ import numpy as np
 from .errors import UsageError
 from .evaluate import Evaluator
 from .motion import Frame, Motion
-from .variants import (Variant, clean_take, f1_against, keys_in_take, resample, with_calibration,
-                       with_drops, with_noise, with_stillness)
+from .variants import (
+    Variant,
+    clean_take,
+    f1_against,
+    keys_in_take,
+    resample,
+    with_calibration,
+    with_drops,
+    with_noise,
+    with_stillness,
+)
 
 __all__ = ["METHODS", "MODES", "CASES", "STANDARD", "TIMING_CASES", "GOALS", "Case",
            "build_case", "offline_keys", "online_keys", "measure_clip", "measure",
