@@ -128,6 +128,138 @@ MISSES: dict[tuple[str, str, str, str, str], str] = {
         'E ratio worst 1.171',
     ('subset', 'optimal', 'online', 'calibration before', 'count'):
         'key ratio 1.79-1.85',
+    ('all', 'saliency', 'offline', '60 Hz', 'count'):
+        'key ratio 0.41-0.64',
+    ('all', 'saliency', 'offline', '60 Hz', 'f1'):
+        'F1 mean 0.386, worst 0.148',
+    ('all', 'saliency', 'offline', '30 Hz', 'count'):
+        'key ratio 0.23-0.41',
+    ('all', 'saliency', 'offline', '30 Hz', 'f1'):
+        'F1 mean 0.241, worst 0.087',
+    ('all', 'saliency', 'offline', 'noise 0.3°', 'count'):
+        'key ratio 0.96-4.00',
+    ('all', 'saliency', 'offline', 'noise 0.3°', 'f1'):
+        'F1 mean 0.558, worst 0.315',
+    ('all', 'saliency', 'offline', 'calibration before', 'count'):
+        'key ratio 0.31-1.18',
+    ('all', 'saliency', 'offline', 'calibration before', 'f1'):
+        'F1 mean 0.570, worst 0.225',
+    ('all', 'saliency', 'offline', 'stillness after', 'count'):
+        'key ratio 0.29-1.24',
+    ('all', 'saliency', 'offline', 'stillness after', 'f1'):
+        'F1 mean 0.581, worst 0.250',
+    ('all', 'saliency', 'offline', '1% dropped', 'f1'):
+        'F1 mean 0.937, worst 0.643',
+    ('all', 'saliency', 'online', '60 Hz', 'count'):
+        'key ratio 0.41-0.69',
+    ('all', 'saliency', 'online', '60 Hz', 'f1'):
+        'F1 mean 0.384, worst 0.087',
+    ('all', 'saliency', 'online', '30 Hz', 'count'):
+        'key ratio 0.23-0.35',
+    ('all', 'saliency', 'online', '30 Hz', 'f1'):
+        'F1 mean 0.259, worst 0.083',
+    ('all', 'saliency', 'online', 'noise 0.3°', 'count'):
+        'key ratio 0.88-3.54',
+    ('all', 'saliency', 'online', 'noise 0.3°', 'f1'):
+        'F1 mean 0.562, worst 0.327',
+    ('all', 'saliency', 'online', 'calibration before', 'count'):
+        'key ratio 0.32-1.12',
+    ('all', 'saliency', 'online', 'calibration before', 'f1'):
+        'F1 mean 0.470, worst 0.109',
+    ('all', 'saliency', 'online', 'stillness after', 'count'):
+        'key ratio 0.32-1.05',
+    ('all', 'saliency', 'online', 'stillness after', 'f1'):
+        'F1 mean 0.915, worst 0.483',
+    ('all', 'saliency', 'online', '1% dropped', 'f1'):
+        'F1 mean 0.889, worst 0.367',
+    ('all', 'speed', 'offline', '60 Hz', 'count'):
+        'key ratio 0.67-2.25',
+    ('all', 'speed', 'offline', '60 Hz', 'f1'):
+        'F1 mean 0.912, worst 0.545',
+    ('all', 'speed', 'offline', '30 Hz', 'count'):
+        'key ratio 0.34-1.82',
+    ('all', 'speed', 'offline', '30 Hz', 'f1'):
+        'F1 mean 0.782, worst 0.000',
+    ('all', 'speed', 'offline', 'noise 0.3°', 'count'):
+        'key ratio 0.38-3.75',
+    ('all', 'speed', 'offline', 'noise 0.3°', 'f1'):
+        'F1 mean 0.834, worst 0.421',
+    ('all', 'speed', 'offline', 'calibration before', 'count'):
+        'key ratio 0.43-5.50',
+    ('all', 'speed', 'offline', 'calibration before', 'f1'):
+        'F1 mean 0.831, worst 0.000',
+    ('all', 'speed', 'offline', 'stillness after', 'count'):
+        'key ratio 0.38-5.25',
+    ('all', 'speed', 'offline', 'stillness after', 'f1'):
+        'F1 mean 0.872, worst 0.320',
+    ('all', 'speed', 'offline', '1% dropped', 'count'):
+        'key ratio 0.70-1.07',
+    ('all', 'speed', 'online', '60 Hz', 'count'):
+        'key ratio 0.61-1.29',
+    ('all', 'speed', 'online', '60 Hz', 'f1'):
+        'F1 mean 0.857, worst 0.500',
+    ('all', 'speed', 'online', '30 Hz', 'count'):
+        'key ratio 0.33-1.50',
+    ('all', 'speed', 'online', '30 Hz', 'f1'):
+        'F1 mean 0.743, worst 0.000',
+    ('all', 'speed', 'online', 'noise 0.3°', 'count'):
+        'key ratio 0.92-1.60',
+    ('all', 'speed', 'online', 'noise 0.3°', 'f1'):
+        'F1 mean 0.848, worst 0.609',
+    ('all', 'speed', 'online', 'calibration before', 'count'):
+        'key ratio 0.50-1.50',
+    ('all', 'speed', 'online', 'calibration before', 'f1'):
+        'F1 mean 0.855, worst 0.571',
+    ('all', 'speed', 'online', 'stillness after', 'count'):
+        'key ratio 0.50-1.06',
+    ('all', 'speed', 'online', 'stillness after', 'f1'):
+        'F1 mean 0.967, worst 0.667',
+    ('all', 'simplify', 'offline', '60 Hz', 'e'):
+        'E ratio worst 1.327',
+    ('all', 'simplify', 'offline', '30 Hz', 'e'):
+        'E ratio worst 1.328',
+    ('all', 'simplify', 'offline', 'noise 0.3°', 'e'):
+        'E ratio worst 1.280',
+    ('all', 'simplify', 'offline', 'calibration before', 'e'):
+        'E ratio worst 1.495',
+    ('all', 'simplify', 'offline', 'stillness after', 'e'):
+        'E ratio worst 1.599',
+    ('all', 'simplify', 'online', '60 Hz', 'count'):
+        'key ratio 0.80-1.10',
+    ('all', 'simplify', 'online', '60 Hz', 'e'):
+        'E ratio worst 1.954',
+    ('all', 'simplify', 'online', '30 Hz', 'count'):
+        'key ratio 0.80-1.20',
+    ('all', 'simplify', 'online', '30 Hz', 'e'):
+        'E ratio worst 1.390',
+    ('all', 'simplify', 'online', 'noise 0.3°', 'e'):
+        'E ratio worst 1.302',
+    ('all', 'simplify', 'online', 'calibration before', 'e'):
+        'E ratio worst 1.323',
+    ('all', 'simplify', 'online', 'stillness after', 'e'):
+        'E ratio worst 1.115',
+    ('all', 'optimal', 'offline', '60 Hz', 'count'):
+        'key ratio 1.20-1.92',
+    ('all', 'optimal', 'offline', '30 Hz', 'count'):
+        'key ratio 1.83-4.05',
+    ('all', 'optimal', 'offline', 'noise 0.3°', 'count'):
+        'key ratio 0.77-1.00',
+    ('all', 'optimal', 'offline', 'noise 0.3°', 'e'):
+        'E ratio worst 2.711',
+    ('all', 'optimal', 'offline', 'calibration before', 'count'):
+        'key ratio 1.15-1.92',
+    ('all', 'optimal', 'offline', 'stillness after', 'count'):
+        'key ratio 1.26-2.50',
+    ('all', 'optimal', 'online', '60 Hz', 'count'):
+        'key ratio 1.37-1.92',
+    ('all', 'optimal', 'online', '30 Hz', 'count'):
+        'key ratio 2.37-4.05',
+    ('all', 'optimal', 'online', 'noise 0.3°', 'e'):
+        'E ratio worst 2.302',
+    ('all', 'optimal', 'online', 'calibration before', 'count'):
+        'key ratio 1.34-1.92',
+    ('all', 'optimal', 'online', 'stillness after', 'e'):
+        'E ratio worst 1.839',
 }
 # --- marks: end
 
