@@ -2,8 +2,8 @@
 take's (`robustness`), offline and online, written to results/bench_robustness.{json,csv,md}.
 
 Clips: every BVH file of the data folder (the takes the invariance goal is measured on), or
-the ones named by `--clips`. The whole set (29 clips, about 36,000 frames at 120 Hz) takes a
-few minutes, so there is no subset by default.
+the ones named by `--clips`. The whole set (29 clips, 35,684 frames at 120 Hz; 14 variants,
+two modes, four methods) costs about 4 CPU-minutes, so there is no subset by default.
 """
 
 from __future__ import annotations

@@ -19,6 +19,8 @@ import json
 import subprocess
 import sys
 from functools import cache
+from pathlib import Path
+from typing import Any
 
 import pytest
 from cmu import DATA, clips
@@ -283,8 +285,8 @@ def _id(cell: Cell) -> str:
     return text.replace("_dropped", "_drops")
 
 
-def _params(scope: str) -> list[object]:
-    out = []
+def _params(scope: str) -> list[Any]:
+    out: list[Any] = []
     for cell in cells():
         marks = [pytest.mark.slow] if scope == "all" else []
         measured = MISSES.get((scope, *cell))
@@ -324,7 +326,7 @@ def _bench(*args: str) -> subprocess.CompletedProcess[str]:
                           timeout=600)
 
 
-def test_bench_on_one_clip_writes_the_three_files(tmp_path) -> None:
+def test_bench_on_one_clip_writes_the_three_files(tmp_path: Path) -> None:
     done = _bench("--clips", "09_06", "-o", str(tmp_path))
     assert done.returncode == 0, done.stderr
     assert "Traceback" not in done.stderr
