@@ -34,6 +34,13 @@ def add_parser(sub: Any) -> None:
                    "and pose-to-event delay per online method over every clip of --data")
     p.add_argument("--perf", action="store_true",
                    help="per-frame CPU time on a long stream and offline growth exponents")
+    p.add_argument("--robustness", action="store_true",
+                   help="keys of resampled, noisy, padded, lossy and mistimed variants of each "
+                        "clip against the clean take's, offline and online")
+    p.add_argument("--clips", help="robustness: comma-separated clip names or files "
+                   "(default: every .bvh of --data)")
+    p.add_argument("--variants", help="robustness: comma-separated variant names "
+                   "(default: all; e.g. '30 Hz,noise 0.3°,1%% dropped')")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")
     p.add_argument("--data", help="folder of CMU clips (default: ../shared/data/cmu if present)")
     p.add_argument("-o", "--output", default="results", help="output folder")
@@ -49,6 +56,10 @@ def run(args: argparse.Namespace) -> int:
     """Run the chosen benches (default: offline and online) and name the files written."""
     from ..bench import BenchInterrupted, run_bench
 
+    if args.robustness:
+        from ..bench.robustness import main as bench_robustness
+
+        return bench_robustness(args.data, args.clips, args.variants, args.output)
     data = Path(args.data or "../shared/data/cmu")
     if args.playable:
         from ..bench.playable import bench_playable
