@@ -1,4 +1,4 @@
-"""Optimal keys (issue 10 part A): segment costs, the DP, offline modes, online keyframer,
+"""Optimal keys: segment costs, the DP, offline modes, online keyframer,
 --max-gap, all on the shared CMU clips."""
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def run(kf, frames) -> list[KeyframeEvent]:
 
 
 def e_joints(motion, frames) -> float:
-    """E as the issue states the Salient Poses anchors: the skeleton's joints (ROOT and
+    """E as Salient Poses states its anchor rows: the skeleton's joints (ROOT and
     JOINT), root-relative, slerp reconstruction, first and last captured frames keys."""
     first = motion.first_frame
     keys = np.union1d(np.asarray(frames), [first, motion.n_frames - 1])

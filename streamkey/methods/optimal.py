@@ -1,4 +1,4 @@
-"""Optimal keys (DESIGN §4.5): the keys that minimise the error of linearly interpolating the
+"""Optimal keys: the keys that minimise the error of linearly interpolating the
 body between them, by dynamic programming — offline `extract` and online `Online`.
 
 Definitions this module settles:
@@ -8,27 +8,34 @@ Definitions this module settles:
   height and √joints (`optimal_math.body_rows`; optional per-joint weights, optional root
   translation). |difference|² of two rows is then a mean squared joint distance in body
   heights², the unit of the evaluation's E / h².
-- Segment cost(a, b): Σ over frames strictly inside (a, b) of the squared distance to the
-  linear interpolation between a and b, from prefix sums (`optimal_math.Pricer`), at
-  most `max_segment` seconds (default 2 s) between keys. The first and the last captured
-  frames are always keys.
+- Segment cost(a, b): the integral over the time strictly inside (a, b) of the squared
+  distance to the linear interpolation between a and b — Σ over the frames inside, from
+  prefix sums (`optimal_math.Pricer`), times the frame time — in ticks × body heights², a
+  tick being 1/120 s (`TICKS_PER_SECOND`; a frame at 120 Hz, so costs and λ there are
+  today's frame sums). Being integrals over time, the costs of a take are the same at any
+  capture rate, so are the keys. At most `max_segment` (default 2 s) between keys. The
+  first and the last captured frames are always keys.
 - Penalised form (the common core): minimise Σ cost + λ · keys. Ties go to the earliest
-  predecessor, so the result is deterministic.
+  predecessor, so the result is deterministic. (The DP adds frame sums and λ / ticks per
+  frame: the same minimiser, and bit for bit today's at 120 Hz.)
 - `count=K`: exactly K keys minimising Σ cost. Exact K-key DP when frames × K × L is small
   (≤ 4·10⁷); else a search over λ of the penalised form, and if no λ lands on K, the nearest
   λ solution with keys removed (least cost increase) or inserted (largest cost decrease) one
   at a time; `info["solver"]` and `info["lambda_count"]` say which. If K keys cannot cover
   the clip with segments ≤ L, L is stretched to fit.
-- `rate=R` keys per second: the penalised form with λ from a running controller (below), the
-  same computation online and offline. `lam=λ` fixes λ (units: frames × body heights²).
+- `rate=R` keys per second of motion: the penalised form with λ from a running controller
+  (below), the same computation online and offline. `lam=λ` fixes λ (units: ticks × body
+  heights²).
 - `tolerance=T`: the fewest keys such that every stretch (a, b] between consecutive keys has a
-  mean per-frame error ≤ T (body heights², the evaluation's E / h² of the linear
+  mean error ≤ T over its frames (body heights², the evaluation's E / h² of the linear
   interpolation of the curve; so the whole take's mean meets T too), ties to the least cost.
+  A mean over frames is a mean over time: the same at any rate.
 
 Online (`Online`): each frame's segments are priced as it arrives, in `idle` once the push's
 events have left (`optimal_math.Pricer`, frame after frame in a fixed order, so offline
-pricing a chunk or the whole take gets the same bits); the DP runs in chunks of
-`optimal_math.CHUNK` frames aligned at stream index 0, as offline does, so the
+pricing a chunk or the whole take gets the same bits); the DP runs in chunks
+(`chunk_frames`: 16 frames at 120 Hz, 2/15 s) aligned at stream index 0, as offline does, so
+the
 chunk-completing push pays only for its own frame's pricing, the DP, the decisions and the
 events. F(b) keeps back-pointers.
 A key is final once every back-pointer chain from the frames that could still precede a
@@ -36,17 +43,26 @@ future key (the last L frames) passes through it (Viterbi traceback convergence)
 oldest undecided frame is `lookahead` frames old, the chain of the newest priced frame
 decides it and everything before it; later chains are re-priced to pass through that
 decision (only the frames whose chains it broke, on the next frame: `Solver.settle`).
-Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, default 120). With
+Events carry latency_frames ≤ lookahead (`lookahead` a `Duration`, default 1 s, or a plain
+number of frames; in frames at the stream's rate at least a chunk). With
 an unbounded lookahead nothing is forced and `flush()` traces back from the last frame: the
 offline result exactly.
 
 Rate mode (R keys a second, s = fps / R frames a key): on the shared clips the λ that gives
 5 % of frames is 3.2× the geometric mean cost of s-frame segments (within a factor of 1.5 on
 most clips), where λ itself spans three orders of magnitude. So λ = 3.2 · exp(mean log
-cost(b − s, b)), the mean over every frame b priced so far plus `PRIOR_FRAMES` (1200, 10 s)
-pseudo-frames at the prior (`DEFAULT_LAMBDA` = 3.5·10⁻³ at 5 %, the shared clips' median,
-scaled as s⁵ for other rates). At stream start λ is the prior; the data takes over as the
-stream goes on, which keeps λ steady on short takes (a moving λ spends keys unevenly).
+cost(b − s, b)), the mean over the motion seconds priced so far plus `PRIOR_SECONDS` (10 s)
+of motion at the prior (`DEFAULT_LAMBDA` = 3.5·10⁻³ at 5 %, the shared clips' median,
+scaled as (s in ticks)⁵ for other rates). Motion seconds: each frame b weighs its frame
+time, times min(1, mean squared departure of its key-spaced segment from a straight line /
+`STILL_COST`) (`motion_weights`): a stretch that stays within 1e-4 body heights (RMS) of a
+straight line over 1/R s — a calibration hold, stillness, a pose held by a rigid body —
+needs no keys and adds nothing to the mean, so it neither earns keys nor drags λ down and
+spends keys in the take (a zero cost weighed in fully would pull λ towards the log floor).
+Recorded CMU holds move more (their least 1/6 s stretches depart 2.5·10⁻⁴ body heights RMS)
+and count as motion, so λ on the shared clips is today's except where a recording holds
+exactly still (06_02). At stream start λ is the prior; the data takes over as the stream
+goes on, which keeps λ steady on short takes (a moving λ spends keys unevenly).
 Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
 solved again with it; since λ still moves, converged chains are not final in rate mode and
 keys are decided at the deadline. Offline, λ is the estimate after the whole take (one
@@ -55,7 +71,8 @@ so the two agree exactly. The key count follows the rate only as far as the esti
 right (0.3–1.7 × on the shared clips, most within ±15 %).
 
 Deadlines are checked once a chunk, deciding every frame whose deadline falls before the
-next chunk is complete (so the effective lookahead is `lookahead` − 15 to `lookahead`).
+next chunk is complete (so the effective lookahead is `lookahead` − (chunk − 1) frames to
+`lookahead`: 0.875 to 1 s by default, at 120 Hz as at 30 Hz).
 """
 
 from __future__ import annotations
@@ -120,17 +137,24 @@ def _span_param(span: DurationLike) -> float | str:
     return float(span)
 
 
+def chunk_frames(fps: float) -> int:
+    """Frames solved together at `fps`: `optimal_math.CHUNK` (16) at 120 Hz and above, the
+    same time (2/15 s) at lower rates, so deadlines fall as finely in time at any rate."""
+    return max(1, min(om.CHUNK, int(round(om.CHUNK * fps / TICKS_PER_SECOND))))
+
+
 def _lookahead_frames(lookahead: DurationLike, fps: float) -> int:
-    """The lookahead in frames of the stream (a plain number is a frame count), at least
-    `optimal_math.CHUNK`."""
+    """The lookahead in frames of the stream (a plain number is a frame count), at least a
+    chunk (`chunk_frames`)."""
     if isinstance(lookahead, Duration):
         ok = math.isfinite(lookahead.value)
     else:
         ok = isinstance(lookahead, int | np.integer) and not isinstance(lookahead, bool)
     frames = whole_frames(lookahead, fps) if ok else -1
-    if frames < om.CHUNK:
+    chunk = chunk_frames(fps)
+    if frames < chunk:
         raise UsageError(f"optimal online: lookahead must be a whole number of frames or a "
-                         f"Duration of at least {om.CHUNK} frames ({om.CHUNK / fps:.3g} s at "
+                         f"Duration of at least {chunk} frames ({chunk / fps:.3g} s at "
                          f"{fps:g} Hz), got {lookahead!r}")
     return frames
 
@@ -162,8 +186,9 @@ class Solver:
 
     def __init__(self, max_len: int, *, lam: float | None = None, rate: float | None = None,
                  tolerance: float | None = None, keep_costs: bool = False,
-                 ticks: float = 1.0) -> None:
+                 ticks: float = 1.0, chunk: int = om.CHUNK) -> None:
         self.max_len = int(max_len)
+        self.chunk = int(chunk)  # frames solved together (`chunk_frames`)
         self.ticks = float(ticks)  # ticks (1/120 s) per frame: frame sums x ticks = integrals
         self.lam0 = float(lam if lam is not None else DEFAULT_LAMBDA)  # ticks x heights^2
         self.rate = rate  # keys per frame, or None
@@ -226,8 +251,8 @@ class Solver:
         self.x[lo : lo + len(rows)] = rows
         self.n += len(rows)
         ends = []
-        while self.n - self.done >= om.CHUNK:
-            self._solve(self.done + om.CHUNK)
+        while self.n - self.done >= self.chunk:
+            self._solve(self.done + self.chunk)
             ends.append(self.done - 1)
         return ends
 
@@ -378,15 +403,15 @@ def _solve_all(x: np.ndarray, max_len: int, ticks: float,
     return keys, _segment_errors(solver.f, keys - solver.base, lam)
 
 
-def _rate_keys(x: np.ndarray, max_len: int, rate: float,
-               ticks: float) -> tuple[np.ndarray, np.ndarray, float]:
+def _rate_keys(x: np.ndarray, max_len: int, rate: float, ticks: float,
+               chunk: int) -> tuple[np.ndarray, np.ndarray, float]:
     """Offline rate: λ from every frame's cost (as the online controller ends up with), then
     one penalised pass (keys, segment costs as frame sums, λ in ticks x body heights²).
     Same costs and chunks as `Solver`, so bit-identical to it."""
-    solver = Solver(max_len, rate=rate, ticks=ticks)
+    solver = Solver(max_len, rate=rate, ticks=ticks, chunk=chunk)
     band = np.empty((len(x), max_len))
-    for b0 in range(0, len(x), om.CHUNK):
-        b1 = min(len(x), b0 + om.CHUNK)
+    for b0 in range(0, len(x), chunk):
+        b1 = min(len(x), b0 + chunk)
         band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
         lam = solver.rate_lambda(band[b0:b1])
     keys, f = _penalised(band, lam)
@@ -529,7 +554,8 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
         rows, info = _count_keys(x, mode["count"], max_len)
         err = om.pair_costs(x, rows[:-1], rows[1:])
     elif "rate" in mode:
-        rows, err, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps, ticks)
+        rows, err, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps, ticks,
+                                               chunk_frames(motion.fps))
     else:
         rows, err = _solve_all(x, max_len, ticks, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
@@ -581,7 +607,8 @@ class Online(OnlineKeyframer):
     def reset(self) -> None:
         """Forget the stream; keep parameters."""
         kw = {"rate": self.mode["rate"] / self.fps} if "rate" in self.mode else dict(self.mode)
-        self.solver = Solver(self.max_len, keep_costs=True, ticks=self.ticks, **kw)
+        self.solver = Solver(self.max_len, keep_costs=True, ticks=self.ticks,
+                             chunk=chunk_frames(self.fps), **kw)
         self.solver.pricer.prepare(3 * len(self.scale))
         self.seq: list[int] = []
         self.time: list[float] = []
@@ -621,7 +648,7 @@ class Online(OnlineKeyframer):
                 s.settle()
             for end in s.add(rows[i : i + 1]):
                 keys = [] if s.rate is not None else s.converge()
-                d = end + om.CHUNK - 1 - self.lookahead
+                d = end + s.chunk - 1 - self.lookahead
                 if d > s.decided:
                     keys += s.force(d)
                 events += self._events(keys, int(block.seq[i]))

@@ -1,4 +1,4 @@
-"""Pure maths of optimal keys (DESIGN §4.5): segment costs from prefix sums and the dynamic
+"""Pure maths of optimal keys: segment costs from prefix sums and the dynamic
 programme over them. Shared by `streamkey.methods.optimal` (offline and online) and by
 `--max-gap`; its module docstring states the definitions settled here. No I/O; the one
 stateful piece (`Pricer`) holds plain arrays.
