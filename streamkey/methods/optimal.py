@@ -294,9 +294,14 @@ class Solver:
         c = costs[:, self.max_len - self.span]
         c = c[np.isfinite(c)]
         if len(c):
-            w = motion_weights(c, self.span, self.ticks)
-            self.log_sum += float(np.sum(w * np.log(c * self.ticks + _LOG_FLOOR)))
-            self.log_n += float(np.sum(w))
+            logs = np.log(c * self.ticks + _LOG_FLOOR)
+            if c.min() >= self.span * STILL_COST:  # all moving (the usual chunk): full weight
+                self.log_sum += self.ticks * float(np.sum(logs))
+                self.log_n += self.ticks * len(c)
+            else:
+                w = motion_weights(c, self.span, self.ticks)
+                self.log_sum += float(np.sum(w * logs))
+                self.log_n += float(np.sum(w))
         return self.rate_estimate() / self.ticks
 
     def rate_estimate(self) -> float:
