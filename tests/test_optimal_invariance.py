@@ -73,11 +73,20 @@ def measure(name: str, variant: str, online: bool) -> tuple[float, float]:
     return len(mapped) / len(frames), e_on_clean(clean, mapped) / e_clean
 
 
-def meets(count: float, e: float) -> bool:
-    return COUNT_RANGE[0] <= count <= COUNT_RANGE[1] and e <= E_RATIO
+def _mode_id(online: bool) -> str:
+    return "online" if online else "offline"
 
 
-# Measured misses (count ratio, E ratio); every other case of FEW meets both targets.
+@pytest.mark.parametrize("online", [False, True], ids=_mode_id)
+@pytest.mark.parametrize("variant", list(VARIANTS))
+@pytest.mark.parametrize("name", FEW)
+def test_variant_gets_as_many_keys_as_the_clean_take(name: str, variant: str,
+                                                      online: bool) -> None:
+    count, _ = measure(name, variant, online)
+    assert COUNT_RANGE[0] <= count <= COUNT_RANGE[1], count
+
+
+# Measured misses (keys ratio, E ratio); every other case of FEW meets the E target.
 MISSES = {
     ("07_01.bvh", "30 Hz", False): "19 keys for 20 (0.95), E 1.30x: the 30 Hz frames fall "
                                    "4 clean frames apart, one key fewer on a 2.6 s walk",
@@ -93,18 +102,48 @@ def _cases() -> list[object]:
                 marks = [pytest.mark.xfail(strict=True, reason=f"measured: {reason}")] if (
                     reason) else []
                 out.append(pytest.param(name, variant, online, marks=marks,
-                                        id=f"{name}-{variant}-{'online' if online else 'offline'}"))
+                                        id=f"{name}-{variant}-{_mode_id(online)}"))
     return out
 
 
 @pytest.mark.parametrize(("name", "variant", "online"), _cases())
-def test_variant_gets_the_clean_takes_keys(name: str, variant: str, online: bool) -> None:
-    count, e = measure(name, variant, online)
-    assert meets(count, e), (count, e)
+def test_variant_keys_rebuild_the_clean_motion_as_well(name: str, variant: str,
+                                                       online: bool) -> None:
+    _, e = measure(name, variant, online)
+    assert e <= E_RATIO, e
 
 
-# On every shared clip: the worst case per variant and mode; measured misses below.
-ALL_MISSES: dict[tuple[str, bool], str] = {}
+@pytest.mark.slow
+@pytest.mark.parametrize("online", [False, True], ids=_mode_id)
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_variant_gets_as_many_keys_on_every_clip(variant: str, online: bool) -> None:
+    counts = {name: round(measure(name, variant, online)[0], 3) for name in clips()}
+    missed = {k: v for k, v in counts.items() if not COUNT_RANGE[0] <= v <= COUNT_RANGE[1]}
+    assert not missed, missed
+
+
+# On every shared clip; measured misses as (clip: keys ratio, E ratio). Every key count is
+# within 0.83-1.09x; E of linear interpolation falls about as K^-4 on smooth motion, so 1.10x
+# asks for counts within ~2.5 %, and on the short clips (1.2-2.6 s, 11-20 keys) one key is
+# 5-8 %. The 30 Hz keys also snap to every 4th clean frame.
+ALL_MISSES = {
+    ("60 Hz", False): "09_06.amc (0.917, 1.375); count 0.92-1.03x on every clip",
+    ("60 Hz", True): "05_06 (0.969, 1.182), 08_01 (0.947, 1.232), 09_06.amc (0.917, 1.375); "
+                     "count 0.92-1.08x",
+    ("30 Hz", False): "01_06 (1.004, 1.146), 02_03 (0.929, 1.448), 06_08 (0.95, 1.258), "
+                      "07_01 (0.95, 1.301); count 0.93-1.05x",
+    ("30 Hz", True): "02_03 (0.929, 1.448), 02_10 (1.0, 1.277), 05_06 (0.969, 1.356), "
+                     "05_11.bvh (1.027, 1.138), 06_12 (0.983, 1.107), 08_01 (0.947, 1.302); "
+                     "count 0.93-1.08x",
+    ("calibration before", False): "01_14 (0.968, 1.147), 02_03 (0.929, 1.249), 05_13 (0.965, "
+                                   "1.116), 06_12 (0.966, 1.125), 06_15 (0.963, 1.102), "
+                                   "09_06.amc (0.833, 1.341): the 0.5 s blend out of the "
+                                   "T-pose is motion and lifts lambda 1-3 %; count 0.83-1.09x",
+    ("calibration before", True): "02_03 (0.929, 1.249), 05_11.bvh (0.946, 1.258), 06_12 "
+                                  "(0.966, 1.121), 09_06.amc (0.833, 1.341); count 0.83-1.02x",
+    ("stillness after", False): "02_03 (0.929, 1.336), 09_06.amc (0.917, 1.341): lambda within "
+                                "2 % of the clean take's, one key fewer; count 0.92-1.02x",
+}
 
 
 def _all_cases() -> list[object]:
@@ -116,16 +155,17 @@ def _all_cases() -> list[object]:
             if reason:
                 marks.append(pytest.mark.xfail(strict=True, reason=f"measured: {reason}"))
             out.append(pytest.param(variant, online, marks=marks,
-                                    id=f"{variant}-{'online' if online else 'offline'}"))
+                                    id=f"{variant}-{_mode_id(online)}"))
     return out
 
 
 @pytest.mark.parametrize(("variant", "online"), _all_cases())
-def test_variant_gets_the_clean_takes_keys_on_every_clip(variant: str, online: bool) -> None:
+def test_variant_keys_rebuild_the_clean_motion_as_well_on_every_clip(variant: str,
+                                                                     online: bool) -> None:
     missed = {}
     for name in clips():
         count, e = measure(name, variant, online)
-        if not meets(count, e):
+        if e > E_RATIO:
             missed[name] = (round(count, 3), round(e, 3))
     assert not missed, missed
 
