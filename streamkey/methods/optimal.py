@@ -454,10 +454,10 @@ def _exact_count(band: np.ndarray, count: int) -> np.ndarray:
     return np.array(keys[::-1], dtype=np.int64)
 
 
-def _adjust(x: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
+def _adjust(x: np.ndarray, rows: np.ndarray, count: int) -> np.ndarray:
     """Remove (least cost increase) or insert (largest decrease) keys until `count`; only
     the segments next to each change are priced again."""
-    keys = [int(k) for k in keys]
+    keys = [int(k) for k in rows]
 
     def removal(i: int) -> float:  # cost increase of removing keys[i]
         p, k, q = keys[i - 1], keys[i], keys[i + 1]
@@ -709,7 +709,7 @@ def max_gap(motion: Motion, keys: Keyframes, seconds: DurationLike,
     info = {**keys.info, "max_gap_added": (added + motion.first_frame).tolist()}
     return Keyframes(keys.method, frames + motion.first_frame, scores,
                      {**keys.params, "max_gap": _span_param(seconds)}, keys.n_frames, info,
-                     strength=[strength.get(int(r), 0.0) for r in frames])
+                     strength=np.array([strength.get(int(r), 0.0) for r in frames]))
 
 
 class MaxGap(OnlineKeyframer):
