@@ -59,10 +59,11 @@ time, times min(1, mean squared departure of its key-spaced segment from a strai
 straight line over 1/R s — a calibration hold, stillness, a pose held by a rigid body —
 needs no keys and adds nothing to the mean, so it neither earns keys nor drags λ down and
 spends keys in the take (a zero cost weighed in fully would pull λ towards the log floor).
-Recorded CMU holds move more (their least 1/6 s stretches depart 2.5·10⁻⁴ body heights RMS)
-and count as motion, so λ on the shared clips is today's except where a recording holds
-exactly still (06_02). At stream start λ is the prior; the data takes over as the stream
-goes on, which keeps λ steady on short takes (a moving λ spends keys unevenly).
+Recorded CMU holds move more (their stillest 1/6 s stretches depart ≥ 1.6·10⁻⁴ body
+heights RMS) and count as motion, so λ on the shared clips is today's except where a
+recording holds exactly still (06_02). At stream start λ is the prior; the data takes over
+as the stream goes on, which keeps λ steady on short takes (a moving λ spends keys
+unevenly).
 Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
 solved again with it; since λ still moves, converged chains are not final in rate mode and
 keys are decided at the deadline. Offline, λ is the estimate after the whole take (one
