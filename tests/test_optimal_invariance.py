@@ -180,6 +180,15 @@ def test_online_with_unbounded_lookahead_equals_offline_at_lower_rates(fps, mode
     assert np.array_equal(online, keys_of(v, False, **mode))
 
 
+@pytest.mark.parametrize("make", [V.with_calibration, V.with_stillness])
+def test_online_with_unbounded_lookahead_equals_offline_around_holds(make):
+    """Chunks with still frames weigh them by their motion (`optimal.motion_weights`), the
+    same sums online and offline."""
+    v = make(load("07_01.bvh")).motion
+    online = keys_of(v, True, lookahead=v.n_frames)
+    assert np.array_equal(online, keys_of(v, False))
+
+
 def test_online_latency_stays_within_the_lookahead_at_30_hz():
     m = V.resample(load("05_02.bvh"), 30.0).motion
     kf = optimal.Online(m.skeleton, m.fps)
@@ -213,3 +222,21 @@ def test_stillness_and_a_calibration_hold_earn_no_weight_in_the_rate_controller(
     for make in (V.with_stillness, V.with_calibration):
         other = optimal.extract(make(m).motion).info["lambda"]
         assert other == pytest.approx(lam, rel=0.15), make.__name__
+
+
+def test_at_120_hz_the_defaults_give_the_keys_they_gave_in_frames():
+    """Costs and λ in ticks of 1/120 s, 1 s of lookahead: at 120 Hz the frame sums and the
+    120-frame lookahead of before (keys measured before the change, clean take's frames)."""
+    clean = V.clean_take(load("07_01.bvh")).motion
+    assert keys_of(clean, False).tolist() == [0, 13, 31, 50, 65, 80, 100, 118, 134, 147, 166,
+                                              182, 197, 211, 231, 247, 263, 278, 301, 315]
+    assert keys_of(clean, True).tolist() == [0, 13, 31, 50, 65, 80, 100, 117, 133, 146, 165,
+                                             182, 197, 211, 231, 247, 263, 278, 301, 315]
+    quiet = V.clean_take(load("49_18.amc")).motion
+    assert keys_of(quiet, True).tolist() == [0, 84, 146, 210, 260, 295, 359, 410, 457, 508, 587,
+                                             692, 784, 846, 907, 1101]
+
+
+def test_motion_weights_count_a_still_stretch_as_no_time():
+    costs = np.array([0.0, 0.5e-8 * 20, 1e-8 * 20, 1e-3])
+    assert optimal.motion_weights(costs, 20, 4.0).tolist() == [0.0, 2.0, 4.0, 4.0]
