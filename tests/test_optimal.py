@@ -1,4 +1,4 @@
-"""Optimal keys (issue 10 part A): segment costs, the DP, offline modes, online keyframer,
+"""Optimal keys: segment costs, the DP, offline modes, online keyframer,
 --max-gap, all on the shared CMU clips."""
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from streamkey.motion import Frame
 
 CLIPS = clips()
 FAST = ["07_01.bvh", "09_06.amc", "05_02.bvh"]
+LOOKAHEAD = 120  # the default lookahead (1 s) in frames at the clips' 120 Hz
 
 
 @cache
@@ -36,7 +37,7 @@ def run(kf, frames) -> list[KeyframeEvent]:
 
 
 def e_joints(motion, frames) -> float:
-    """E as the issue states the Salient Poses anchors: the skeleton's joints (ROOT and
+    """E as Salient Poses states its anchor rows: the skeleton's joints (ROOT and
     JOINT), root-relative, slerp reconstruction, first and last captured frames keys."""
     first = motion.first_frame
     keys = np.union1d(np.asarray(frames), [first, motion.n_frames - 1])
@@ -260,7 +261,7 @@ def online_default(name: str, fixed_lambda: bool = False) -> tuple[np.ndarray, i
     rate = 0.05 * m.fps
     mode = {"lam": optimal.extract(m, rate=rate).info["lambda"]} if fixed_lambda else {
         "rate": rate}
-    frames, latency = online_keys(name, optimal.DEFAULT_LOOKAHEAD, **mode)
+    frames, latency = online_keys(name, LOOKAHEAD, **mode)
     ev = Evaluator(m)
     ratio = ev.score(frames).error / ev.score(optimal.extract(m, count=len(frames))).error
     return frames, latency, ratio
@@ -272,7 +273,7 @@ def test_online_latency_and_fixed_lambda_quality_on_every_clip():
         m = load(name)
         for fixed in (False, True):
             frames, latency, ratio = online_default(name, fixed)
-            assert latency <= optimal.DEFAULT_LOOKAHEAD, name
+            assert latency <= LOOKAHEAD, name
             assert frames[0] == m.first_frame and frames[-1] == m.n_frames - 1
             if fixed:  # the bounded-lookahead DP itself loses almost nothing
                 assert ratio <= 1.05, (name, ratio)
@@ -293,7 +294,7 @@ def test_online_memory_stays_bounded_on_a_long_stream():
     m = load("02_10.bvh")
     kf = optimal.Online(m.skeleton, m.fps, lam=2e-3)
     rows = m.channels[m.first_frame :]
-    bound = optimal.DEFAULT_LOOKAHEAD + 2 * kf.max_len + om.EPOCH
+    bound = kf.lookahead + 2 * kf.max_len + om.EPOCH
     peak, events = 0, 0
     for seq in range(4 * len(rows)):  # ~10,600 frames, 5 epochs
         out = kf.push(Frame(seq, seq / m.fps, rows[seq % len(rows)]))

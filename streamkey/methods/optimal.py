@@ -1,4 +1,4 @@
-"""Optimal keys (DESIGN §4.5): the keys that minimise the error of linearly interpolating the
+"""Optimal keys: the keys that minimise the error of linearly interpolating the
 body between them, by dynamic programming — offline `extract` and online `Online`.
 
 Definitions this module settles:
@@ -8,54 +8,73 @@ Definitions this module settles:
   height and √joints (`optimal_math.body_rows`; optional per-joint weights, optional root
   translation). |difference|² of two rows is then a mean squared joint distance in body
   heights², the unit of the evaluation's E / h².
-- Segment cost(a, b): Σ over frames strictly inside (a, b) of the squared distance to the
-  linear interpolation between a and b, from prefix sums (`optimal_math.Pricer`), at
-  most `max_segment` seconds (default 2 s) between keys. The first and the last captured
-  frames are always keys.
+- Segment cost(a, b): the integral over the time strictly inside (a, b) of the squared
+  distance to the linear interpolation between a and b — Σ over the frames inside, from
+  prefix sums (`optimal_math.Pricer`), times the frame time — in ticks × body heights², a
+  tick being 1/120 s (`TICKS_PER_SECOND`; a frame at 120 Hz, so costs and λ there are
+  today's frame sums). Being integrals over time, the costs of a take are the same at any
+  capture rate, so are the keys. At most `max_segment` (default 2 s) between keys. The
+  first and the last captured frames are always keys.
 - Penalised form (the common core): minimise Σ cost + λ · keys. Ties go to the earliest
-  predecessor, so the result is deterministic.
+  predecessor, so the result is deterministic. (The DP adds frame sums and λ / ticks per
+  frame: the same minimiser, and bit for bit today's at 120 Hz.)
 - `count=K`: exactly K keys minimising Σ cost. Exact K-key DP when frames × K × L is small
   (≤ 4·10⁷); else a search over λ of the penalised form, and if no λ lands on K, the nearest
   λ solution with keys removed (least cost increase) or inserted (largest cost decrease) one
   at a time; `info["solver"]` and `info["lambda_count"]` say which. If K keys cannot cover
   the clip with segments ≤ L, L is stretched to fit.
-- `rate=R` keys per second: the penalised form with λ from a running controller (below), the
-  same computation online and offline. `lam=λ` fixes λ (units: frames × body heights²).
+- `rate=R` keys per second of motion: the penalised form with λ from a running controller
+  (below), the same computation online and offline. `lam=λ` fixes λ (units: ticks × body
+  heights²).
 - `tolerance=T`: the fewest keys such that every stretch (a, b] between consecutive keys has a
-  mean per-frame error ≤ T (body heights², the evaluation's E / h² of the linear
+  mean error ≤ T over its frames (body heights², the evaluation's E / h² of the linear
   interpolation of the curve; so the whole take's mean meets T too), ties to the least cost.
+  A mean over frames is a mean over time: the same at any rate.
 
 Online (`Online`): each frame's segments are priced as it arrives, in `idle` once the push's
 events have left (`optimal_math.Pricer`, frame after frame in a fixed order, so offline
-pricing a chunk or the whole take gets the same bits); the DP runs in chunks of
-`optimal_math.CHUNK` frames aligned at stream index 0, as offline does, so the
-chunk-completing push pays only for its own frame's pricing, the DP, the decisions and the
-events. F(b) keeps back-pointers.
+pricing a chunk or the whole take gets the same bits); the DP runs in chunks
+(`chunk_frames`: 16 frames at 120 Hz, 2/15 s) aligned at stream index 0, as offline does,
+so the chunk-completing push pays only for its own frame's pricing, the DP, the decisions
+and the events. F(b) keeps back-pointers.
 A key is final once every back-pointer chain from the frames that could still precede a
 future key (the last L frames) passes through it (Viterbi traceback convergence). When the
 oldest undecided frame is `lookahead` frames old, the chain of the newest priced frame
 decides it and everything before it; later chains are re-priced to pass through that
 decision (only the frames whose chains it broke, on the next frame: `Solver.settle`).
-Events carry latency_frames ≤ lookahead (`lookahead` ≥ CHUNK, default 120). With
+Events carry latency_frames ≤ lookahead (`lookahead` a `Duration`, default 1 s, or a plain
+number of frames; in frames at the stream's rate at least a chunk). With
 an unbounded lookahead nothing is forced and `flush()` traces back from the last frame: the
 offline result exactly.
 
 Rate mode (R keys a second, s = fps / R frames a key): on the shared clips the λ that gives
 5 % of frames is 3.2× the geometric mean cost of s-frame segments (within a factor of 1.5 on
 most clips), where λ itself spans three orders of magnitude. So λ = 3.2 · exp(mean log
-cost(b − s, b)), the mean over every frame b priced so far plus `PRIOR_FRAMES` (1200, 10 s)
-pseudo-frames at the prior (`DEFAULT_LAMBDA` = 3.5·10⁻³ at 5 %, the shared clips' median,
-scaled as s⁵ for other rates). At stream start λ is the prior; the data takes over as the
-stream goes on, which keeps λ steady on short takes (a moving λ spends keys unevenly).
+cost(b − s, b)), the mean over the motion seconds priced so far plus `PRIOR_SECONDS` (10 s)
+of motion at the prior (`DEFAULT_LAMBDA` = 3.5·10⁻³ at 5 %, the shared clips' median,
+scaled as (s in ticks)⁵ for other rates). Motion seconds: each frame b weighs its frame
+time, times min(1, mean squared departure of its key-spaced segment from a straight line /
+`STILL_COST`) (`motion_weights`): a stretch that stays within 1e-4 body heights (RMS) of a
+straight line over 1/R s — a calibration hold, stillness after the take, a held pose —
+needs no keys and adds nothing to the mean, so it neither earns keys nor drags λ down and
+spends keys in the take (a zero cost weighed in fully would pull λ towards the log floor).
+Recorded CMU holds move more (their stillest 1/6 s stretches depart ≥ 1.6·10⁻⁴ body
+heights RMS) and count as motion, so λ on the shared clips is today's except where a
+recording holds exactly still (06_02). At stream start λ is the prior; the data takes over
+as the stream goes on, which keeps λ steady on short takes (a moving λ spends keys
+unevenly).
 Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
 solved again with it; since λ still moves, converged chains are not final in rate mode and
 keys are decided at the deadline. Offline, λ is the estimate after the whole take (one
 penalised pass); with an unbounded lookahead `flush()` solves everything with that same λ,
 so the two agree exactly. The key count follows the rate only as far as the estimate is
-right (0.3–1.7 × on the shared clips, most within ±15 %).
+right (0.3–1.7 × on the shared clips, most within ±15 %); the same take at 60 or 30 Hz,
+after a calibration hold or followed by stillness gets 0.83–1.09 × the clean take's keys
+on every shared clip, offline and online.
 
 Deadlines are checked once a chunk, deciding every frame whose deadline falls before the
-next chunk is complete (so the effective lookahead is `lookahead` − 15 to `lookahead`).
+next chunk is complete (so the effective lookahead is `lookahead` − (chunk − 1) frames to
+`lookahead`: 0.875 to 1 s by default, at 120 Hz as at 30 Hz).
 """
 
 from __future__ import annotations
@@ -70,19 +89,23 @@ from ..features import Features, compute_features
 from ..keyframes import KeyframeEvent, Keyframes
 from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
+from ..units import Duration, DurationLike, whole_frames
 from . import optimal_math as om
 
 __all__ = ["extract", "curve", "Solver", "Online", "MaxGap", "max_gap", "METHOD",
            "DEFAULT_LOOKAHEAD", "DEFAULT_MAX_SEGMENT", "DEFAULT_RATE", "DEFAULT_LAMBDA"]
 
 METHOD = "optimal"
-DEFAULT_LOOKAHEAD = 120  # frames: 1 s at 120 Hz
+DEFAULT_LOOKAHEAD = Duration.seconds(1.0)  # 120 frames at 120 Hz
 DEFAULT_MAX_SEGMENT = 2.0  # seconds
-DEFAULT_RATE = 6.0  # keys per second: 5 % of frames at 120 Hz
-DEFAULT_LAMBDA = 3.5e-3  # frames x body heights^2
-PRIOR_FRAMES = 1200  # rate mode: weight of the prior lambda, in frames of evidence
+DEFAULT_RATE = 6.0  # keys per second of motion: 5 % of frames at 120 Hz
+DEFAULT_LAMBDA = 3.5e-3  # ticks x body heights^2 (a tick: 1/120 s)
+TICKS_PER_SECOND = 120.0  # the time unit of costs and lambda: 1/120 s, a frame at 120 Hz
+PRIOR_SECONDS = 10.0  # rate mode: weight of the prior lambda, in seconds of motion
 RESOLVE = 0.05  # rate mode: re-solve the undecided frames when log lambda moves this much
 RATE_FACTOR = 3.2  # lambda / geometric mean cost of key-spaced segments (shared clips, 5 %)
+STILL_COST = 1e-8  # body heights^2: mean squared departure from a straight line below which
+#                    a key-spaced stretch is still (RMS 1e-4 body heights, about 0.2 mm)
 _LOG_FLOOR = 1e-12  # smallest segment cost in the geometric mean
 _GRID = 16  # lambdas per pass of the count search
 _EXACT_BUDGET = 4e7  # frames x K x L below which count mode runs the exact K-key DP
@@ -97,10 +120,45 @@ def curve(motion: Motion, features: Features | None = None, weights: np.ndarray 
     return om.body_rows(feats.fk.positions[motion.first_frame :], scale, root_translation)
 
 
-def _frames(seconds: float, fps: float, name: str) -> int:
-    if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
-        raise UsageError(f"{name} must be a positive number of seconds, got {seconds!r}")
-    return max(2, int(round(seconds * fps)))
+def _frames(span: DurationLike, fps: float, name: str) -> int:
+    """Frames of a span given as a `Duration`, or as a plain number of seconds (what
+    `max_segment` and `max_gap` have always taken); at least 2."""
+    value = span.value if isinstance(span, Duration) else span
+    if isinstance(value, bool) or not (isinstance(value, int | float) and math.isfinite(value)
+                                       and value > 0):
+        raise UsageError(f"{name} must be a positive duration (seconds), got {span!r}")
+    seconds = span if isinstance(span, Duration) else Duration.seconds(float(value))
+    return max(2, whole_frames(seconds, fps))
+
+
+def _span_param(span: DurationLike) -> float | str:
+    """A span as recorded in the parameters: seconds as a number (as before units were
+    explicit), a frame count as text."""
+    if isinstance(span, Duration):
+        return span.value if span.unit == "s" else str(span)
+    return float(span)
+
+
+def chunk_frames(fps: float) -> int:
+    """Frames solved together at `fps`: `optimal_math.CHUNK` (16) at 120 Hz and above, the
+    same time (2/15 s) at lower rates, so deadlines fall as finely in time at any rate."""
+    return max(1, min(om.CHUNK, int(round(om.CHUNK * fps / TICKS_PER_SECOND))))
+
+
+def _lookahead_frames(lookahead: DurationLike, fps: float) -> int:
+    """The lookahead in frames of the stream (a plain number is a frame count), at least a
+    chunk (`chunk_frames`)."""
+    if isinstance(lookahead, Duration):
+        ok = math.isfinite(lookahead.value)
+    else:
+        ok = isinstance(lookahead, int | np.integer) and not isinstance(lookahead, bool)
+    frames = whole_frames(lookahead, fps) if ok else -1
+    chunk = chunk_frames(fps)
+    if frames < chunk:
+        raise UsageError(f"optimal online: lookahead must be a whole number of frames or a "
+                         f"Duration of at least {chunk} frames ({chunk / fps:.3g} s at "
+                         f"{fps:g} Hz), got {lookahead!r}")
+    return frames
 
 
 def _mode(count: int | None, rate: float | None, tolerance: float | None,
@@ -129,9 +187,12 @@ class Solver:
     """
 
     def __init__(self, max_len: int, *, lam: float | None = None, rate: float | None = None,
-                 tolerance: float | None = None, keep_costs: bool = False) -> None:
+                 tolerance: float | None = None, keep_costs: bool = False,
+                 ticks: float = 1.0, chunk: int = om.CHUNK) -> None:
         self.max_len = int(max_len)
-        self.lam0 = float(lam if lam is not None else DEFAULT_LAMBDA)
+        self.chunk = int(chunk)  # frames solved together (`chunk_frames`)
+        self.ticks = float(ticks)  # ticks (1/120 s) per frame: frame sums x ticks = integrals
+        self.lam0 = float(lam if lam is not None else DEFAULT_LAMBDA)  # ticks x heights^2
         self.rate = rate  # keys per frame, or None
         self.span = int(min(max_len, max(2, round(1.0 / rate)))) if rate else 0
         self.tolerance = tolerance
@@ -147,9 +208,10 @@ class Solver:
         self.floor = 0  # last committed key (stream index)
         self.decided = -1  # every frame <= decided is final
         self.stale: tuple[int, int] | None = None  # frames to solve again (stream indices)
-        self.log_sum = 0.0  # rate controller: sum and count of log cost(b - s, b)
-        self.log_n = 0
-        self.lam = self.lam0 if self.rate is None else self.rate_estimate()
+        self.log_sum = 0.0  # rate controller: Σ w log cost(b − s, b) and Σ w (motion ticks)
+        self.log_n = 0.0
+        # the DP's lambda: per key, in the unit of the costs it adds (frame sums)
+        self.lam = (self.lam0 if self.rate is None else self.rate_estimate()) / self.ticks
         self.pricer = om.Pricer(self.max_len)
         self.x = np.empty((0, 0))
         self.f = np.empty(0)
@@ -191,8 +253,8 @@ class Solver:
         self.x[lo : lo + len(rows)] = rows
         self.n += len(rows)
         ends = []
-        while self.n - self.done >= om.CHUNK:
-            self._solve(self.done + om.CHUNK)
+        while self.n - self.done >= self.chunk:
+            self._solve(self.done + self.chunk)
             ends.append(self.done - 1)
         return ends
 
@@ -228,21 +290,30 @@ class Solver:
             self.priced = end
 
     def rate_lambda(self, costs: np.ndarray) -> float:
-        """Rate controller (module docstring): λ from every frame priced so far."""
+        """Rate controller (module docstring): the DP's λ from every frame priced so far,
+        each weighted by the motion ticks it stands for (`motion_weights`)."""
         assert self.rate is not None
         c = costs[:, self.max_len - self.span]
         c = c[np.isfinite(c)]
         if len(c):
-            self.log_sum += float(np.sum(np.log(c + _LOG_FLOOR)))
-            self.log_n += len(c)
-        return self.rate_estimate()
+            logs = np.log(c * self.ticks + _LOG_FLOOR)
+            if c.min() >= self.span * STILL_COST:  # all moving (the usual chunk): full weight
+                self.log_sum += self.ticks * float(np.sum(logs))
+                self.log_n += self.ticks * len(c)
+            else:
+                w = motion_weights(c, self.span, self.ticks)
+                self.log_sum += float(np.sum(w * logs))
+                self.log_n += float(np.sum(w))
+        return self.rate_estimate() / self.ticks
 
     def rate_estimate(self) -> float:
-        """λ of the rate mode from the costs priced so far, shrunk towards the prior."""
+        """λ of the rate mode (ticks x body heights²) from the costs priced so far, shrunk
+        towards the prior."""
         assert self.rate is not None
-        prior = math.log(DEFAULT_LAMBDA / RATE_FACTOR * (self.span / 20.0) ** 5)
-        weight = PRIOR_FRAMES + self.log_n
-        mean = (PRIOR_FRAMES * prior + self.log_sum) / weight if weight else prior
+        prior_weight = PRIOR_SECONDS * TICKS_PER_SECOND
+        prior = math.log(DEFAULT_LAMBDA / RATE_FACTOR * (self.span * self.ticks / 20.0) ** 5)
+        weight = prior_weight + self.log_n
+        mean = (prior_weight * prior + self.log_sum) / weight if weight else prior
         return RATE_FACTOR * math.exp(mean)
 
     def resolve(self, lam: float) -> None:
@@ -307,11 +378,19 @@ class Solver:
         if self.done < self.n:
             self._solve(self.n)
         if self.rate is not None and self.keep_costs:
-            lam = self.rate_estimate()
+            lam = self.rate_estimate() / self.ticks
             if lam != self.lam:
                 self.resolve(lam)
         path = om.chain(self.bp, self.n - 1 - self.base, self.decided - self.base)
         return [k + self.base for k in path]
+
+
+def motion_weights(costs: np.ndarray, span: int, ticks: float) -> np.ndarray:
+    """Motion ticks of frames whose key-spaced segments (`span` frames) cost `costs` (frame
+    sums): `ticks` for a frame that moves, falling linearly to 0 as the segment's mean
+    squared departure from a straight line falls below `STILL_COST` (a still or uniformly
+    moving stretch needs no keys, so it earns none)."""
+    return ticks * np.minimum(1.0, costs / (span * STILL_COST))
 
 
 def _segment_errors(f: np.ndarray, keys: np.ndarray, lam: float) -> np.ndarray:
@@ -320,29 +399,30 @@ def _segment_errors(f: np.ndarray, keys: np.ndarray, lam: float) -> np.ndarray:
     return np.maximum(np.diff(f[keys]) - lam, 0.0)
 
 
-def _solve_all(x: np.ndarray, max_len: int, **mode: Any) -> tuple[np.ndarray, np.ndarray]:
+def _solve_all(x: np.ndarray, max_len: int, ticks: float,
+               **mode: Any) -> tuple[np.ndarray, np.ndarray]:
     """Offline λ / tolerance: the online solver over every row, nothing forced; the keys and
-    the costs of the segments between them."""
-    solver = Solver(max_len, **mode)
+    the costs of the segments between them (frame sums)."""
+    solver = Solver(max_len, ticks=ticks, **mode)
     solver.add(x)
     keys = np.array(solver.finish(), dtype=np.int64)
     lam = 0.0 if solver.tolerance is not None else solver.lam
     return keys, _segment_errors(solver.f, keys - solver.base, lam)
 
 
-def _rate_keys(x: np.ndarray, max_len: int,
-               rate: float) -> tuple[np.ndarray, np.ndarray, float]:
+def _rate_keys(x: np.ndarray, max_len: int, rate: float, ticks: float,
+               chunk: int) -> tuple[np.ndarray, np.ndarray, float]:
     """Offline rate: λ from every frame's cost (as the online controller ends up with), then
-    one penalised pass (keys, segment costs, λ). Same costs and chunks as `Solver`, so
-    bit-identical to it."""
-    solver = Solver(max_len, rate=rate)
+    one penalised pass (keys, segment costs as frame sums, λ in ticks x body heights²).
+    Same costs and chunks as `Solver`, so bit-identical to it."""
+    solver = Solver(max_len, rate=rate, ticks=ticks, chunk=chunk)
     band = np.empty((len(x), max_len))
-    for b0 in range(0, len(x), om.CHUNK):
-        b1 = min(len(x), b0 + om.CHUNK)
+    for b0 in range(0, len(x), chunk):
+        b1 = min(len(x), b0 + chunk)
         band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
         lam = solver.rate_lambda(band[b0:b1])
     keys, f = _penalised(band, lam)
-    return keys, _segment_errors(f, keys, lam), lam
+    return keys, _segment_errors(f, keys, lam), solver.rate_estimate()
 
 
 def _penalised(band: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
@@ -376,10 +456,10 @@ def _exact_count(band: np.ndarray, count: int) -> np.ndarray:
     return np.array(keys[::-1], dtype=np.int64)
 
 
-def _adjust(x: np.ndarray, keys: np.ndarray, count: int) -> np.ndarray:
+def _adjust(x: np.ndarray, rows: np.ndarray, count: int) -> np.ndarray:
     """Remove (least cost increase) or insert (largest decrease) keys until `count`; only
     the segments next to each change are priced again."""
-    keys = [int(k) for k in keys]
+    keys = [int(k) for k in rows]
 
     def removal(i: int) -> float:  # cost increase of removing keys[i]
         p, k, q = keys[i - 1], keys[i], keys[i + 1]
@@ -458,16 +538,18 @@ def _penalised_counts(band: np.ndarray, lams: np.ndarray) -> np.ndarray:
 
 def extract(motion: Motion, *, count: int | None = None, rate: float | None = None,
             tolerance: float | None = None, lam: float | None = None,
-            max_segment: float = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
+            max_segment: DurationLike = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
             root_translation: bool = False, features: Features | None = None) -> Keyframes:
-    """Optimal keys of `motion` (module docstring); default mode: `rate=DEFAULT_RATE`."""
+    """Optimal keys of `motion` (module docstring); default mode: `rate=DEFAULT_RATE`.
+    `max_segment`: a `Duration`, or a plain number of seconds."""
     mode = _mode(count, rate, tolerance, lam)
     max_len = _frames(max_segment, motion.fps, "max_segment")
+    ticks = TICKS_PER_SECOND / motion.fps
     x = curve(motion, features, weights, root_translation)
     n = len(x)
     if n == 0:
         raise UsageError("the motion has no captured frames")
-    params: dict[str, Any] = {**mode, "max_segment": max_segment,
+    params: dict[str, Any] = {**mode, "max_segment": _span_param(max_segment),
                               "root_translation": root_translation,
                               "weights": None if weights is None else list(weights)}
     info: dict[str, Any] = {}
@@ -479,20 +561,21 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
         rows, info = _count_keys(x, mode["count"], max_len)
         err = om.pair_costs(x, rows[:-1], rows[1:])
     elif "rate" in mode:
-        rows, err, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps)
+        rows, err, info["lambda"] = _rate_keys(x, max_len, mode["rate"] / motion.fps, ticks,
+                                               chunk_frames(motion.fps))
     else:
-        rows, err = _solve_all(x, max_len, **mode)
+        rows, err = _solve_all(x, max_len, ticks, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
-    scores = key_scores(x, rows)
+    scores = key_scores(x, rows, ticks)
     return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
 
 
-def key_scores(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """A key's score: the cost of the segment it ends (the first key: 0), each segment summed
-    alone (`optimal_math.chain_costs`), so offline and online (which knows it once the key is
-    decided) agree bit for bit."""
+def key_scores(x: np.ndarray, rows: np.ndarray, ticks: float = 1.0) -> np.ndarray:
+    """A key's score: the cost of the segment it ends (the first key: 0), in ticks x body
+    heights² (`ticks` per frame), each segment summed alone (`optimal_math.chain_costs`), so
+    offline and online (which knows it once the key is decided) agree bit for bit."""
     return om.chain_costs(np.ascontiguousarray(x, dtype=np.float64),
-                          np.asarray(rows, dtype=np.int64))
+                          np.asarray(rows, dtype=np.int64)) * ticks
 
 
 class Online(OnlineKeyframer):
@@ -503,8 +586,9 @@ class Online(OnlineKeyframer):
 
     def __init__(self, skeleton: Skeleton, fps: float, *, rate: float | None = None,
                  tolerance: float | None = None, lam: float | None = None,
-                 max_segment: float = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
-                 root_translation: bool = False, lookahead: int = DEFAULT_LOOKAHEAD,
+                 max_segment: DurationLike = DEFAULT_MAX_SEGMENT,
+                 weights: np.ndarray | None = None, root_translation: bool = False,
+                 lookahead: DurationLike = DEFAULT_LOOKAHEAD,
                  count: int | None = None, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
@@ -512,14 +596,12 @@ class Online(OnlineKeyframer):
             raise UsageError("optimal online: a key count needs the whole take; give a rate "
                              "(keys per second) or a tolerance")
         mode = _mode(None, rate, tolerance, lam)
-        if isinstance(lookahead, bool) or not isinstance(lookahead, int | np.integer) or (
-                lookahead < om.CHUNK):
-            raise UsageError(f"optimal online: lookahead must be an integer >= {om.CHUNK}, "
-                             f"got {lookahead!r}")
+        frames = _lookahead_frames(lookahead, fps)
         self.max_len = _frames(max_segment, fps, "max_segment")
-        super().__init__(skeleton, fps, lookahead=int(lookahead), stream=stream,
+        self.ticks = TICKS_PER_SECOND / float(fps)
+        super().__init__(skeleton, fps, lookahead=frames, stream=stream,
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
-                         params={**mode, "max_segment": max_segment,
+                         params={**mode, "max_segment": _span_param(max_segment),
                                  "root_translation": root_translation,
                                  "weights": None if weights is None else list(weights)})
         self.mode = mode
@@ -532,7 +614,8 @@ class Online(OnlineKeyframer):
     def reset(self) -> None:
         """Forget the stream; keep parameters."""
         kw = {"rate": self.mode["rate"] / self.fps} if "rate" in self.mode else dict(self.mode)
-        self.solver = Solver(self.max_len, keep_costs=True, **kw)
+        self.solver = Solver(self.max_len, keep_costs=True, ticks=self.ticks,
+                             chunk=chunk_frames(self.fps), **kw)
         self.solver.pricer.prepare(3 * len(self.scale))
         self.seq: list[int] = []
         self.time: list[float] = []
@@ -547,14 +630,15 @@ class Online(OnlineKeyframer):
         self.reset()
         if keep_statistics and self.solver.rate is not None:
             self.solver.log_sum, self.solver.log_n = log
-            self.solver.lam = self.solver.rate_estimate()
+            self.solver.lam = self.solver.rate_estimate() / self.solver.ticks
 
     def _events(self, keys: list[int], decided_at: int) -> list[KeyframeEvent]:
         out = []
         s = self.solver
         for k in keys:
             prev, self.prev_key = self.prev_key, k
-            score = 0.0 if prev is None else key_scores(s.x, np.array([prev, k]) - s.base)[1]
+            score = 0.0 if prev is None else key_scores(s.x, np.array([prev, k]) - s.base,
+                                                        s.ticks)[1]
             out.append(self.event(self.seq[k - self.t0], self.time[k - self.t0], score,
                                   decided_at))
         return out
@@ -571,7 +655,7 @@ class Online(OnlineKeyframer):
                 s.settle()
             for end in s.add(rows[i : i + 1]):
                 keys = [] if s.rate is not None else s.converge()
-                d = end + om.CHUNK - 1 - self.lookahead
+                d = end + s.chunk - 1 - self.lookahead
                 if d > s.decided:
                     keys += s.force(d)
                 events += self._events(keys, int(block.seq[i]))
@@ -609,10 +693,11 @@ class Online(OnlineKeyframer):
 # ----------------------------------------------------------------------------- --max-gap
 
 
-def max_gap(motion: Motion, keys: Keyframes, seconds: float,
+def max_gap(motion: Motion, keys: Keyframes, seconds: DurationLike,
             features: Features | None = None) -> Keyframes:
-    """`keys` with a key inserted in every stretch longer than `seconds` without one, at the
-    best frame by the optimal segment cost (`optimal_math.fill_gaps`)."""
+    """`keys` with a key inserted in every stretch longer than `seconds` (a `Duration`, or a
+    plain number of seconds) without one, at the best frame by the optimal segment cost
+    (`optimal_math.fill_gaps`)."""
     gap = _frames(seconds, motion.fps, "max_gap")
     x = curve(motion, features)
     rows = np.asarray(keys.frames, dtype=np.int64) - motion.first_frame
@@ -625,8 +710,8 @@ def max_gap(motion: Motion, keys: Keyframes, seconds: float,
     strength = dict(zip(rows.tolist(), np.asarray(keys.strength).tolist(), strict=True))
     info = {**keys.info, "max_gap_added": (added + motion.first_frame).tolist()}
     return Keyframes(keys.method, frames + motion.first_frame, scores,
-                     {**keys.params, "max_gap": seconds}, keys.n_frames, info,
-                     strength=[strength.get(int(r), 0.0) for r in frames])
+                     {**keys.params, "max_gap": _span_param(seconds)}, keys.n_frames, info,
+                     strength=np.array([strength.get(int(r), 0.0) for r in frames]))
 
 
 class MaxGap(OnlineKeyframer):
@@ -637,12 +722,13 @@ class MaxGap(OnlineKeyframer):
 
     method = "?"
 
-    def __init__(self, inner: OnlineKeyframer, seconds: float) -> None:
+    def __init__(self, inner: OnlineKeyframer, seconds: DurationLike) -> None:
         self.inner = inner
         self.method = inner.method  # type: ignore[misc]
         self.gap = _frames(seconds, inner.fps, "max_gap")
         super().__init__(inner.skeleton, inner.fps, lookahead=inner.lookahead + self.gap,
-                         stream=inner.stream, params={**inner.params, "max_gap": seconds})
+                         stream=inner.stream,
+                         params={**inner.params, "max_gap": _span_param(seconds)})
         self.guard = inner.guard
         self.features = inner.features
         self.scale = om.point_scale(inner.skeleton.n_joints, inner.features.body_height)

@@ -1,4 +1,4 @@
-"""Pure maths of optimal keys (DESIGN §4.5): segment costs from prefix sums and the dynamic
+"""Pure maths of optimal keys: segment costs from prefix sums and the dynamic
 programme over them. Shared by `streamkey.methods.optimal` (offline and online) and by
 `--max-gap`; its module docstring states the definitions settled here. No I/O; the one
 stateful piece (`Pricer`) holds plain arrays.
@@ -12,6 +12,8 @@ fixed order: a frame at a time online, a chunk or the whole take offline, the sa
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -227,10 +229,11 @@ def band_costs(x: np.ndarray, max_len: int) -> np.ndarray:
     return Pricer(max_len).price(np.asarray(x, dtype=np.float64), 0, 0, len(x))
 
 
-def pair_costs(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def pair_costs(x: np.ndarray, starts: np.ndarray | Sequence[int],
+               ends: np.ndarray | Sequence[int]) -> np.ndarray:
     """Costs of arbitrary segments (a[i], b[i]) of `x` (a < b), O(D) each from prefix sums."""
-    a = np.asarray(a, dtype=np.int64)
-    b = np.asarray(b, dtype=np.int64)
+    a = np.asarray(starts, dtype=np.int64)
+    b = np.asarray(ends, dtype=np.int64)
     if len(a) == 0:
         return np.zeros(0)
     s, e = int(a.min()), int(b.max()) + 1
@@ -429,11 +432,11 @@ def best_split(x: np.ndarray, a: int, e: int, last: int) -> int:
     return int(ks[int(np.argmin(total))])
 
 
-def fill_gaps(x: np.ndarray, keys: np.ndarray, max_gap: int) -> np.ndarray:
+def fill_gaps(x: np.ndarray, rows: np.ndarray, max_gap: int) -> np.ndarray:
     """Keys (rows, sorted) with a key inserted wherever consecutive keys lie more than
     `max_gap` frames apart: left to right, at the best frame k of (a, a + max_gap] by
     cost(a, k) + cost(k, a + max_gap + 1)."""
-    keys = [int(k) for k in np.asarray(keys, dtype=np.int64)]
+    keys = [int(k) for k in np.asarray(rows, dtype=np.int64)]
     out: list[int] = []
     for i, a in enumerate(keys):
         out.append(a)
