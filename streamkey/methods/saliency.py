@@ -106,8 +106,10 @@ from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
 from ..signal import unwrap_degrees
+from ..units import Duration, DurationLike, whole_frames
 from .saliency_math import (
     FOOT_SIGMA,
+    REFERENCE_FPS,
     SCALES,
     Basis,
     Clusterer,
@@ -124,6 +126,7 @@ from .saliency_math import (
     curves_of,
     end_curvature,
     fit_k,
+    frames_at,
     gaussian_means,
     itti_factors,
     kernel,
@@ -142,6 +145,7 @@ from .saliency_math import (
     ring_maps_of,
     scale_maps,
     support_radius,
+    time_step,
     truncated_maps,
     widths,
 )
@@ -158,10 +162,13 @@ __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FO
            "local_max_mask", "map_stats", "normalisation", "combine", "curves_of", "maps_of",
            "curve_weights", "cluster_keyframes", "pick_keyframe", "match_basis",
            "choose_preset", "resolve_params", "cluster_size", "support_radius",
-           "auto_preset", "auto_frames", "AUTO_SECONDS"]
+           "auto_preset", "auto_frames", "AUTO_SECONDS", "REFERENCE_FPS", "UPDATE_EVERY",
+           "preset_sigma", "time_step"]
 
 METHOD = "saliency"
+# sigma in frames of 120 Hz (`REFERENCE_FPS`): 1/12 s and 1/40 s of motion at any rate
 PRESETS: dict[str, tuple[float, int]] = {"low": (10.0, 7), "high": (3.0, 10)}
+UPDATE_EVERY = Duration.seconds(10.0)  # online: the basis is recomputed at least this often
 AUTO_SPEED_THRESHOLD = 0.85  # body heights per second
 AUTO_SECONDS = 2.0  # "auto" decides on the first 2 s (offline and online alike)
 HISTORY_SECONDS = 10.0  # online: past kept for recomputation when the basis changes
@@ -192,19 +199,32 @@ def choose_preset(features: Features, first: int) -> tuple[str, float]:
     return auto_preset(p, fps)
 
 
-def resolve_params(sigma: float | None, k: int | None, preset: str, contact: bool
-                   ) -> tuple[float, int]:
-    """Check parameters and fill sigma / k from a resolved preset ("low" or "high")."""
+def preset_sigma(preset: str) -> Duration:
+    """The base scale of a preset ("low" or "high") in seconds."""
+    return Duration.seconds(PRESETS[preset][0] / REFERENCE_FPS)
+
+
+def resolve_params(sigma: DurationLike | None, k: int | None, preset: str, contact: bool,
+                   fps: float = REFERENCE_FPS) -> tuple[float, int]:
+    """Check parameters and fill sigma / k from a resolved preset ("low" or "high"): sigma
+    in frames at `fps` (a plain number is already frames; the presets' are in seconds, at
+    least half a frame), and k."""
     if preset not in PRESETS:
         raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")
-    s0, k0 = PRESETS[preset]
-    try:
-        sigma = s0 if sigma is None else float(sigma)
-    except (TypeError, ValueError):
-        raise UsageError(f"saliency: sigma must be a number, got {sigma!r}") from None
+    k0 = PRESETS[preset][1]
+    if sigma is None:
+        sigma = max(0.5, frames_at(preset_sigma(preset), fps))
+    else:
+        given = sigma
+        try:
+            sigma = frames_at(sigma, fps)
+        except (TypeError, ValueError):
+            raise UsageError(f"saliency: sigma must be a number of frames or a Duration, "
+                             f"got {given!r}") from None
+        if not (np.isfinite(sigma) and sigma >= 0.5):
+            raise UsageError(f"saliency: sigma must be >= 0.5 frames, got {given} "
+                             f"({sigma:g} frames at {fps:g} Hz)")
     k = k0 if k is None else k
-    if not (np.isfinite(sigma) and sigma >= 0.5):
-        raise UsageError(f"saliency: sigma must be a number >= 0.5 frames, got {sigma}")
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
         raise UsageError(f"saliency: k must be a positive integer, got {k!r}")
     if contact and k < 3:
@@ -234,19 +254,20 @@ def _rotations(motion: Motion, features: Features) -> np.ndarray:
 
 
 def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: bool,
-            variance_rule: bool) -> _Curves:
+            variance_rule: bool, fps: float) -> _Curves:
     basis = pca_basis(moments(xs), k, variance_rule)
     basis = fit_k(basis, k, contact)
     d = curves_of(basis, xs, feet, contact)
-    s = maps_of(curvature(d), sigma, contact)
+    s = maps_of(curvature(d, time_step(fps)), sigma, contact, frames_at(FOOT_SIGMA, fps))
     weights, foot = curve_weights(basis, contact)
     return _Curves(d, s, weights, foot, basis)
 
 
-def extract(motion: Motion, *, sigma: float | None = None, k: int | None = None,
+def extract(motion: Motion, *, sigma: DurationLike | None = None, k: int | None = None,
             contact: bool = True, preset: str = "auto", variance_rule: bool = False,
             features: Features | None = None) -> Keyframes:
-    """Keyframes of `motion` by multiscale motion saliency (Halit & Capin, DESIGN §4.1)."""
+    """Keyframes of `motion` by multiscale motion saliency (Halit & Capin, DESIGN §4.1);
+    `sigma` a `Duration`, or frames as a plain number."""
     if preset not in ("auto", *PRESETS):
         raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")
     if features is None:
@@ -256,9 +277,12 @@ def extract(motion: Motion, *, sigma: float | None = None, k: int | None = None,
     used = preset
     if preset == "auto":
         used, speed = choose_preset(features, first)
-    sigma, k = resolve_params(sigma, k, used, contact)
-    params: dict[str, Any] = {"sigma": sigma, "k": k, "contact": contact, "preset": used,
-                              "variance_rule": variance_rule, "foot_sigma": FOOT_SIGMA,
+    fps = motion.fps
+    sigma, k = resolve_params(sigma, k, used, contact, fps)
+    params: dict[str, Any] = {"sigma": sigma, "sigma_s": sigma / fps, "k": k,
+                              "contact": contact, "preset": used,
+                              "variance_rule": variance_rule,
+                              "foot_sigma": frames_at(FOOT_SIGMA, fps),
                               "cluster_max": cluster_size(sigma)}
     info: dict[str, Any] = {"preset_requested": preset, "preset": used, "mean_speed": speed}
     n = motion.n_frames - first
@@ -267,7 +291,7 @@ def extract(motion: Motion, *, sigma: float | None = None, k: int | None = None,
     rot = _rotations(motion, features)
     xs = rot - rot[0]
     feet = features.foot_heights[first:] / features.body_height
-    cv = _curves(xs, feet, sigma, k, contact, variance_rule)
+    cv = _curves(xs, feet, sigma, k, contact, variance_rule, fps)
     a, thr = normalisation(map_stats(cv.s))
     sal = combine(cv.s, a)
     cand = sal > thr
@@ -298,6 +322,20 @@ def _info(cv: _Curves, cand: np.ndarray, res: dict[str, np.ndarray], thr: np.nda
 
 
 # --------------------------------------------------------------------------- online
+
+def _frames(value: DurationLike, fps: float, name: str, whole: bool = False) -> int:
+    """A duration parameter of the online keyframer in whole frames at `fps` (>= 1); a plain
+    number is frames (an integer if `whole`)."""
+    kinds = (Duration, int, np.integer) if whole else (Duration, int, float, np.number)
+    if isinstance(value, bool) or not isinstance(value, kinds):
+        raise UsageError(f"saliency online: {name} must be a "
+                         f"{'whole ' if whole else ''}number of frames or a Duration, "
+                         f"got {value!r}")
+    frames = whole_frames(value, fps)
+    if not frames >= 1:
+        raise UsageError(f"saliency online: {name} must be >= 1 frame, got {value}")
+    return frames
+
 
 
 @dataclass
@@ -347,43 +385,43 @@ class Online(OnlineKeyframer):
 
     method = METHOD
 
-    def __init__(self, skeleton: Skeleton, fps: float, *, sigma: float | None = None,
+    def __init__(self, skeleton: Skeleton, fps: float, *, sigma: DurationLike | None = None,
                  k: int | None = None, contact: bool = True, preset: str = "low",
-                 variance_rule: bool = False, lookahead: int | None = None,
-                 update_every: int = 1200, history: int | None = None, stream: str = "default",
+                 variance_rule: bool = False, lookahead: DurationLike | None = None,
+                 update_every: DurationLike = UPDATE_EVERY,
+                 history: DurationLike | None = None, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
         if preset not in PRESETS:
             raise UsageError("saliency online: preset must be 'low' or 'high' (the 'auto' rule "
                              f"needs the whole motion), got {preset!r}")
-        sigma, k = resolve_params(sigma, k, preset, contact)
+        sigma, k = resolve_params(sigma, k, preset, contact, fps)
         self.sigma, self.k, self.contact, self.variance_rule = sigma, k, contact, variance_rule
-        self.radius = support_radius(sigma, contact)
+        self.foot_sigma = frames_at(FOOT_SIGMA, fps)
+        self.step = time_step(fps)
+        self._h2, self._hh = 2.0 * self.step, self.step * self.step
+        self.radius = support_radius(sigma, contact, self.foot_sigma)
         self.cmax = cluster_size(sigma)
         self.min_lookahead = self.radius + 1 + self.cmax  # the support: the default
-        lookahead = self.min_lookahead if lookahead is None else lookahead
-        if isinstance(lookahead, bool) or not isinstance(lookahead, (int, np.integer)) or (
-                lookahead < 1):
-            raise UsageError("saliency online: lookahead must be an integer >= 1 frame, got "
-                             f"{lookahead!r}")
-        if update_every < 1:
-            raise UsageError("saliency online: update_every must be >= 1 frame")
-        if history is not None and history < 1:
-            raise UsageError("saliency online: history must be >= 1 frame")
-        self.update_every = int(update_every)
-        hist = int(round(HISTORY_SECONDS * float(fps))) if history is None else int(history)
-        params = {"sigma": sigma, "k": k, "contact": contact, "preset": preset,
-                  "variance_rule": variance_rule, "foot_sigma": FOOT_SIGMA,
-                  "cluster_max": self.cmax, "update_every": self.update_every, "history": hist}
-        super().__init__(skeleton, fps, lookahead=int(lookahead), stream=stream,
+        look = (self.min_lookahead if lookahead is None
+                else _frames(lookahead, fps, "lookahead", whole=True))
+        every = _frames(update_every, fps, "update_every")
+        hist = (int(round(HISTORY_SECONDS * float(fps))) if history is None
+                else _frames(history, fps, "history"))
+        self.update_every = every
+        params = {"sigma": sigma, "sigma_s": sigma / fps, "k": k, "contact": contact,
+                  "preset": preset, "variance_rule": variance_rule,
+                  "foot_sigma": self.foot_sigma, "cluster_max": self.cmax,
+                  "update_every": self.update_every, "history": hist}
+        super().__init__(skeleton, fps, lookahead=look, stream=stream,
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
                          params=params)
         # Frames kept: the decision window, and at least `history` (default 10 s) so that a new
         # basis recomputes the maps and statistics of the recent past consistently.
         self.window = max(max(self.lookahead, self.radius) + self.radius + 2, hist)
-        # main-curve kernels in columns 0-7, foot-curve kernels (sigma = 3) in columns 8-15
+        # main-curve kernels in columns 0-7, foot-curve kernels in columns 8-15
         self._bank2 = np.hstack([kernel_bank(sigma, self.radius),
-                                 kernel_bank(FOOT_SIGMA, self.radius)])
+                                 kernel_bank(self.foot_sigma, self.radius)])
         full = self._bank2 / self._bank2.sum(axis=0)
         self._diff_bank = np.hstack([full[:, 0:4] - full[:, 4:8], full[:, 8:12] - full[:, 12:16]])
         self._m = len(skeleton.rotation_columns())
@@ -610,7 +648,7 @@ class Online(OnlineKeyframer):
         b, base = self.buf, self.base
         keep, mean, sd, vec = self._proj
         ring_curves(b["xs"], b["ft"], keep, mean, sd, vec, self.contact, b["d"], b["c"],
-                    p - base, upto - base + 1)
+                    p - base, upto - base + 1, self.step)
 
     def _peek(self, upto: int) -> None:
         """Curve rows up to `upto` for the provisional candidates only, without catching up
@@ -664,7 +702,7 @@ class Online(OnlineKeyframer):
         b = self.buf
         cs = b["c"][lo - self.base : t - self.base + 1].copy()
         r = t - self.base
-        cs[-1] = end_curvature(b["d"][r - 2 : r + 1]) if t >= 2 else 0.0
+        cs[-1] = end_curvature(b["d"][r - 2 : r + 1], self.step) if t >= 2 else 0.0
         return lo, cs
 
     def finish(self) -> list[KeyframeEvent]:
@@ -694,8 +732,8 @@ class Online(OnlineKeyframer):
             self._new_basis(self.out_mom + moments(self.buf["xs"][a:e]))
             assert self.basis is not None
             d = curves_of(self.basis, b["xs"][a:e], b["ft"][a:e], self.contact)
-            c = curvature(d)
-            s = maps_of(c, self.sigma, self.contact)
+            c = curvature(d, self.step)
+            s = maps_of(c, self.sigma, self.contact, self.foot_sigma)
         else:
             d, c, s = self._spread_rows(spread, a, e)
         b["d"][a:e], b["c"][a:e] = d, c
@@ -736,7 +774,7 @@ class Online(OnlineKeyframer):
         b, R, n = self.buf, self.radius, len(sp.d)
         d_new = curves_of(sp.basis, b["xs"][a + n : e], b["ft"][a + n : e], self.contact)
         d = np.concatenate([sp.d, d_new])
-        c_new = curvature(d[n - 2 :])  # frames u - 1 .. t; the first row is an edge row
+        c_new = curvature(d[n - 2 :], self.step)  # frames u - 1 .. t; the first: an edge row
         c = np.concatenate([sp.c[: n - 1], c_new[1:]])
         s = np.concatenate([sp.s, np.zeros((e - a - n,) + sp.s.shape[1:])])
         f0 = sp.maps - sp.lo  # first window row without maps yet
@@ -832,13 +870,13 @@ class Online(OnlineKeyframer):
             sp.d[rows] = d
         elif k == 7:  # their curvatures (the last row, frame u's: at the switch)
             assert sp.d is not None
-            sp.c = curvature(sp.d)
+            sp.c = curvature(sp.d, self.step)
             sp.s = np.zeros((len(sp.d), sp.d.shape[1], 4))
             sp.maps = sp.lo + self.radius + 1 if sp.lo > 0 else 0  # next frame to map
         elif sp.maps == 0:  # stream start: the first radius rows, windows cut at frame 0
             assert sp.c is not None and sp.s is not None
             R = self.radius
-            sp.s[:R] = maps_of(sp.c[: 2 * R], self.sigma, self.contact)[:R]
+            sp.s[:R] = maps_of(sp.c[: 2 * R], self.sigma, self.contact, self.foot_sigma)[:R]
             sp.maps = R
         else:  # maps of frames whose Gaussian windows end before frame u, a block a frame
             assert sp.c is not None and sp.s is not None
@@ -886,15 +924,17 @@ class Online(OnlineKeyframer):
             row[-2:] = b["ft"][r]
         dd = b["d"][r - 2 : r + 1]
         d1 = np.subtract(dd[2], dd[0])
-        d1 /= 2.0
+        d1 /= self._h2
         num = dd[2] - 2.0 * dd[1]
         num += dd[0]
+        num /= self._hh
         den = np.multiply(d1, d1, out=d1)
         den += 1.0
         np.divide(np.abs(num, out=num), np.power(den, 1.5, out=den), out=b["c"][r - 1])
         if t == 2:  # first frame: D' one-sided, D'' copied from frame 1 (as `curvature`)
-            d1 = dd[1] - dd[0]
-            b["c"][0] = np.abs(dd[2] - 2.0 * dd[1] + dd[0]) / (1.0 + d1 * d1) ** 1.5
+            d1 = (dd[1] - dd[0]) / self.step
+            b["c"][0] = np.abs((dd[2] - 2.0 * dd[1] + dd[0]) / self._hh) / (
+                1.0 + d1 * d1) ** 1.5
 
     def _map_row(self, f: int) -> None:
         """Maps S_i of frame f from the curvatures f-radius..f+radius (start-truncated)."""

@@ -31,7 +31,16 @@ from ..keyframes import KeyframeEvent
 from ..motion import Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
-from .saliency import AUTO_SECONDS, METHOD, PRESETS, Online, auto_frames, auto_preset
+from ..units import DurationLike
+from .saliency import (
+    AUTO_SECONDS,
+    METHOD,
+    PRESETS,
+    UPDATE_EVERY,
+    Online,
+    auto_frames,
+    auto_preset,
+)
 
 __all__ = ["AutoOnline"]
 
@@ -42,10 +51,11 @@ class AutoOnline(OnlineKeyframer):
 
     method = METHOD
 
-    def __init__(self, skeleton: Skeleton, fps: float, *, sigma: float | None = None,
+    def __init__(self, skeleton: Skeleton, fps: float, *, sigma: DurationLike | None = None,
                  k: int | None = None, contact: bool = True, preset: str = "auto",
-                 variance_rule: bool = False, lookahead: int | None = None,
-                 update_every: int = 1200, history: int | None = None, stream: str = "default",
+                 variance_rule: bool = False, lookahead: DurationLike | None = None,
+                 update_every: DurationLike = UPDATE_EVERY, history: DurationLike | None = None,
+                 stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
         if preset not in ("auto", *PRESETS):

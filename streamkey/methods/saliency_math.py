@@ -14,8 +14,10 @@ from scipy.ndimage import correlate1d
 
 from ..jit import kernel as compiled
 from ..jit import warmer
+from ..units import Duration, DurationLike, frames_of
 
-__all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapStats", "Clusterer",
+__all__ = ["REFERENCE_FPS", "FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments",
+           "MapStats", "Clusterer", "time_step", "frames_at",
            "moments", "pca_basis",
            "correlation", "components", "curvature", "end_curvature", "kernel", "widths",
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
@@ -25,11 +27,25 @@ __all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapSta
            "classify_block",
            "ring_curves", "ring_maps_of"]
 
-FOOT_SIGMA = 3.0  # Halit §3.3
+# Derivatives are taken per frame of 120 Hz (the CMU rate, on which the defaults were tuned), so
+# that a take at any rate has the curvatures of the same motion and 120 Hz those per frame.
+REFERENCE_FPS = 120.0
+FOOT_SIGMA = Duration.seconds(3.0 / REFERENCE_FPS)  # Halit §3.3: 3 frames of 120 Hz
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
 VARIANCE_SHARE = 0.9
 _MIN_VAR = 1e-10
 _TIE = 1e-9
+
+
+def time_step(fps: float) -> float:
+    """One frame of a stream at `fps` in the time unit of the derivatives (1/120 s)."""
+    return REFERENCE_FPS / float(fps)
+
+
+def frames_at(duration: DurationLike, fps: float) -> float:
+    """`duration` in frames at `fps`, round-off below 1e-9 frames removed (so that a default
+    in seconds is exactly its whole frame count at 120 Hz)."""
+    return round(frames_of(duration, fps), 9)
 
 
 def cluster_size(sigma: float) -> int:
@@ -37,10 +53,15 @@ def cluster_size(sigma: float) -> int:
     return max(1, int(round(2 * sigma)))
 
 
-def support_radius(sigma: float, contact: bool) -> int:
-    """Widest half-window of the Gaussian means: floor(2 * 2 * 2.5 sigma) frames (eq. 3.5)."""
-    r = int(np.floor(4 * SCALES[-1] * sigma))
-    return max(r, int(np.floor(4 * SCALES[-1] * FOOT_SIGMA))) if contact else r
+def support_radius(sigma: float, contact: bool, foot: float) -> int:
+    """Widest half-window of the Gaussian means (eq. 3.5), floor(2 * 2 * 2.5 sigma) frames,
+    of `sigma` and, with contact, of the foot curves' `foot` (both in frames)."""
+    r = _radius(sigma)
+    return max(r, _radius(foot)) if contact else r
+
+
+def _radius(sigma: float) -> int:
+    return max(len(kernel(s)) // 2 for s in widths(sigma))
 
 
 # --------------------------------------------------------------------------- PCA
@@ -121,17 +142,18 @@ def components(stats: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], k: 
 
 # --------------------------------------------------------------------------- saliency maps
 
-def curvature(d: np.ndarray) -> np.ndarray:
-    """Halit eq. 3.4 with D' (DESIGN §4.1.3): |D''| / (1 + D'^2)^(3/2), per column of (n, k)."""
+def curvature(d: np.ndarray, step: float = 1.0) -> np.ndarray:
+    """Halit eq. 3.4 with D' (DESIGN §4.1.3): |D''| / (1 + D'^2)^(3/2), per column of (n, k),
+    derivatives per time unit, `step` the frame time in it (`time_step`)."""
     n = len(d)
     if n < 3:
         return np.zeros_like(d)
     d1 = np.empty_like(d)
-    d1[1:-1] = (d[2:] - d[:-2]) / 2.0
-    d1[0] = d[1] - d[0]
-    d1[-1] = d[-1] - d[-2]
+    d1[1:-1] = (d[2:] - d[:-2]) / (2.0 * step)
+    d1[0] = (d[1] - d[0]) / step
+    d1[-1] = (d[-1] - d[-2]) / step
     d2 = np.empty_like(d)
-    d2[1:-1] = d[2:] - 2.0 * d[1:-1] + d[:-2]
+    d2[1:-1] = (d[2:] - 2.0 * d[1:-1] + d[:-2]) / (step * step)
     d2[0] = d2[1]
     d2[-1] = d2[-2]
     return np.abs(d2) / (1.0 + d1 * d1) ** 1.5
@@ -167,11 +189,11 @@ def scale_maps(g: np.ndarray) -> np.ndarray:
     return np.abs(g[..., :4] - g[..., 4:])
 
 
-def end_curvature(d3: np.ndarray) -> np.ndarray:
+def end_curvature(d3: np.ndarray, step: float = 1.0) -> np.ndarray:
     """Curvature of the last of three rows `d3` (3, k) when it ends the clip (eq. 3.4): D'
     one-sided, D'' copied from its neighbour, as `curvature` does at a clip's end."""
-    d1 = d3[2] - d3[1]
-    return np.abs(d3[2] - 2.0 * d3[1] + d3[0]) / (1.0 + d1 * d1) ** 1.5
+    d1 = (d3[2] - d3[1]) / step
+    return np.abs((d3[2] - 2.0 * d3[1] + d3[0]) / (step * step)) / (1.0 + d1 * d1) ** 1.5
 
 
 def truncated_maps(cs: np.ndarray, bank: np.ndarray, offsets: np.ndarray, foot: np.ndarray
@@ -327,14 +349,15 @@ def curves_of(basis: Basis, xs: np.ndarray, feet: np.ndarray, contact: bool) -> 
     return d
 
 
-def maps_of(c: np.ndarray, sigma: float, contact: bool) -> np.ndarray:
-    """Raw scale maps S_i (n, k, 4) of curvatures `c`; the foot curves use sigma = 3 (§3.3)."""
+def maps_of(c: np.ndarray, sigma: float, contact: bool, foot: float) -> np.ndarray:
+    """Raw scale maps S_i (n, k, 4) of curvatures `c`; the foot curves use sigma = `foot`
+    (§3.3; both in frames)."""
     out = np.empty(c.shape + (4,))
     if not contact:
         out[...] = _maps_t(c, sigma)
     else:
         out[:, :-2] = _maps_t(c[:, :-2], sigma)
-        out[:, -2:] = _maps_t(c[:, -2:], FOOT_SIGMA)
+        out[:, -2:] = _maps_t(c[:, -2:], foot)
     return out
 
 
@@ -579,12 +602,13 @@ def remap_stats(st: MapStats, perm: np.ndarray) -> MapStats:
 @compiled
 def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarray,
                 sd: np.ndarray, vec: np.ndarray, contact: bool, d: np.ndarray, c: np.ndarray,
-                a0: int, a1: int) -> None:
+                a0: int, a1: int, step: float) -> None:
     """Online rows between basis updates, one compiled loop: curve rows a0..a1-1 of the ring
     (projection of the kept columns, the foot heights last with contact) and the interior
-    curvatures (eq. 3.4) of rows a0-1..a1-2. Row by row, so any block split gives the same
-    bits."""
+    curvatures (eq. 3.4, `step` as `curvature`'s) of rows a0-1..a1-2. Row by row, so any
+    block split gives the same bits."""
     npca = vec.shape[1]
+    h2, hh = 2.0 * step, step * step
     for r in range(a0, a1):
         for j in range(npca):
             acc = 0.0
@@ -596,8 +620,8 @@ def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarr
             d[r, d.shape[1] - 1] = ft[r, 1]
     for r in range(a0 - 1, a1 - 1):
         for j in range(d.shape[1]):
-            d1 = (d[r + 1, j] - d[r - 1, j]) / 2.0
-            num = (d[r + 1, j] - 2.0 * d[r, j]) + d[r - 1, j]
+            d1 = (d[r + 1, j] - d[r - 1, j]) / h2
+            num = ((d[r + 1, j] - 2.0 * d[r, j]) + d[r - 1, j]) / hh
             c[r, j] = abs(num) / (1.0 + d1 * d1) ** 1.5
 
 
@@ -642,7 +666,7 @@ def _warm() -> None:
     xs, ft = np.zeros((8, 3)), np.zeros((8, 2))
     d, c = np.zeros((8, 3)), np.zeros((8, 3))
     keep = np.arange(3, dtype=np.int64)
-    ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8)
+    ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8, 1.0)
     z = np.zeros((3, 4))
     ring_maps_of(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
                  np.ones((3, 12)), 4 * np.arange(3), z, z.copy(),
