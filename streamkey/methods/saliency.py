@@ -162,41 +162,61 @@ __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FO
            "local_max_mask", "map_stats", "normalisation", "combine", "curves_of", "maps_of",
            "curve_weights", "cluster_keyframes", "pick_keyframe", "match_basis",
            "choose_preset", "resolve_params", "cluster_size", "support_radius",
-           "auto_preset", "auto_frames", "AUTO_SECONDS", "REFERENCE_FPS", "UPDATE_EVERY",
-           "preset_sigma", "time_step"]
+           "auto_preset", "auto_frames", "AUTO_SECONDS", "STILL_SPEED", "step_speeds",
+           "moving", "REFERENCE_FPS", "UPDATE_EVERY", "preset_sigma", "time_step"]
 
 METHOD = "saliency"
 # sigma in frames of 120 Hz (`REFERENCE_FPS`): 1/12 s and 1/40 s of motion at any rate
 PRESETS: dict[str, tuple[float, int]] = {"low": (10.0, 7), "high": (3.0, 10)}
 UPDATE_EVERY = Duration.seconds(10.0)  # online: the basis is recomputed at least this often
 AUTO_SPEED_THRESHOLD = 0.85  # body heights per second
-AUTO_SECONDS = 2.0  # "auto" decides on the first 2 s (offline and online alike)
+AUTO_SECONDS = 2.0  # "auto" decides on the first 2 s of motion (offline and online alike)
+STILL_SPEED = 0.005  # body heights per second: slower steps are not motion for "auto"
 HISTORY_SECONDS = 10.0  # online: past kept for recomputation when the basis changes
 
 
 # --------------------------------------------------------------------------- parameters
 
 def auto_frames(fps: float) -> int:
-    """Frames the "auto" rule looks at: the first `AUTO_SECONDS` of the capture."""
+    """Frames the "auto" rule looks at: the first `AUTO_SECONDS` from the first moving step
+    (`moving`) on."""
     return max(2, int(round(AUTO_SECONDS * float(fps))))
 
 
-def auto_preset(p: np.ndarray, fps: float) -> tuple[str, float]:
-    """The "auto" rule on Miura-role positions in body heights (pelvis frame), one row per
-    frame of the first `auto_frames(fps)`: ("high" | "low", mean speed in body heights/s)."""
-    if len(p) < 2:
+def step_speeds(p: np.ndarray) -> np.ndarray:
+    """Per frame step and body part, the distance moved (body heights) between consecutive
+    rows of Miura-role positions `p` (n, parts, 3): (n - 1, parts)."""
+    return np.linalg.norm(np.diff(p, axis=0), axis=2)
+
+
+def moving(steps: np.ndarray, fps: float) -> np.ndarray:
+    """Which steps of `step_speeds` move: mean part speed above `STILL_SPEED` (a calibration
+    hold or a frozen source does not; captured motion, even standing, does)."""
+    return steps.mean(axis=1) * fps > STILL_SPEED
+
+
+def auto_preset(steps: np.ndarray, fps: float) -> tuple[str, float]:
+    """The "auto" rule on the moving steps of its window (rows of `step_speeds`):
+    ("high" | "low", mean speed in body heights/s)."""
+    if len(steps) == 0:
         return "low", 0.0
-    speed = float(np.linalg.norm(np.diff(p, axis=0), axis=2).mean() * fps)
+    speed = float(steps.mean() * fps)
     return ("high" if speed >= AUTO_SPEED_THRESHOLD else "low"), speed
 
 
 def choose_preset(features: Features, first: int) -> tuple[str, float]:
     """The "auto" rule: ("high" | "low", mean speed in body heights per second) over the
-    first `AUTO_SECONDS` captured, as the online keyframer decides it (causal)."""
+    moving steps of the first `AUTO_SECONDS` from the first moving step on (a calibration
+    hold or stillness counts for nothing), as the online keyframer decides it (causal)."""
     fps = features.motion.fps
-    n = auto_frames(fps)
-    p = features.role_positions(MIURA_ROLES)[first : first + n] / features.body_height
-    return auto_preset(p, fps)
+    p = features.role_positions(MIURA_ROLES)[first:] / features.body_height
+    steps = step_speeds(p)
+    mv = moving(steps, fps)
+    if not mv.any():
+        return auto_preset(steps[:0], fps)
+    start = int(np.argmax(mv))
+    window = mv[start : start + auto_frames(fps) - 1]
+    return auto_preset(steps[np.flatnonzero(window) + start], fps)
 
 
 def preset_sigma(preset: str) -> Duration:
