@@ -1,6 +1,8 @@
-"""Multiscale motion saliency — Halit & Capin (seed 000, chapter 3; DESIGN §4.1).
+"""Multiscale motion saliency — C. Halit, "A multi scale motion saliency method for keyframe
+extraction from motion capture sequences", MSc thesis, Bilkent University, 2010, chapter 3
+(journal version: Halit & Capin, Computer Animation and Virtual Worlds, 2011).
 
-Offline: `extract(motion)`. Definitions this module settles (DESIGN §4.1 overrides the thesis):
+Offline: `extract(motion)`. Definitions this module settles (where they differ from the thesis):
 
 - Input (thesis eq. 3.1): the unwrapped rotation channels of the captured frames (root
   position excluded), unwrapped from the first captured frame (as a stream starting there is).
@@ -10,37 +12,46 @@ Offline: `extract(motion)`. Definitions this module settles (DESIGN §4.1 overri
   standardised columns, population normalisation), components by decreasing eigenvalue, each
   eigenvector signed so that its largest-magnitude entry is positive. k components; with
   `variance_rule` k = max(k, smallest k reaching 90 % of the variance) (thesis Fig. 3.2).
-- Contact (§3.3): the last two of the k curves are replaced by the left and right ankle height
-  divided by body height (unit-free), analysed with sigma = 3. They take the eigenvalues of
+- Contact (sec. 3.3): the last two of the k curves are replaced by the left and right ankle height
+  divided by body height (unit-free), analysed with sigma = `FOOT_SIGMA` (1/40 s, 3 frames
+  at 120 Hz). They take the eigenvalues of
   the two components they replace as cluster weights, so the weights still sum to the
   variance of k components.
-- Curvature (eq. 3.4 with D' in the denominator, DESIGN §4.1.3): D' is the central difference
+- Curvature (eq. 3.4 with D' in the denominator): D' is the central difference
   (one-sided at the two ends), D'' the second difference D(f+1) - 2 D(f) + D(f-1), copied from
-  the neighbour at the two ends. C = |D''| / (1 + D'^2)^(3/2).
+  the neighbour at the two ends, both per 1/120 s (`REFERENCE_FPS`): divided by h and h^2,
+  h = 120 / fps, so that a take at another rate has the curvature of the same motion and
+  120 Hz the per-frame values. C = |D''| / (1 + D'^2)^(3/2).
 - Gaussian mean (eq. 3.5): G(f, s) = sum of w(x - f) C(x) / sum of w(x - f) over the frames x of
   the clip with |x - f| <= floor(2 s), w(d) = exp(-d^2 / (2 s^2)). Near the clip's ends the
   weights are renormalised over the part of the window inside the clip.
 - Scales (eq. 3.6-3.7): S_i = |G(f, s_i) - G(f, 2 s_i)|, s_i = sigma * (1, 1.5, 2, 2.5).
+- Units: sigma is a duration (`streamkey.units.Duration`; a plain number is frames), used in
+  frames of the take (not rounded; kernels sampled at its frames). Windows, the cluster size
+  round(2 sigma) and the online lookahead, history and `update_every` follow the rate.
 - Normalisation (Itti): per curve, H = the largest raw value over its four maps; map i has
   global maximum M_i and m_i = mean of its local maxima (interior frames, v[f-1] < v[f] >=
   v[f+1]) with one occurrence of M_i left out (0 if none is left). Map i rescaled to [0, H]
   and multiplied by (H - m_i H / M_i)^2, i.e. S_i * H^3 / M_i * (1 - m_i / M_i)^2; S = sum.
   Every statistic is a sum, a count or a maximum, so a running version is exact at the end.
-- Candidates (§3.1.3): frames with S_j(f) > mean of S_j over the clip, per curve j.
-- Clusters (§3.1.4): runs of consecutive frames that are a candidate on any curve, cut into
+- Candidates (sec. 3.1.3): frames with S_j(f) > mean of S_j over the clip, per curve j.
+- Clusters (sec. 3.1.4): runs of consecutive frames that are a candidate on any curve, cut into
   pieces of at most `round(2 sigma)` frames counted from the run's start. Weighted mean frame
   with one entry per (frame, curve) candidate, weight = the curve's eigenvalue; the keyframe is
   the cluster frame nearest to it (ties within 1e-9 go to the earlier frame). A cluster with a
-  foot candidate picks among its foot-candidate frames (§3.3).
+  foot candidate picks among its foot-candidate frames (sec. 3.3).
 - Score: the cluster's saliency, sum over its (frame, curve) candidates of
   weight_j * S_j(f) / mean(S_j), divided by the sum of all k weights.
-- Presets (thesis §4.2): "low" sigma = 10, k = 7; "high" sigma = 3, k = 10; "auto" picks "high"
-  when the mean speed of Miura's 16 body parts in the pelvis frame over the first
-  `AUTO_SECONDS` (2 s) of the capture is at least `AUTO_SPEED_THRESHOLD` body heights per
-  second (runs, brisk walks, fast dance in the shared data), else "low". The first 2 s make
-  the rule causal, so the online keyframer (`saliency_auto.AutoOnline`) takes the same
-  decision; on all 35 shared clips it equals the whole-clip rule. `sigma` and `k` override
-  the preset's values.
+- Presets (thesis sec. 4.2): "low" sigma = 1/12 s (10 frames at 120 Hz), k = 7; "high"
+  sigma = 1/40 s (3 frames), k = 10 (at least half a frame at any rate); "auto" picks "high"
+  when the mean speed of Miura's 16 body parts in the pelvis frame is at least
+  `AUTO_SPEED_THRESHOLD` body heights per second (runs, brisk walks, fast dance in the shared
+  data), else "low". The speed is the mean over the moving frame steps (mean part speed
+  above `STILL_SPEED`) of the first `AUTO_SECONDS` (2 s) from the first moving step on: a
+  calibration hold before the take, or stillness after a take shorter than 2 s, counts for
+  nothing. The first 2 s make the rule causal, so the online keyframer
+  (`saliency_auto.AutoOnline`) takes the same decision; on all 35 shared clips it equals
+  the whole-clip rule. `sigma` and `k` override the preset's values.
 
 Online: `Online(skeleton, fps, sigma=..., lookahead=...)`. Each global statistic of the
 offline method becomes a running one, chosen so that at `flush()` it equals the global one
@@ -52,7 +63,7 @@ makes the online result equal the offline one when every decision waits for `flu
   the window is added in one batch when the basis is recomputed. Recomputed rarely (warm-up
   end at frame `lookahead`, whenever the frame count doubles, at least every `update_every`
   frames, and at `flush()`), because each basis change moves every curve (the main source of
-  disagreement, DESIGN §5) and costs a batch recompute of the window. New components are
+  disagreement with offline) and costs a batch recompute of the window. New components are
   matched to the previous ones (greedy on |cos|, signs aligned) so that curve j stays curve j
   and keeps its running statistics. Frames that left the window are folded in pieces of
   `FOLD_EVERY` (64) frames. Only the first basis is computed in a push (frame `lookahead`,
@@ -70,14 +81,14 @@ makes the online result equal the offline one when every decision waits for `flu
   move these by +-0.005.
 - Itti maxima M_i and H, mean of the other local maxima, and the mean-saliency threshold ->
   per (curve, scale) running count, sum, maximum, and local-maximum count / sum / maximum of
-  the raw maps of every frame so far. Whole-history statistics, not a short window (DESIGN §5:
-  they agree better). The frames of the window (the lookahead, and at least the last
+  the raw maps of every frame so far. Whole-history statistics, not a short window (they
+  agree better). The frames of the window (the lookahead, and at least the last
   `HISTORY_SECONDS` = 10 s) are recomputed with each new basis; older ones keep the values of
   the basis they were computed with. Measured on the shared clips at sigma = 10 and the
   default lookahead: mean F1 against offline 0.877 with the lookahead-sized window only,
   0.894 with 10 s, 0.895 keeping the whole stream.
 - Clustering needs no global statistic: runs and 2 sigma cuts are decided frame by frame.
-- Below the support (lookahead < radius + 1 + 2 sigma, issue 3): a frame whose deadline comes
+- Below the support (lookahead < radius + 1 + 2 sigma): a frame whose deadline comes
   before its Gaussian windows are complete is classified from maps whose windows are cut at
   the newest frame t, weights renormalised over the part inside, with the curvature of t by
   the clip-end rule (D' one-sided, D'' copied): the offline edge rule, as if the clip ended at
@@ -286,7 +297,7 @@ def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: boo
 def extract(motion: Motion, *, sigma: DurationLike | None = None, k: int | None = None,
             contact: bool = True, preset: str = "auto", variance_rule: bool = False,
             features: Features | None = None) -> Keyframes:
-    """Keyframes of `motion` by multiscale motion saliency (Halit & Capin, DESIGN §4.1);
+    """Keyframes of `motion` by multiscale motion saliency (Halit & Capin);
     `sigma` a `Duration`, or frames as a plain number."""
     if preset not in ("auto", *PRESETS):
         raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")

@@ -1,4 +1,5 @@
-"""Pure maths of multiscale motion saliency (Halit & Capin, seed 000 ch. 3; DESIGN §4.1).
+"""Pure maths of multiscale motion saliency (C. Halit, "A multi scale motion saliency method
+for keyframe extraction from motion capture sequences", MSc thesis, 2010, chapter 3).
 
 Shared by the offline `extract` and the online `Online` of `streamkey.methods.saliency`, whose
 module docstring states the definitions settled here. No state, no I/O.
@@ -30,7 +31,7 @@ __all__ = ["REFERENCE_FPS", "FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "
 # Derivatives are taken per frame of 120 Hz (the CMU rate, on which the defaults were tuned), so
 # that a take at any rate has the curvatures of the same motion and 120 Hz those per frame.
 REFERENCE_FPS = 120.0
-FOOT_SIGMA = Duration.seconds(3.0 / REFERENCE_FPS)  # Halit §3.3: 3 frames of 120 Hz
+FOOT_SIGMA = Duration.seconds(3.0 / REFERENCE_FPS)  # Halit sec. 3.3: 3 frames of 120 Hz
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
 VARIANCE_SHARE = 0.9
 _MIN_VAR = 1e-10
@@ -49,7 +50,7 @@ def frames_at(duration: DurationLike, fps: float) -> float:
 
 
 def cluster_size(sigma: float) -> int:
-    """Largest cluster, 2 sigma frames (Halit §3.1.4)."""
+    """Largest cluster, 2 sigma frames (Halit sec. 3.1.4)."""
     return max(1, int(round(2 * sigma)))
 
 
@@ -102,7 +103,7 @@ class Basis:
 
 
 def pca_basis(mo: Moments, k: int, variance_rule: bool) -> Basis:
-    """Halit §3.1.1: PCA of the standardised columns from their covariance (correlation) matrix.
+    """Halit sec. 3.1.1: PCA of the standardised columns from their covariance (correlation) matrix.
 
     Returns at most as many components as non-constant columns (possibly zero).
     """
@@ -143,7 +144,7 @@ def components(stats: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], k: 
 # --------------------------------------------------------------------------- saliency maps
 
 def curvature(d: np.ndarray, step: float = 1.0) -> np.ndarray:
-    """Halit eq. 3.4 with D' (DESIGN §4.1.3): |D''| / (1 + D'^2)^(3/2), per column of (n, k),
+    """Halit eq. 3.4 with D': |D''| / (1 + D'^2)^(3/2), per column of (n, k),
     derivatives per time unit, `step` the frame time in it (`time_step`)."""
     n = len(d)
     if n < 3:
@@ -281,7 +282,7 @@ def combine(s: np.ndarray, a: np.ndarray) -> np.ndarray:
 
 def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, cmax: int,
                       rel: np.ndarray) -> dict[str, np.ndarray]:
-    """Halit §3.1.4 / §3.3 clustering of a candidate matrix (n, k), vectorised.
+    """Halit sec. 3.1.4 / sec. 3.3 clustering of a candidate matrix (n, k), vectorised.
 
     `foot` flags the foot curves, `rel` (n, k) is S_j(f) / mean(S_j). Returns per cluster its
     start, end, keyframe (0-based rows), foot flag and score.
@@ -314,7 +315,7 @@ def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, c
 
 
 def curve_weights(basis: Basis, contact: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalue weights of the curves and the foot-curve flags (feet last, §3.3).
+    """Eigenvalue weights of the curves and the foot-curve flags (feet last, sec. 3.3).
 
     Weights are floored at a tiny positive value: a rank-deficient motion (a synthetic one,
     a performer standing still) has zero or round-off negative eigenvalues, and a cluster
@@ -342,7 +343,7 @@ def fit_k(basis: Basis, k: int, contact: bool) -> Basis:
 
 
 def curves_of(basis: Basis, xs: np.ndarray, feet: np.ndarray, contact: bool) -> np.ndarray:
-    """The k curves: PCA projections, the last two replaced by the foot heights (§3.3)."""
+    """The k curves: PCA projections, the last two replaced by the foot heights (sec. 3.3)."""
     d = basis.project(xs)
     if contact:
         d = np.concatenate([d[:, :-2], feet], axis=1)
@@ -351,7 +352,7 @@ def curves_of(basis: Basis, xs: np.ndarray, feet: np.ndarray, contact: bool) -> 
 
 def maps_of(c: np.ndarray, sigma: float, contact: bool, foot: float) -> np.ndarray:
     """Raw scale maps S_i (n, k, 4) of curvatures `c`; the foot curves use sigma = `foot`
-    (§3.3; both in frames)."""
+    (sec. 3.3; both in frames)."""
     out = np.empty(c.shape + (4,))
     if not contact:
         out[...] = _maps_t(c, sigma)
@@ -376,14 +377,14 @@ def _maps_t(c: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
-    """Halit §3.1.4 / §3.3 choice in one cluster (sequential twin of `cluster_keyframes`,
+    """Halit sec. 3.1.4 / sec. 3.3 choice in one cluster (sequential twin of `cluster_keyframes`,
     summing in row order as its `bincount` does; `_pick`, compiled)."""
     return int(_pick(np.asarray(rows, dtype=np.int64), np.asarray(wrow, dtype=np.float64),
                      np.asarray(foot, dtype=np.bool_), len(rows)))
 
 
 class Clusterer:
-    """Sequential clustering of classified frames: runs cut every `cmax` frames (§3.1.4);
+    """Sequential clustering of classified frames: runs cut every `cmax` frames (sec. 3.1.4);
     the open cluster's state, which `classify_block` advances over a block of rows.
 
     `close()` may also be called early (an online decision deadline); the run then goes on
