@@ -215,3 +215,12 @@ def test_the_auto_preset_counts_motion_not_a_calibration_hold_or_stillness() -> 
     kf.push_block(m.frames())
     kf.flush()
     assert kf.params["preset"] == "high" and kf.params["auto_speed"] > 0.85
+
+
+def test_online_at_30_hz_runs_through_ring_shifts_and_spread_updates() -> None:
+    # 30 Hz: a 300-frame window in a 512-row ring, which moves on the frame a spread basis
+    # update starts (it once lost the window's first row there)
+    m = variant("02_07.bvh", "30 Hz").motion
+    kf = saliency.Online(m.skeleton, m.fps)
+    events = [e for e in kf.push_block(m.frames()) + kf.flush() if isinstance(e, KeyframeEvent)]
+    assert len(events) > 50 and max(e.latency_frames for e in events) <= kf.lookahead

@@ -754,7 +754,9 @@ class Online(OnlineKeyframer):
         """New basis from the running moments; recompute the window's curves and maps. With
         `spread`, the basis and most rows come from the spread update (`_spread_step`)."""
         t = self.t
-        w0 = max(0, t - self.window + 1) if spread is None else spread.lo
+        # (the ring may already have moved on for frame t + 1: its first row is then the
+        # window's first, the one before folded into the totals)
+        w0 = max(0, t - self.window + 1, self.base) if spread is None else spread.lo
         self._fold_out(w0)
         a, e = w0 - self.base, t - self.base + 1
         b = self.buf
@@ -862,7 +864,7 @@ class Online(OnlineKeyframer):
         (`_spread_step`, in `idle()`), the switch at frame u + `SPREAD` - 1, so that the
         new basis decides from frame u + `SPREAD` on (module docstring)."""
         self._catch_up(u)
-        w0 = max(0, u - self.window + 1)
+        w0 = max(0, u - self.window + 1, self.base)  # (as `_update`'s)
         lo = max(0, u + SPREAD - self.window)  # the window's start at the switch
         self._fold_out(w0)
         a, e = w0 - self.base, u - self.base + 1
