@@ -142,7 +142,7 @@ def test_defaults_are_seconds_equal_to_the_frame_values_at_120_hz() -> None:
                  kf.params["history"]) for fps, kf in at.items()}
     assert got[120.0] == (10.0, 3.0, 20, 100, 121, 1200, 1200)
     assert got[60.0] == (5.0, 1.5, 10, 50, 61, 600, 600)
-    assert got[30.0] == (2.5, 0.75, 5, 25, 31, 300, 300)  # cluster of round(2 x 2.5) frames
+    assert got[30.0] == (2.5, 0.75, 5, 25, 31, 300, 300)
     high = saliency.Online(sk, 60.0, preset="high")
     assert (high.sigma, high.radius, high.lookahead) == (1.5, 15, 19)
     assert at[60.0].params["sigma_s"] == at[120.0].params["sigma_s"] == 10.0 / 120.0

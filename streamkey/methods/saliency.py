@@ -27,8 +27,8 @@ Offline: `extract(motion)`. Definitions this module settles (where they differ f
   weights are renormalised over the part of the window inside the clip.
 - Scales (eq. 3.6-3.7): S_i = |G(f, s_i) - G(f, 2 s_i)|, s_i = sigma * (1, 1.5, 2, 2.5).
 - Units: sigma is a duration (`streamkey.units.Duration`; a plain number is frames), used in
-  frames of the take (not rounded; kernels sampled at its frames). Windows, the cluster size
-  round(2 sigma) and the online lookahead, history and `update_every` follow the rate.
+  frames of the take (not rounded; kernels sampled at its frames). Windows, the cluster
+  length 2 sigma and the online lookahead, history and `update_every` follow the rate.
 - Normalisation (Itti): per curve, H = the largest raw value over its four maps; map i has
   global maximum M_i and m_i = mean of its local maxima (interior frames, v[f-1] < v[f] >=
   v[f+1]) with one occurrence of M_i left out (0 if none is left). Map i rescaled to [0, H]
@@ -36,10 +36,11 @@ Offline: `extract(motion)`. Definitions this module settles (where they differ f
   Every statistic is a sum, a count or a maximum, so a running version is exact at the end.
 - Candidates (sec. 3.1.3): frames with S_j(f) > mean of S_j over the clip, per curve j.
 - Clusters (sec. 3.1.4): runs of consecutive frames that are a candidate on any curve, cut into
-  pieces of at most `round(2 sigma)` frames counted from the run's start. Weighted mean frame
-  with one entry per (frame, curve) candidate, weight = the curve's eigenvalue; the keyframe is
-  the cluster frame nearest to it (ties within 1e-9 go to the earlier frame). A cluster with a
-  foot candidate picks among its foot-candidate frames (sec. 3.3).
+  pieces of 2 sigma frames counted from the run's start (for a fractional 2 sigma, a cut
+  wherever the run's candidate count crosses a multiple of it, `saliency_math.cuts`).
+  Weighted mean frame with one entry per (frame, curve) candidate, weight = the curve's
+  eigenvalue; the keyframe is the cluster frame nearest to it (ties within 1e-9 go to the
+  earlier frame). A cluster with a foot candidate picks among its foot-candidate frames (sec. 3.3).
 - Score: the cluster's saliency, sum over its (frame, curve) candidates of
   weight_j * S_j(f) / mean(S_j), divided by the sum of all k weights.
 - Presets (thesis sec. 4.2): "low" sigma = 1/12 s (10 frames at 120 Hz), k = 7; "high"
@@ -128,6 +129,7 @@ from .saliency_math import (
     Moments,
     classify_block,
     cluster_keyframes,
+    cluster_length,
     cluster_size,
     combine,
     components,
@@ -172,7 +174,7 @@ __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FO
            "curvature", "kernel", "widths", "kernel_bank", "gaussian_means", "scale_maps",
            "local_max_mask", "map_stats", "normalisation", "combine", "curves_of", "maps_of",
            "curve_weights", "cluster_keyframes", "pick_keyframe", "match_basis",
-           "choose_preset", "resolve_params", "cluster_size", "support_radius",
+           "choose_preset", "resolve_params", "cluster_size", "cluster_length", "support_radius",
            "auto_preset", "auto_frames", "AUTO_SECONDS", "STILL_SPEED", "step_speeds",
            "moving", "REFERENCE_FPS", "UPDATE_EVERY", "preset_sigma", "time_step"]
 
@@ -327,7 +329,7 @@ def extract(motion: Motion, *, sigma: DurationLike | None = None, k: int | None 
     sal = combine(cv.s, a)
     cand = sal > thr
     rel = sal / np.where(thr > 0, thr, 1.0)
-    res = cluster_keyframes(cand, cv.weights, cv.foot, cluster_size(sigma), rel)
+    res = cluster_keyframes(cand, cv.weights, cv.foot, cluster_length(sigma), rel)
     params["k_used"] = len(cv.weights)
     info.update(_info(cv, cand, res, thr, first))
     return Keyframes(METHOD, res["key"] + first, res["score"], params, motion.n_frames, info)
@@ -432,7 +434,8 @@ class Online(OnlineKeyframer):
         self.step = time_step(fps)
         self._h2, self._hh = 2.0 * self.step, self.step * self.step
         self.radius = support_radius(sigma, contact, self.foot_sigma)
-        self.cmax = cluster_size(sigma)
+        self.cmax = cluster_size(sigma)  # the longest cluster, whole frames
+        self.clen = cluster_length(sigma)  # where runs are cut (`saliency_math.cuts`)
         self.min_lookahead = self.radius + 1 + self.cmax  # the support: the default
         look = (self.min_lookahead if lookahead is None
                 else _frames(lookahead, fps, "lookahead", whole=True))
@@ -482,7 +485,7 @@ class Online(OnlineKeyframer):
         self.buf: dict[str, np.ndarray] = {
             "xs": np.zeros((self.cap, self._m)), "ft": np.zeros((self.cap, 2)),
             "tm": np.zeros(self.cap)}
-        self.clusterer = Clusterer(self.cmax)
+        self.clusterer = Clusterer(self.clen)
         self._norm: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
         self._pick = np.zeros(0, dtype=np.int64)
@@ -1026,7 +1029,7 @@ class Online(OnlineKeyframer):
         if k:
             rows[:k], wrow[:k], foot[:k] = cl.rows, cl.wrow, cl.foot
         n, level, keys, scores, nk, k, cl.score, cl.last, cl.run = classify_block(
-            s, *self._normal(), self.weights, self.footmask, self._wsum, g0, stop, self.cmax,
+            s, *self._normal(), self.weights, self.footmask, self._wsum, g0, stop, self.clen,
             rows, wrow, foot, k, cl.score, cl.last, cl.run)
         cl.rows, cl.wrow, cl.foot = rows[:k].tolist(), wrow[:k].tolist(), foot[:k].tolist()
         return n, level, list(zip(keys[:nk].tolist(), scores[:nk].tolist(), strict=True))

@@ -7,6 +7,7 @@ module docstring states the definitions settled here. No state, no I/O.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +25,8 @@ __all__ = ["REFERENCE_FPS", "FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
-           "cluster_size", "support_radius", "itti_factors", "classify_terms",
+           "cluster_size", "cluster_length", "cuts", "support_radius", "itti_factors",
+           "classify_terms",
            "classify_block",
            "ring_curves", "ring_maps_of"]
 
@@ -49,9 +51,24 @@ def frames_at(duration: DurationLike, fps: float) -> float:
     return round(frames_of(duration, fps), 9)
 
 
+def cluster_length(sigma: float) -> float:
+    """Cluster length, 2 sigma frames (Halit sec. 3.1.4), not rounded: a run is cut where its
+    candidate count crosses a multiple of it (`cuts`), so that clusters last 2 sigma of
+    motion on average at any rate (a whole number at 120 Hz with the presets)."""
+    return max(1.0, 2.0 * sigma)
+
+
 def cluster_size(sigma: float) -> int:
-    """Largest cluster, 2 sigma frames (Halit sec. 3.1.4)."""
-    return max(1, int(round(2 * sigma)))
+    """Largest cluster in frames: `cluster_length` rounded up."""
+    return max(1, math.ceil(cluster_length(sigma) - 1e-9))
+
+
+@compiled
+def cuts(run: int, length: float) -> bool:
+    """Whether a run's `run`-th candidate row (from 1) closes a cluster of `length` frames:
+    floor(run / length) > floor((run - 1) / length) (`run % length == 0` for a whole
+    length)."""
+    return math.floor(run / length) > math.floor((run - 1) / length)
 
 
 def support_radius(sigma: float, contact: bool, foot: float) -> int:
@@ -280,7 +297,7 @@ def combine(s: np.ndarray, a: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------------------- clusters
 
-def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, cmax: int,
+def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, cmax: float,
                       rel: np.ndarray) -> dict[str, np.ndarray]:
     """Halit sec. 3.1.4 / sec. 3.3 clustering of a candidate matrix (n, k), vectorised.
 
@@ -294,7 +311,8 @@ def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, c
     new_run = np.ones(len(rows), dtype=bool)
     new_run[1:] = np.diff(rows) != 1
     run_start = rows[np.flatnonzero(new_run)][np.cumsum(new_run) - 1]
-    new_cl = new_run | ((rows - run_start) % cmax == 0)
+    i = (rows - run_start).astype(np.float64)
+    new_cl = new_run | (np.floor(i / cmax) > np.floor((i - 1.0) / cmax))  # `cuts`
     cl = np.cumsum(new_cl) - 1
     c = cand[rows]
     w_row = c.astype(np.float64) @ weights
@@ -384,14 +402,15 @@ def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
 
 
 class Clusterer:
-    """Sequential clustering of classified frames: runs cut every `cmax` frames (sec. 3.1.4);
+    """Sequential clustering of classified frames: runs cut every `cmax` frames (sec. 3.1.4,
+    `cuts`);
     the open cluster's state, which `classify_block` advances over a block of rows.
 
     `close()` may also be called early (an online decision deadline); the run then goes on
     in a new cluster that still ends on the run's `cmax` grid, as offline.
     """
 
-    def __init__(self, cmax: int) -> None:
+    def __init__(self, cmax: float) -> None:
         self.cmax = cmax
         self.rows: list[int] = []
         self.wrow: list[float] = []
@@ -501,14 +520,14 @@ def _pick(rows: np.ndarray, wrow: np.ndarray, foot: np.ndarray, n: int) -> int:
 @compiled
 def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.ndarray,
                    weights: np.ndarray, footmask: np.ndarray, wsum: float, g0: int,
-                   stop: int, cmax: int, rows: np.ndarray, wrow: np.ndarray,
+                   stop: int, cmax: float, rows: np.ndarray, wrow: np.ndarray,
                    foot: np.ndarray, n_open: int, score: float, last: int, run: int
                    ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, int, float, int,
                               int]:
     """`classify_terms` of the rows g0.. of maps `s`, fed to the clusterer in the same loop
-    (row by row, runs cut every `cmax` rows as `Clusterer`'s, stopping before the first row
+    (row by row, runs cut every `cmax` rows (`cuts`), stopping before the first row
     whose cluster would start after `stop`): the open cluster's rows / weights / foot flags
-    in the buffers `rows`, `wrow`, `foot` (at least cmax + 1 long, updated in place; its
+    in the buffers `rows`, `wrow`, `foot` (at least ceil(cmax) + 1 long, updated in place; its
     first n_open rows), its score, the last candidate row and the run length. Returns (rows
     classified, their trace levels, the keyframe rows and scores of the clusters closed, how
     many, n_open, score, last, run)."""
@@ -531,7 +550,7 @@ def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
             rows[n_open], wrow[n_open], foot[n_open] = row, wr[i], ft[i]
             n_open += 1
             score += term[i]
-            if run % cmax == 0:
+            if cuts(run, cmax):
                 keys[nk], kscore[nk] = _pick(rows, wrow, foot, n_open), score
                 nk, n_open, score = nk + 1, 0, 0.0
     return n, level, keys, kscore, nk, n_open, score, last, run
@@ -677,5 +696,5 @@ def _warm() -> None:
                                    np.zeros((3, 4), dtype=np.int64), z, z)
     classify_terms(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0)
     classify_block(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0,
-                   0, 1, 2, np.zeros(3, dtype=np.int64), np.zeros(3), np.zeros(3, dtype=bool),
+                   0, 1, 2.0, np.zeros(3, dtype=np.int64), np.zeros(3), np.zeros(3, dtype=bool),
                    0, 0.0, -2, 0)
