@@ -68,30 +68,43 @@ def summary(clips: list[str], kind: str, mode: str) -> str:
             f"{s[:, 1].min():.2f}-{s[:, 1].max():.2f}")
 
 
-# Measured on FEW. Durations in seconds fixed the key counts at other rates; key positions
-# still move: ~90 % of frames are candidates, so clusters are runs cut every 2 sigma from
-# the run's start and any change of a threshold moves the cut grid, and the curvature of the
-# raw curves at 120 Hz is mostly content above the 15 Hz Nyquist of a 30 Hz take (the mean
-# |D''| falls 3x at 60 Hz, 9x at 30 Hz).
+# Measured on FEW / ALL. Durations in seconds (and clusters of 2 sigma without rounding) fixed
+# the key counts at other rates; key positions still move: ~90 % of frames are candidates, so
+# clusters are runs cut every 2 sigma from the run's start and any change of a threshold moves
+# the cut grid, and the curvature of the raw curves at 120 Hz is mostly content above the 15 Hz
+# Nyquist of a 30 Hz take (the mean |D''| falls 3x at 60 Hz, 9x at 30 Hz).
 XFAIL_F1: dict[tuple[str, str], str] = {
     ("offline", "60 Hz"): "F1 mean 0.551 worst 0.229",
-    ("offline", "30 Hz"): "F1 mean 0.620 worst 0.545",
+    ("offline", "30 Hz"): "F1 mean 0.636 worst 0.545",
     ("offline", "calibration before"): "F1 mean 0.680 worst 0.473",
     ("offline", "stillness after"): "F1 mean 0.589 worst 0.340",
     ("online", "60 Hz"): "F1 mean 0.579 worst 0.412",
-    ("online", "30 Hz"): "F1 mean 0.652 worst 0.464",
+    ("online", "30 Hz"): "F1 mean 0.675 worst 0.464",
     ("online", "calibration before"): "F1 mean 0.605 worst 0.303",
     ("online", "stillness after"): "F1 mean 0.891 worst 0.625",
 }
-XFAIL_F1_ALL: dict[tuple[str, str], str] = {}
-XFAIL_COUNT_ALL: dict[tuple[str, str], str] = {}
+_SHORT_RUN = ("a run shorter than 2 s: the auto preset decides 2 s after the motion starts, in "
+              "the stillness, when most held high-preset keys are past their deadline")
 XFAIL_COUNT: dict[tuple[str, str], str] = {
-    ("offline", "30 Hz"): "count ratio 0.75-1.06 (09_06: 18 of 24 keys)",
-    ("online", "30 Hz"): "count ratio 0.73-1.08",
-    ("online", "stillness after"): "count ratio 0.45-1.00 (09_06, 1.2 s long: the auto "
-                                   "preset decides 2 s after the motion starts, in the "
-                                   "stillness, when most held high-preset keys are past "
-                                   "their deadline)",
+    ("online", "stillness after"): f"count ratio 0.45-1.00 (09_06, {_SHORT_RUN})",
+}
+XFAIL_F1_ALL: dict[tuple[str, str], str] = {
+    ("offline", "60 Hz"): "F1 mean 0.585 worst 0.229",
+    ("offline", "30 Hz"): "F1 mean 0.557 worst 0.255",
+    ("offline", "calibration before"): "F1 mean 0.622 worst 0.225",
+    ("offline", "stillness after"): "F1 mean 0.633 worst 0.250",
+    ("online", "60 Hz"): "F1 mean 0.611 worst 0.344",
+    ("online", "30 Hz"): "F1 mean 0.557 worst 0.214",
+    ("online", "calibration before"): "F1 mean 0.519 worst 0.109",
+    ("online", "stillness after"): "F1 mean 0.926 worst 0.625",
+}
+_BLEND = ("05_06, 07_12: the 0.5 s blend from the T-pose slows the first 2 s of motion below "
+          "the auto threshold, so the low preset is chosen")
+XFAIL_COUNT_ALL: dict[tuple[str, str], str] = {
+    ("offline", "30 Hz"): "count ratio 0.79-1.18",
+    ("offline", "calibration before"): f"count ratio 0.32-1.18 ({_BLEND})",
+    ("online", "calibration before"): f"count ratio 0.39-1.12 ({_BLEND})",
+    ("online", "stillness after"): f"count ratio 0.45-1.05 ({_SHORT_RUN})",
 }
 
 
