@@ -25,6 +25,7 @@ DATA = ROOT.parent / "shared" / "data" / "cmu"
 RESULTS = ROOT / "results"
 CLIPS = sorted(p.name for p in DATA.iterdir() if p.suffix in (".bvh", ".amc"))
 LOW = {"sigma": 10.0, "k": 7}
+FOOT = saliency.FOOT_SIGMA.to_frames(120.0)  # 3 frames at 120 Hz
 
 
 @cache
@@ -86,15 +87,15 @@ def test_itti_normalisation_favours_a_map_with_one_strong_peak() -> None:
 
 def test_maps_cut_at_the_newest_frame_are_the_offline_maps_of_the_clip_ending_there() -> None:
     d = features("07_01.bvh").rotations[:, :7] / 30.0  # seven real curves, feet last
-    t, radius = 180, saliency.support_radius(10.0, True)
+    t, radius = 180, saliency.support_radius(10.0, True, FOOT)
     c = saliency.curvature(d[: t + 1])  # the clip as if it ended at frame t
     assert np.allclose(saliency_math.end_curvature(d[t - 2 : t + 1]), c[-1], rtol=1e-12)
     bank = np.hstack([saliency.kernel_bank(10.0, radius),
-                      saliency.kernel_bank(saliency.FOOT_SIGMA, radius)])
+                      saliency.kernel_bank(FOOT, radius)])
     foot = np.array([False] * 5 + [True] * 2)
     lo, frames = t - 2 * radius, np.arange(t - radius - 1, t + 1)
     got = saliency_math.truncated_maps(c[max(lo, 0) :], bank, frames - max(lo, 0), foot)
-    assert np.allclose(got, saliency.maps_of(c, 10.0, True)[frames], rtol=1e-9, atol=1e-15)
+    assert np.allclose(got, saliency.maps_of(c, 10.0, True, FOOT)[frames], rtol=1e-9, atol=1e-15)
 
 
 @pytest.mark.numeric
@@ -105,25 +106,26 @@ def test_compiled_ring_rows_match_the_batch_curves_maps_and_statistics() -> None
     basis = saliency_math.fit_k(saliency.pca_basis(saliency.moments(xs), 7, False), 7, True)
     d_ref = saliency.curves_of(basis, xs, feet, True)
     c_ref = saliency.curvature(d_ref)
-    n, k, R = len(xs), d_ref.shape[1], saliency.support_radius(10.0, True)
+    n, k, R = len(xs), d_ref.shape[1], saliency.support_radius(10.0, True, FOOT)
     d, c = np.zeros((n, k)), np.zeros((n, k))
     keep = basis.keep
     saliency_math.ring_curves(xs, feet, keep, basis.mean[keep], basis.sd[keep],
-                              np.ascontiguousarray(basis.vectors[:, :-2]), True, d, c, 0, n)
+                              np.ascontiguousarray(basis.vectors[:, :-2]), True, d, c, 0, n,
+                              1.0)
     assert np.allclose(d, d_ref, rtol=1e-12, atol=1e-12)
     assert np.allclose(c[1:-1], c_ref[1:-1], rtol=1e-9, atol=1e-15)  # the interior rule
-    bank = np.hstack([saliency.kernel_bank(10.0, R), saliency.kernel_bank(saliency.FOOT_SIGMA, R)])
+    bank = np.hstack([saliency.kernel_bank(10.0, R), saliency.kernel_bank(FOOT, R)])
     full = bank / bank.sum(axis=0)
     diff = np.hstack([full[:, 0:4] - full[:, 4:8], full[:, 8:12] - full[:, 12:16]])
     cols = np.arange(4)[None, :] + 4 * np.array([0] * (k - 2) + [1, 1])[:, None]
     s, lm = np.zeros((n, k, 4)), np.zeros((n, k, 4), dtype=bool)
     st = saliency.MapStats.empty(k)
     f0, f1 = R + 2, n - R - 1  # rows with whole Gaussian windows
-    s[f0 - 2 : f0] = saliency.maps_of(c_ref, 10.0, True)[f0 - 2 : f0]
+    s[f0 - 2 : f0] = saliency.maps_of(c_ref, 10.0, True, FOOT)[f0 - 2 : f0]
     saliency_math.ring_maps_of(c_ref, s, lm, f0, f1, np.ascontiguousarray(diff),
                                np.ascontiguousarray(cols[:, 0]), st.total, st.top, st.lm_n,
                                st.lm_sum, st.lm_top)
-    ref = saliency.maps_of(c_ref, 10.0, True)
+    ref = saliency.maps_of(c_ref, 10.0, True, FOOT)
     assert np.allclose(s[f0 : f1 + 1], ref[f0 : f1 + 1], rtol=1e-9, atol=1e-12 * ref.max())
     got = s[f0 - 2 : f1 + 1]
     mask = saliency.local_max_mask(got)

@@ -52,7 +52,7 @@ def test_compiled_itti_factors_and_row_terms_keep_the_bits_of_the_numpy_maths(na
     f = compute_features(m)
     xs = f.rotations - f.rotations[0]
     feet = f.foot_heights / f.body_height
-    cv = saliency._curves(xs, feet, 10.0, 7, True, False)
+    cv = saliency._curves(xs, feet, 10.0, 7, True, False, m.fps)
     st = saliency.map_stats(cv.s)
     a, thr = saliency.normalisation(st)
     h = st.top.max(axis=1, keepdims=True)

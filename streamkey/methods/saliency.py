@@ -1,6 +1,8 @@
-"""Multiscale motion saliency — Halit & Capin (seed 000, chapter 3; DESIGN §4.1).
+"""Multiscale motion saliency — C. Halit, "A multi scale motion saliency method for keyframe
+extraction from motion capture sequences", MSc thesis, Bilkent University, 2010, chapter 3
+(journal version: Halit & Capin, Computer Animation and Virtual Worlds, 2011).
 
-Offline: `extract(motion)`. Definitions this module settles (DESIGN §4.1 overrides the thesis):
+Offline: `extract(motion)`. Definitions this module settles (where they differ from the thesis):
 
 - Input (thesis eq. 3.1): the unwrapped rotation channels of the captured frames (root
   position excluded), unwrapped from the first captured frame (as a stream starting there is).
@@ -10,37 +12,47 @@ Offline: `extract(motion)`. Definitions this module settles (DESIGN §4.1 overri
   standardised columns, population normalisation), components by decreasing eigenvalue, each
   eigenvector signed so that its largest-magnitude entry is positive. k components; with
   `variance_rule` k = max(k, smallest k reaching 90 % of the variance) (thesis Fig. 3.2).
-- Contact (§3.3): the last two of the k curves are replaced by the left and right ankle height
-  divided by body height (unit-free), analysed with sigma = 3. They take the eigenvalues of
+- Contact (sec. 3.3): the last two of the k curves are replaced by the left and right ankle height
+  divided by body height (unit-free), analysed with sigma = `FOOT_SIGMA` (1/40 s, 3 frames
+  at 120 Hz). They take the eigenvalues of
   the two components they replace as cluster weights, so the weights still sum to the
   variance of k components.
-- Curvature (eq. 3.4 with D' in the denominator, DESIGN §4.1.3): D' is the central difference
+- Curvature (eq. 3.4 with D' in the denominator): D' is the central difference
   (one-sided at the two ends), D'' the second difference D(f+1) - 2 D(f) + D(f-1), copied from
-  the neighbour at the two ends. C = |D''| / (1 + D'^2)^(3/2).
+  the neighbour at the two ends, both per 1/120 s (`REFERENCE_FPS`): divided by h and h^2,
+  h = 120 / fps, so that a take at another rate has the curvature of the same motion and
+  120 Hz the per-frame values. C = |D''| / (1 + D'^2)^(3/2).
 - Gaussian mean (eq. 3.5): G(f, s) = sum of w(x - f) C(x) / sum of w(x - f) over the frames x of
   the clip with |x - f| <= floor(2 s), w(d) = exp(-d^2 / (2 s^2)). Near the clip's ends the
   weights are renormalised over the part of the window inside the clip.
 - Scales (eq. 3.6-3.7): S_i = |G(f, s_i) - G(f, 2 s_i)|, s_i = sigma * (1, 1.5, 2, 2.5).
+- Units: sigma is a duration (`streamkey.units.Duration`; a plain number is frames), used in
+  frames of the take (not rounded; kernels sampled at its frames). Windows, the cluster
+  length 2 sigma and the online lookahead, history and `update_every` follow the rate.
 - Normalisation (Itti): per curve, H = the largest raw value over its four maps; map i has
   global maximum M_i and m_i = mean of its local maxima (interior frames, v[f-1] < v[f] >=
   v[f+1]) with one occurrence of M_i left out (0 if none is left). Map i rescaled to [0, H]
   and multiplied by (H - m_i H / M_i)^2, i.e. S_i * H^3 / M_i * (1 - m_i / M_i)^2; S = sum.
   Every statistic is a sum, a count or a maximum, so a running version is exact at the end.
-- Candidates (§3.1.3): frames with S_j(f) > mean of S_j over the clip, per curve j.
-- Clusters (§3.1.4): runs of consecutive frames that are a candidate on any curve, cut into
-  pieces of at most `round(2 sigma)` frames counted from the run's start. Weighted mean frame
-  with one entry per (frame, curve) candidate, weight = the curve's eigenvalue; the keyframe is
-  the cluster frame nearest to it (ties within 1e-9 go to the earlier frame). A cluster with a
-  foot candidate picks among its foot-candidate frames (§3.3).
+- Candidates (sec. 3.1.3): frames with S_j(f) > mean of S_j over the clip, per curve j.
+- Clusters (sec. 3.1.4): runs of consecutive frames that are a candidate on any curve, cut into
+  pieces of 2 sigma frames counted from the run's start (for a fractional 2 sigma, a cut
+  wherever the run's candidate count crosses a multiple of it, `saliency_math.cuts`).
+  Weighted mean frame with one entry per (frame, curve) candidate, weight = the curve's
+  eigenvalue; the keyframe is the cluster frame nearest to it (ties within 1e-9 go to the
+  earlier frame). A cluster with a foot candidate picks among its foot-candidate frames (sec. 3.3).
 - Score: the cluster's saliency, sum over its (frame, curve) candidates of
   weight_j * S_j(f) / mean(S_j), divided by the sum of all k weights.
-- Presets (thesis §4.2): "low" sigma = 10, k = 7; "high" sigma = 3, k = 10; "auto" picks "high"
-  when the mean speed of Miura's 16 body parts in the pelvis frame over the first
-  `AUTO_SECONDS` (2 s) of the capture is at least `AUTO_SPEED_THRESHOLD` body heights per
-  second (runs, brisk walks, fast dance in the shared data), else "low". The first 2 s make
-  the rule causal, so the online keyframer (`saliency_auto.AutoOnline`) takes the same
-  decision; on all 35 shared clips it equals the whole-clip rule. `sigma` and `k` override
-  the preset's values.
+- Presets (thesis sec. 4.2): "low" sigma = 1/12 s (10 frames at 120 Hz), k = 7; "high"
+  sigma = 1/40 s (3 frames), k = 10 (at least half a frame at any rate); "auto" picks "high"
+  when the mean speed of Miura's 16 body parts in the pelvis frame is at least
+  `AUTO_SPEED_THRESHOLD` body heights per second (runs, brisk walks, fast dance in the shared
+  data), else "low". The speed is the mean over the moving frame steps (mean part speed
+  above `STILL_SPEED`) of the first `AUTO_SECONDS` (2 s) from the first moving step on: a
+  calibration hold before the take, or stillness after a take shorter than 2 s, counts for
+  nothing. The first 2 s make the rule causal, so the online keyframer
+  (`saliency_auto.AutoOnline`) takes the same decision; on all 35 shared clips it equals
+  the whole-clip rule. `sigma` and `k` override the preset's values.
 
 Online: `Online(skeleton, fps, sigma=..., lookahead=...)`. Each global statistic of the
 offline method becomes a running one, chosen so that at `flush()` it equals the global one
@@ -52,7 +64,7 @@ makes the online result equal the offline one when every decision waits for `flu
   the window is added in one batch when the basis is recomputed. Recomputed rarely (warm-up
   end at frame `lookahead`, whenever the frame count doubles, at least every `update_every`
   frames, and at `flush()`), because each basis change moves every curve (the main source of
-  disagreement, DESIGN §5) and costs a batch recompute of the window. New components are
+  disagreement with offline) and costs a batch recompute of the window. New components are
   matched to the previous ones (greedy on |cos|, signs aligned) so that curve j stays curve j
   and keeps its running statistics. Frames that left the window are folded in pieces of
   `FOLD_EVERY` (64) frames. Only the first basis is computed in a push (frame `lookahead`,
@@ -70,14 +82,14 @@ makes the online result equal the offline one when every decision waits for `flu
   move these by +-0.005.
 - Itti maxima M_i and H, mean of the other local maxima, and the mean-saliency threshold ->
   per (curve, scale) running count, sum, maximum, and local-maximum count / sum / maximum of
-  the raw maps of every frame so far. Whole-history statistics, not a short window (DESIGN §5:
-  they agree better). The frames of the window (the lookahead, and at least the last
+  the raw maps of every frame so far. Whole-history statistics, not a short window (they
+  agree better). The frames of the window (the lookahead, and at least the last
   `HISTORY_SECONDS` = 10 s) are recomputed with each new basis; older ones keep the values of
   the basis they were computed with. Measured on the shared clips at sigma = 10 and the
   default lookahead: mean F1 against offline 0.877 with the lookahead-sized window only,
   0.894 with 10 s, 0.895 keeping the whole stream.
 - Clustering needs no global statistic: runs and 2 sigma cuts are decided frame by frame.
-- Below the support (lookahead < radius + 1 + 2 sigma, issue 3): a frame whose deadline comes
+- Below the support (lookahead < radius + 1 + 2 sigma): a frame whose deadline comes
   before its Gaussian windows are complete is classified from maps whose windows are cut at
   the newest frame t, weights renormalised over the part inside, with the curvature of t by
   the clip-end rule (D' one-sided, D'' copied): the offline edge rule, as if the clip ended at
@@ -106,8 +118,10 @@ from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
 from ..signal import unwrap_degrees
+from ..units import Duration, DurationLike, whole_frames
 from .saliency_math import (
     FOOT_SIGMA,
+    REFERENCE_FPS,
     SCALES,
     Basis,
     Clusterer,
@@ -115,6 +129,7 @@ from .saliency_math import (
     Moments,
     classify_block,
     cluster_keyframes,
+    cluster_length,
     cluster_size,
     combine,
     components,
@@ -124,6 +139,7 @@ from .saliency_math import (
     curves_of,
     end_curvature,
     fit_k,
+    frames_at,
     gaussian_means,
     itti_factors,
     kernel,
@@ -142,6 +158,7 @@ from .saliency_math import (
     ring_maps_of,
     scale_maps,
     support_radius,
+    time_step,
     truncated_maps,
     widths,
 )
@@ -157,54 +174,90 @@ __all__ = ["extract", "Online", "METHOD", "PRESETS", "AUTO_SPEED_THRESHOLD", "FO
            "curvature", "kernel", "widths", "kernel_bank", "gaussian_means", "scale_maps",
            "local_max_mask", "map_stats", "normalisation", "combine", "curves_of", "maps_of",
            "curve_weights", "cluster_keyframes", "pick_keyframe", "match_basis",
-           "choose_preset", "resolve_params", "cluster_size", "support_radius",
-           "auto_preset", "auto_frames", "AUTO_SECONDS"]
+           "choose_preset", "resolve_params", "cluster_size", "cluster_length", "support_radius",
+           "auto_preset", "auto_frames", "AUTO_SECONDS", "STILL_SPEED", "step_speeds",
+           "moving", "REFERENCE_FPS", "UPDATE_EVERY", "preset_sigma", "time_step"]
 
 METHOD = "saliency"
+# sigma in frames of 120 Hz (`REFERENCE_FPS`): 1/12 s and 1/40 s of motion at any rate
 PRESETS: dict[str, tuple[float, int]] = {"low": (10.0, 7), "high": (3.0, 10)}
+UPDATE_EVERY = Duration.seconds(10.0)  # online: the basis is recomputed at least this often
 AUTO_SPEED_THRESHOLD = 0.85  # body heights per second
-AUTO_SECONDS = 2.0  # "auto" decides on the first 2 s (offline and online alike)
+AUTO_SECONDS = 2.0  # "auto" decides on the first 2 s of motion (offline and online alike)
+STILL_SPEED = 0.005  # body heights per second: slower steps are not motion for "auto"
 HISTORY_SECONDS = 10.0  # online: past kept for recomputation when the basis changes
 
 
 # --------------------------------------------------------------------------- parameters
 
 def auto_frames(fps: float) -> int:
-    """Frames the "auto" rule looks at: the first `AUTO_SECONDS` of the capture."""
+    """Frames the "auto" rule looks at: the first `AUTO_SECONDS` from the first moving step
+    (`moving`) on."""
     return max(2, int(round(AUTO_SECONDS * float(fps))))
 
 
-def auto_preset(p: np.ndarray, fps: float) -> tuple[str, float]:
-    """The "auto" rule on Miura-role positions in body heights (pelvis frame), one row per
-    frame of the first `auto_frames(fps)`: ("high" | "low", mean speed in body heights/s)."""
-    if len(p) < 2:
+def step_speeds(p: np.ndarray) -> np.ndarray:
+    """Per frame step and body part, the distance moved (body heights) between consecutive
+    rows of Miura-role positions `p` (n, parts, 3): (n - 1, parts)."""
+    return np.linalg.norm(np.diff(p, axis=0), axis=2)
+
+
+def moving(steps: np.ndarray, fps: float) -> np.ndarray:
+    """Which steps of `step_speeds` move: mean part speed above `STILL_SPEED` (a calibration
+    hold or a frozen source does not; captured motion, even standing, does)."""
+    return steps.mean(axis=1) * fps > STILL_SPEED
+
+
+def auto_preset(steps: np.ndarray, fps: float) -> tuple[str, float]:
+    """The "auto" rule on the moving steps of its window (rows of `step_speeds`):
+    ("high" | "low", mean speed in body heights/s)."""
+    if len(steps) == 0:
         return "low", 0.0
-    speed = float(np.linalg.norm(np.diff(p, axis=0), axis=2).mean() * fps)
+    speed = float(steps.mean() * fps)
     return ("high" if speed >= AUTO_SPEED_THRESHOLD else "low"), speed
 
 
 def choose_preset(features: Features, first: int) -> tuple[str, float]:
     """The "auto" rule: ("high" | "low", mean speed in body heights per second) over the
-    first `AUTO_SECONDS` captured, as the online keyframer decides it (causal)."""
+    moving steps of the first `AUTO_SECONDS` from the first moving step on (a calibration
+    hold or stillness counts for nothing), as the online keyframer decides it (causal)."""
     fps = features.motion.fps
-    n = auto_frames(fps)
-    p = features.role_positions(MIURA_ROLES)[first : first + n] / features.body_height
-    return auto_preset(p, fps)
+    p = features.role_positions(MIURA_ROLES)[first:] / features.body_height
+    steps = step_speeds(p)
+    mv = moving(steps, fps)
+    if not mv.any():
+        return auto_preset(steps[:0], fps)
+    start = int(np.argmax(mv))
+    window = mv[start : start + auto_frames(fps) - 1]
+    return auto_preset(steps[np.flatnonzero(window) + start], fps)
 
 
-def resolve_params(sigma: float | None, k: int | None, preset: str, contact: bool
-                   ) -> tuple[float, int]:
-    """Check parameters and fill sigma / k from a resolved preset ("low" or "high")."""
+def preset_sigma(preset: str) -> Duration:
+    """The base scale of a preset ("low" or "high") in seconds."""
+    return Duration.seconds(PRESETS[preset][0] / REFERENCE_FPS)
+
+
+def resolve_params(sigma: DurationLike | None, k: int | None, preset: str, contact: bool,
+                   fps: float = REFERENCE_FPS) -> tuple[float, int]:
+    """Check parameters and fill sigma / k from a resolved preset ("low" or "high"): sigma
+    in frames at `fps` (a plain number is already frames; the presets' are in seconds, at
+    least half a frame), and k."""
     if preset not in PRESETS:
         raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")
-    s0, k0 = PRESETS[preset]
-    try:
-        sigma = s0 if sigma is None else float(sigma)
-    except (TypeError, ValueError):
-        raise UsageError(f"saliency: sigma must be a number, got {sigma!r}") from None
+    k0 = PRESETS[preset][1]
+    if sigma is None:
+        sigma = max(0.5, frames_at(preset_sigma(preset), fps))
+    else:
+        given = sigma
+        try:
+            sigma = frames_at(sigma, fps)
+        except (TypeError, ValueError):
+            raise UsageError(f"saliency: sigma must be a number of frames or a Duration, "
+                             f"got {given!r}") from None
+        if not (np.isfinite(sigma) and sigma >= 0.5):
+            raise UsageError(f"saliency: sigma must be >= 0.5 frames, got {given} "
+                             f"({sigma:g} frames at {fps:g} Hz)")
     k = k0 if k is None else k
-    if not (np.isfinite(sigma) and sigma >= 0.5):
-        raise UsageError(f"saliency: sigma must be a number >= 0.5 frames, got {sigma}")
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
         raise UsageError(f"saliency: k must be a positive integer, got {k!r}")
     if contact and k < 3:
@@ -234,19 +287,20 @@ def _rotations(motion: Motion, features: Features) -> np.ndarray:
 
 
 def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: bool,
-            variance_rule: bool) -> _Curves:
+            variance_rule: bool, fps: float) -> _Curves:
     basis = pca_basis(moments(xs), k, variance_rule)
     basis = fit_k(basis, k, contact)
     d = curves_of(basis, xs, feet, contact)
-    s = maps_of(curvature(d), sigma, contact)
+    s = maps_of(curvature(d, time_step(fps)), sigma, contact, frames_at(FOOT_SIGMA, fps))
     weights, foot = curve_weights(basis, contact)
     return _Curves(d, s, weights, foot, basis)
 
 
-def extract(motion: Motion, *, sigma: float | None = None, k: int | None = None,
+def extract(motion: Motion, *, sigma: DurationLike | None = None, k: int | None = None,
             contact: bool = True, preset: str = "auto", variance_rule: bool = False,
             features: Features | None = None) -> Keyframes:
-    """Keyframes of `motion` by multiscale motion saliency (Halit & Capin, DESIGN §4.1)."""
+    """Keyframes of `motion` by multiscale motion saliency (Halit & Capin);
+    `sigma` a `Duration`, or frames as a plain number."""
     if preset not in ("auto", *PRESETS):
         raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")
     if features is None:
@@ -256,9 +310,12 @@ def extract(motion: Motion, *, sigma: float | None = None, k: int | None = None,
     used = preset
     if preset == "auto":
         used, speed = choose_preset(features, first)
-    sigma, k = resolve_params(sigma, k, used, contact)
-    params: dict[str, Any] = {"sigma": sigma, "k": k, "contact": contact, "preset": used,
-                              "variance_rule": variance_rule, "foot_sigma": FOOT_SIGMA,
+    fps = motion.fps
+    sigma, k = resolve_params(sigma, k, used, contact, fps)
+    params: dict[str, Any] = {"sigma": sigma, "sigma_s": sigma / fps, "k": k,
+                              "contact": contact, "preset": used,
+                              "variance_rule": variance_rule,
+                              "foot_sigma": frames_at(FOOT_SIGMA, fps),
                               "cluster_max": cluster_size(sigma)}
     info: dict[str, Any] = {"preset_requested": preset, "preset": used, "mean_speed": speed}
     n = motion.n_frames - first
@@ -267,12 +324,12 @@ def extract(motion: Motion, *, sigma: float | None = None, k: int | None = None,
     rot = _rotations(motion, features)
     xs = rot - rot[0]
     feet = features.foot_heights[first:] / features.body_height
-    cv = _curves(xs, feet, sigma, k, contact, variance_rule)
+    cv = _curves(xs, feet, sigma, k, contact, variance_rule, fps)
     a, thr = normalisation(map_stats(cv.s))
     sal = combine(cv.s, a)
     cand = sal > thr
     rel = sal / np.where(thr > 0, thr, 1.0)
-    res = cluster_keyframes(cand, cv.weights, cv.foot, cluster_size(sigma), rel)
+    res = cluster_keyframes(cand, cv.weights, cv.foot, cluster_length(sigma), rel)
     params["k_used"] = len(cv.weights)
     info.update(_info(cv, cand, res, thr, first))
     return Keyframes(METHOD, res["key"] + first, res["score"], params, motion.n_frames, info)
@@ -298,6 +355,20 @@ def _info(cv: _Curves, cand: np.ndarray, res: dict[str, np.ndarray], thr: np.nda
 
 
 # --------------------------------------------------------------------------- online
+
+def _frames(value: DurationLike, fps: float, name: str, whole: bool = False) -> int:
+    """A duration parameter of the online keyframer in whole frames at `fps` (>= 1); a plain
+    number is frames (an integer if `whole`)."""
+    kinds = (Duration, int, np.integer) if whole else (Duration, int, float, np.number)
+    if isinstance(value, bool) or not isinstance(value, kinds):
+        raise UsageError(f"saliency online: {name} must be a "
+                         f"{'whole ' if whole else ''}number of frames or a Duration, "
+                         f"got {value!r}")
+    frames = whole_frames(value, fps)
+    if not frames >= 1:
+        raise UsageError(f"saliency online: {name} must be >= 1 frame, got {value}")
+    return frames
+
 
 
 @dataclass
@@ -347,43 +418,44 @@ class Online(OnlineKeyframer):
 
     method = METHOD
 
-    def __init__(self, skeleton: Skeleton, fps: float, *, sigma: float | None = None,
+    def __init__(self, skeleton: Skeleton, fps: float, *, sigma: DurationLike | None = None,
                  k: int | None = None, contact: bool = True, preset: str = "low",
-                 variance_rule: bool = False, lookahead: int | None = None,
-                 update_every: int = 1200, history: int | None = None, stream: str = "default",
+                 variance_rule: bool = False, lookahead: DurationLike | None = None,
+                 update_every: DurationLike = UPDATE_EVERY,
+                 history: DurationLike | None = None, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
         if preset not in PRESETS:
             raise UsageError("saliency online: preset must be 'low' or 'high' (the 'auto' rule "
                              f"needs the whole motion), got {preset!r}")
-        sigma, k = resolve_params(sigma, k, preset, contact)
+        sigma, k = resolve_params(sigma, k, preset, contact, fps)
         self.sigma, self.k, self.contact, self.variance_rule = sigma, k, contact, variance_rule
-        self.radius = support_radius(sigma, contact)
-        self.cmax = cluster_size(sigma)
+        self.foot_sigma = frames_at(FOOT_SIGMA, fps)
+        self.step = time_step(fps)
+        self._h2, self._hh = 2.0 * self.step, self.step * self.step
+        self.radius = support_radius(sigma, contact, self.foot_sigma)
+        self.cmax = cluster_size(sigma)  # the longest cluster, whole frames
+        self.clen = cluster_length(sigma)  # where runs are cut (`saliency_math.cuts`)
         self.min_lookahead = self.radius + 1 + self.cmax  # the support: the default
-        lookahead = self.min_lookahead if lookahead is None else lookahead
-        if isinstance(lookahead, bool) or not isinstance(lookahead, (int, np.integer)) or (
-                lookahead < 1):
-            raise UsageError("saliency online: lookahead must be an integer >= 1 frame, got "
-                             f"{lookahead!r}")
-        if update_every < 1:
-            raise UsageError("saliency online: update_every must be >= 1 frame")
-        if history is not None and history < 1:
-            raise UsageError("saliency online: history must be >= 1 frame")
-        self.update_every = int(update_every)
-        hist = int(round(HISTORY_SECONDS * float(fps))) if history is None else int(history)
-        params = {"sigma": sigma, "k": k, "contact": contact, "preset": preset,
-                  "variance_rule": variance_rule, "foot_sigma": FOOT_SIGMA,
-                  "cluster_max": self.cmax, "update_every": self.update_every, "history": hist}
-        super().__init__(skeleton, fps, lookahead=int(lookahead), stream=stream,
+        look = (self.min_lookahead if lookahead is None
+                else _frames(lookahead, fps, "lookahead", whole=True))
+        every = _frames(update_every, fps, "update_every")
+        hist = (int(round(HISTORY_SECONDS * float(fps))) if history is None
+                else _frames(history, fps, "history"))
+        self.update_every = every
+        params = {"sigma": sigma, "sigma_s": sigma / fps, "k": k, "contact": contact,
+                  "preset": preset, "variance_rule": variance_rule,
+                  "foot_sigma": self.foot_sigma, "cluster_max": self.cmax,
+                  "update_every": self.update_every, "history": hist}
+        super().__init__(skeleton, fps, lookahead=look, stream=stream,
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
                          params=params)
         # Frames kept: the decision window, and at least `history` (default 10 s) so that a new
         # basis recomputes the maps and statistics of the recent past consistently.
         self.window = max(max(self.lookahead, self.radius) + self.radius + 2, hist)
-        # main-curve kernels in columns 0-7, foot-curve kernels (sigma = 3) in columns 8-15
+        # main-curve kernels in columns 0-7, foot-curve kernels in columns 8-15
         self._bank2 = np.hstack([kernel_bank(sigma, self.radius),
-                                 kernel_bank(FOOT_SIGMA, self.radius)])
+                                 kernel_bank(self.foot_sigma, self.radius)])
         full = self._bank2 / self._bank2.sum(axis=0)
         self._diff_bank = np.hstack([full[:, 0:4] - full[:, 4:8], full[:, 8:12] - full[:, 12:16]])
         self._m = len(skeleton.rotation_columns())
@@ -413,7 +485,7 @@ class Online(OnlineKeyframer):
         self.buf: dict[str, np.ndarray] = {
             "xs": np.zeros((self.cap, self._m)), "ft": np.zeros((self.cap, 2)),
             "tm": np.zeros(self.cap)}
-        self.clusterer = Clusterer(self.cmax)
+        self.clusterer = Clusterer(self.clen)
         self._norm: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._foot_rows = np.zeros((0, 1), dtype=bool)
         self._pick = np.zeros(0, dtype=np.int64)
@@ -610,7 +682,7 @@ class Online(OnlineKeyframer):
         b, base = self.buf, self.base
         keep, mean, sd, vec = self._proj
         ring_curves(b["xs"], b["ft"], keep, mean, sd, vec, self.contact, b["d"], b["c"],
-                    p - base, upto - base + 1)
+                    p - base, upto - base + 1, self.step)
 
     def _peek(self, upto: int) -> None:
         """Curve rows up to `upto` for the provisional candidates only, without catching up
@@ -664,7 +736,7 @@ class Online(OnlineKeyframer):
         b = self.buf
         cs = b["c"][lo - self.base : t - self.base + 1].copy()
         r = t - self.base
-        cs[-1] = end_curvature(b["d"][r - 2 : r + 1]) if t >= 2 else 0.0
+        cs[-1] = end_curvature(b["d"][r - 2 : r + 1], self.step) if t >= 2 else 0.0
         return lo, cs
 
     def finish(self) -> list[KeyframeEvent]:
@@ -685,7 +757,9 @@ class Online(OnlineKeyframer):
         """New basis from the running moments; recompute the window's curves and maps. With
         `spread`, the basis and most rows come from the spread update (`_spread_step`)."""
         t = self.t
-        w0 = max(0, t - self.window + 1) if spread is None else spread.lo
+        # (the ring may already have moved on for frame t + 1: its first row is then the
+        # window's first, the one before folded into the totals)
+        w0 = max(0, t - self.window + 1, self.base) if spread is None else spread.lo
         self._fold_out(w0)
         a, e = w0 - self.base, t - self.base + 1
         b = self.buf
@@ -694,8 +768,8 @@ class Online(OnlineKeyframer):
             self._new_basis(self.out_mom + moments(self.buf["xs"][a:e]))
             assert self.basis is not None
             d = curves_of(self.basis, b["xs"][a:e], b["ft"][a:e], self.contact)
-            c = curvature(d)
-            s = maps_of(c, self.sigma, self.contact)
+            c = curvature(d, self.step)
+            s = maps_of(c, self.sigma, self.contact, self.foot_sigma)
         else:
             d, c, s = self._spread_rows(spread, a, e)
         b["d"][a:e], b["c"][a:e] = d, c
@@ -736,7 +810,7 @@ class Online(OnlineKeyframer):
         b, R, n = self.buf, self.radius, len(sp.d)
         d_new = curves_of(sp.basis, b["xs"][a + n : e], b["ft"][a + n : e], self.contact)
         d = np.concatenate([sp.d, d_new])
-        c_new = curvature(d[n - 2 :])  # frames u - 1 .. t; the first row is an edge row
+        c_new = curvature(d[n - 2 :], self.step)  # frames u - 1 .. t; the first: an edge row
         c = np.concatenate([sp.c[: n - 1], c_new[1:]])
         s = np.concatenate([sp.s, np.zeros((e - a - n,) + sp.s.shape[1:])])
         f0 = sp.maps - sp.lo  # first window row without maps yet
@@ -793,7 +867,7 @@ class Online(OnlineKeyframer):
         (`_spread_step`, in `idle()`), the switch at frame u + `SPREAD` - 1, so that the
         new basis decides from frame u + `SPREAD` on (module docstring)."""
         self._catch_up(u)
-        w0 = max(0, u - self.window + 1)
+        w0 = max(0, u - self.window + 1, self.base)  # (as `_update`'s)
         lo = max(0, u + SPREAD - self.window)  # the window's start at the switch
         self._fold_out(w0)
         a, e = w0 - self.base, u - self.base + 1
@@ -832,13 +906,13 @@ class Online(OnlineKeyframer):
             sp.d[rows] = d
         elif k == 7:  # their curvatures (the last row, frame u's: at the switch)
             assert sp.d is not None
-            sp.c = curvature(sp.d)
+            sp.c = curvature(sp.d, self.step)
             sp.s = np.zeros((len(sp.d), sp.d.shape[1], 4))
             sp.maps = sp.lo + self.radius + 1 if sp.lo > 0 else 0  # next frame to map
         elif sp.maps == 0:  # stream start: the first radius rows, windows cut at frame 0
             assert sp.c is not None and sp.s is not None
             R = self.radius
-            sp.s[:R] = maps_of(sp.c[: 2 * R], self.sigma, self.contact)[:R]
+            sp.s[:R] = maps_of(sp.c[: 2 * R], self.sigma, self.contact, self.foot_sigma)[:R]
             sp.maps = R
         else:  # maps of frames whose Gaussian windows end before frame u, a block a frame
             assert sp.c is not None and sp.s is not None
@@ -886,15 +960,17 @@ class Online(OnlineKeyframer):
             row[-2:] = b["ft"][r]
         dd = b["d"][r - 2 : r + 1]
         d1 = np.subtract(dd[2], dd[0])
-        d1 /= 2.0
+        d1 /= self._h2
         num = dd[2] - 2.0 * dd[1]
         num += dd[0]
+        num /= self._hh
         den = np.multiply(d1, d1, out=d1)
         den += 1.0
         np.divide(np.abs(num, out=num), np.power(den, 1.5, out=den), out=b["c"][r - 1])
         if t == 2:  # first frame: D' one-sided, D'' copied from frame 1 (as `curvature`)
-            d1 = dd[1] - dd[0]
-            b["c"][0] = np.abs(dd[2] - 2.0 * dd[1] + dd[0]) / (1.0 + d1 * d1) ** 1.5
+            d1 = (dd[1] - dd[0]) / self.step
+            b["c"][0] = np.abs((dd[2] - 2.0 * dd[1] + dd[0]) / self._hh) / (
+                1.0 + d1 * d1) ** 1.5
 
     def _map_row(self, f: int) -> None:
         """Maps S_i of frame f from the curvatures f-radius..f+radius (start-truncated)."""
@@ -953,7 +1029,7 @@ class Online(OnlineKeyframer):
         if k:
             rows[:k], wrow[:k], foot[:k] = cl.rows, cl.wrow, cl.foot
         n, level, keys, scores, nk, k, cl.score, cl.last, cl.run = classify_block(
-            s, *self._normal(), self.weights, self.footmask, self._wsum, g0, stop, self.cmax,
+            s, *self._normal(), self.weights, self.footmask, self._wsum, g0, stop, self.clen,
             rows, wrow, foot, k, cl.score, cl.last, cl.run)
         cl.rows, cl.wrow, cl.foot = rows[:k].tolist(), wrow[:k].tolist(), foot[:k].tolist()
         return n, level, list(zip(keys[:nk].tolist(), scores[:nk].tolist(), strict=True))

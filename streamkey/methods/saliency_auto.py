@@ -1,16 +1,18 @@
 """Online saliency with the offline default preset "auto" (the registry's online saliency).
 
 Offline `saliency.extract` picks its preset from the mean body speed over the first
-`AUTO_SECONDS` (2 s) of the capture (`saliency.choose_preset`). Online, `AutoOnline` runs the
-"low" and the "high" keyframer side by side over those first 2 s (240 frames at 120 Hz),
-then takes the same decision from the same frames and keeps one:
+`AUTO_SECONDS` (2 s) of motion (`saliency.choose_preset`: from the first moving frame step on,
+still steps left out). Online, `AutoOnline` runs the "low" and the "high" keyframer side by
+side until those 2 s have passed (240 frames at 120 Hz after the motion starts), then takes
+the same decision from the same frames and keeps one:
 
 - Before the decision, events come from "low" (its lookahead, 121 frames by default, is the
   longer one and bounds every latency); the events of "high" are held back.
 - Decision "low": "low" simply goes on. Decision "high": of the held-back "high" events, those
   after the last one sent and within the lookahead of the decision frame are sent, decided at
   that frame; from then on "high" goes on, its events after the last one sent passed on.
-- A stream shorter than 2 s is decided at `flush()` from all its frames (as offline).
+- A stream whose motion lasts less than 2 s is decided at `flush()` from all its frames (as
+  offline).
 
 Hence with a lookahead of at least the stream's length (nothing decided before `flush()`) the
 events equal offline `extract` with its default exactly, and `params` (after the decision)
@@ -31,7 +33,18 @@ from ..keyframes import KeyframeEvent
 from ..motion import Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
-from .saliency import AUTO_SECONDS, METHOD, PRESETS, Online, auto_frames, auto_preset
+from ..units import DurationLike
+from .saliency import (
+    AUTO_SECONDS,
+    METHOD,
+    PRESETS,
+    UPDATE_EVERY,
+    Online,
+    auto_frames,
+    auto_preset,
+    moving,
+    step_speeds,
+)
 
 __all__ = ["AutoOnline"]
 
@@ -42,10 +55,11 @@ class AutoOnline(OnlineKeyframer):
 
     method = METHOD
 
-    def __init__(self, skeleton: Skeleton, fps: float, *, sigma: float | None = None,
+    def __init__(self, skeleton: Skeleton, fps: float, *, sigma: DurationLike | None = None,
                  k: int | None = None, contact: bool = True, preset: str = "auto",
-                 variance_rule: bool = False, lookahead: int | None = None,
-                 update_every: int = 1200, history: int | None = None, stream: str = "default",
+                 variance_rule: bool = False, lookahead: DurationLike | None = None,
+                 update_every: DurationLike = UPDATE_EVERY, history: DurationLike | None = None,
+                 stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
         if preset not in ("auto", *PRESETS):
@@ -78,7 +92,10 @@ class AutoOnline(OnlineKeyframer):
             kf.reset()
         self.active: Online | None = (
             None if self.requested == "auto" else self.inners[self.requested])
-        self.rows: list[np.ndarray] = []  # Miura-role positions of the first frames
+        self.last_row: np.ndarray | None = None  # Miura-role positions of the newest frame
+        self.steps: list[np.ndarray] = []  # the window's moving steps so far (`step_speeds`)
+        self.n_steps = 0  # steps seen
+        self.first_move = -1  # the first moving step (-1: none yet)
         self.held: list[Any] = []  # "high" events held back until the decision
         self.last = -1  # seq of the last keyframe sent
         self.cut = -1  # after a switch: keys at or before this seq were already covered
@@ -113,16 +130,28 @@ class AutoOnline(OnlineKeyframer):
         self._free()
         if self.active is not None:
             return self._pass(self.active.process(block))
-        need = self.horizon - len(self.rows)
-        head = block if len(block) <= need else block.slice(0, need)
         # read for the decision only: later blocks do not compute these joints for it
-        p = head.pelvis_points(self._joints, keep=False) / self.features.body_height
-        self.rows.extend(p)
+        p = block.pelvis_points(self._joints, keep=False) / self.features.body_height
+        rows = p if self.last_row is None else np.concatenate([self.last_row[None], p])
+        self.last_row = p[-1].copy()
+        steps = step_speeds(rows)  # step j ends at block frame j + 1 - (len(rows) - len(block))
+        mv = moving(steps, self.fps)
+        g0 = self.n_steps  # the stream's index of this block's first step
+        self.n_steps += len(steps)
+        if self.first_move < 0 and mv.any():
+            self.first_move = g0 + int(np.argmax(mv))
+        end, decided = len(block), False
+        if self.first_move >= 0:
+            last = self.first_move + self.horizon - 2 - g0  # the window's last step, here
+            self.steps.append(steps[np.flatnonzero(mv[: last + 1])])
+            if last < len(steps):
+                decided, end = True, last + 2 - (len(rows) - len(block))
+        head = block if end >= len(block) else block.slice(0, end)
         out = self._both(self.inners["low"].process(head), self.inners["high"].process(head))
-        if len(self.rows) >= self.horizon:
+        if decided:
             out += self._decide(int(head.seq[-1]))
             if len(head) < len(block):
-                out += self._pass(self.active.process(block.slice(need, len(block))))  # type: ignore[union-attr]
+                out += self._pass(self.active.process(block.slice(end, len(block))))  # type: ignore[union-attr]
         return out
 
     def idle(self) -> list[Any]:
@@ -136,7 +165,7 @@ class AutoOnline(OnlineKeyframer):
         """End of stream: decide now if the stream was shorter than the decision window."""
         out: list[Any] = []
         if self.active is None:
-            if not self.rows:
+            if self.last_row is None:
                 return []
             out += self._decide(self.inners["low"].seq0 + self.inners["low"].t)
         assert self.active is not None
@@ -164,10 +193,10 @@ class AutoOnline(OnlineKeyframer):
 
     def _decide(self, seq: int) -> list[Any]:
         """Choose the preset from the recorded frames; switch to "high" if it is chosen."""
-        name, speed = auto_preset(np.array(self.rows), self.fps)
+        name, speed = auto_preset(np.concatenate(self.steps), self.fps)
         self.active = self.inners[name]
         self.params = {**self.active.params, "auto_speed": speed, "auto_seconds": AUTO_SECONDS}
-        held, self.held, self.rows = self.held, [], []
+        held, self.held, self.steps, self.last_row = self.held, [], [], None
         self.dropped = "high" if name == "low" else "low"  # freed after this frame
         if name == "low":
             return []

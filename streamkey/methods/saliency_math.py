@@ -1,4 +1,5 @@
-"""Pure maths of multiscale motion saliency (Halit & Capin, seed 000 ch. 3; DESIGN §4.1).
+"""Pure maths of multiscale motion saliency (C. Halit, "A multi scale motion saliency method
+for keyframe extraction from motion capture sequences", MSc thesis, 2010, chapter 3).
 
 Shared by the offline `extract` and the online `Online` of `streamkey.methods.saliency`, whose
 module docstring states the definitions settled here. No state, no I/O.
@@ -6,6 +7,7 @@ module docstring states the definitions settled here. No state, no I/O.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,33 +16,70 @@ from scipy.ndimage import correlate1d
 
 from ..jit import kernel as compiled
 from ..jit import warmer
+from ..units import Duration, DurationLike, frames_of
 
-__all__ = ["FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments", "MapStats", "Clusterer",
+__all__ = ["REFERENCE_FPS", "FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments",
+           "MapStats", "Clusterer", "time_step", "frames_at",
            "moments", "pca_basis",
            "correlation", "components", "curvature", "end_curvature", "kernel", "widths",
            "kernel_bank", "gaussian_means", "scale_maps", "truncated_maps", "local_max_mask",
            "map_stats", "normalisation", "combine", "curves_of", "maps_of", "curve_weights",
            "fit_k", "cluster_keyframes", "pick_keyframe", "match_basis", "remap", "remap_stats",
-           "cluster_size", "support_radius", "itti_factors", "classify_terms",
+           "cluster_size", "cluster_length", "cuts", "support_radius", "itti_factors",
+           "classify_terms",
            "classify_block",
            "ring_curves", "ring_maps_of"]
 
-FOOT_SIGMA = 3.0  # Halit §3.3
+# Derivatives are taken per frame of 120 Hz (the CMU rate, on which the defaults were tuned), so
+# that a take at any rate has the curvatures of the same motion and 120 Hz those per frame.
+REFERENCE_FPS = 120.0
+FOOT_SIGMA = Duration.seconds(3.0 / REFERENCE_FPS)  # Halit sec. 3.3: 3 frames of 120 Hz
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
 VARIANCE_SHARE = 0.9
 _MIN_VAR = 1e-10
 _TIE = 1e-9
 
 
+def time_step(fps: float) -> float:
+    """One frame of a stream at `fps` in the time unit of the derivatives (1/120 s)."""
+    return REFERENCE_FPS / float(fps)
+
+
+def frames_at(duration: DurationLike, fps: float) -> float:
+    """`duration` in frames at `fps`, round-off below 1e-9 frames removed (so that a default
+    in seconds is exactly its whole frame count at 120 Hz)."""
+    return round(frames_of(duration, fps), 9)
+
+
+def cluster_length(sigma: float) -> float:
+    """Cluster length, 2 sigma frames (Halit sec. 3.1.4), not rounded: a run is cut where its
+    candidate count crosses a multiple of it (`cuts`), so that clusters last 2 sigma of
+    motion on average at any rate (a whole number at 120 Hz with the presets)."""
+    return max(1.0, 2.0 * sigma)
+
+
 def cluster_size(sigma: float) -> int:
-    """Largest cluster, 2 sigma frames (Halit §3.1.4)."""
-    return max(1, int(round(2 * sigma)))
+    """Largest cluster in frames: `cluster_length` rounded up."""
+    return max(1, math.ceil(cluster_length(sigma) - 1e-9))
 
 
-def support_radius(sigma: float, contact: bool) -> int:
-    """Widest half-window of the Gaussian means: floor(2 * 2 * 2.5 sigma) frames (eq. 3.5)."""
-    r = int(np.floor(4 * SCALES[-1] * sigma))
-    return max(r, int(np.floor(4 * SCALES[-1] * FOOT_SIGMA))) if contact else r
+@compiled
+def cuts(run: int, length: float) -> bool:
+    """Whether a run's `run`-th candidate row (from 1) closes a cluster of `length` frames:
+    floor(run / length) > floor((run - 1) / length) (`run % length == 0` for a whole
+    length)."""
+    return math.floor(run / length) > math.floor((run - 1) / length)
+
+
+def support_radius(sigma: float, contact: bool, foot: float) -> int:
+    """Widest half-window of the Gaussian means (eq. 3.5), floor(2 * 2 * 2.5 sigma) frames,
+    of `sigma` and, with contact, of the foot curves' `foot` (both in frames)."""
+    r = _radius(sigma)
+    return max(r, _radius(foot)) if contact else r
+
+
+def _radius(sigma: float) -> int:
+    return max(len(kernel(s)) // 2 for s in widths(sigma))
 
 
 # --------------------------------------------------------------------------- PCA
@@ -81,7 +120,7 @@ class Basis:
 
 
 def pca_basis(mo: Moments, k: int, variance_rule: bool) -> Basis:
-    """Halit §3.1.1: PCA of the standardised columns from their covariance (correlation) matrix.
+    """Halit sec. 3.1.1: PCA of the standardised columns from their covariance (correlation) matrix.
 
     Returns at most as many components as non-constant columns (possibly zero).
     """
@@ -121,17 +160,18 @@ def components(stats: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], k: 
 
 # --------------------------------------------------------------------------- saliency maps
 
-def curvature(d: np.ndarray) -> np.ndarray:
-    """Halit eq. 3.4 with D' (DESIGN §4.1.3): |D''| / (1 + D'^2)^(3/2), per column of (n, k)."""
+def curvature(d: np.ndarray, step: float = 1.0) -> np.ndarray:
+    """Halit eq. 3.4 with D': |D''| / (1 + D'^2)^(3/2), per column of (n, k),
+    derivatives per time unit, `step` the frame time in it (`time_step`)."""
     n = len(d)
     if n < 3:
         return np.zeros_like(d)
     d1 = np.empty_like(d)
-    d1[1:-1] = (d[2:] - d[:-2]) / 2.0
-    d1[0] = d[1] - d[0]
-    d1[-1] = d[-1] - d[-2]
+    d1[1:-1] = (d[2:] - d[:-2]) / (2.0 * step)
+    d1[0] = (d[1] - d[0]) / step
+    d1[-1] = (d[-1] - d[-2]) / step
     d2 = np.empty_like(d)
-    d2[1:-1] = d[2:] - 2.0 * d[1:-1] + d[:-2]
+    d2[1:-1] = (d[2:] - 2.0 * d[1:-1] + d[:-2]) / (step * step)
     d2[0] = d2[1]
     d2[-1] = d2[-2]
     return np.abs(d2) / (1.0 + d1 * d1) ** 1.5
@@ -167,11 +207,11 @@ def scale_maps(g: np.ndarray) -> np.ndarray:
     return np.abs(g[..., :4] - g[..., 4:])
 
 
-def end_curvature(d3: np.ndarray) -> np.ndarray:
+def end_curvature(d3: np.ndarray, step: float = 1.0) -> np.ndarray:
     """Curvature of the last of three rows `d3` (3, k) when it ends the clip (eq. 3.4): D'
     one-sided, D'' copied from its neighbour, as `curvature` does at a clip's end."""
-    d1 = d3[2] - d3[1]
-    return np.abs(d3[2] - 2.0 * d3[1] + d3[0]) / (1.0 + d1 * d1) ** 1.5
+    d1 = (d3[2] - d3[1]) / step
+    return np.abs((d3[2] - 2.0 * d3[1] + d3[0]) / (step * step)) / (1.0 + d1 * d1) ** 1.5
 
 
 def truncated_maps(cs: np.ndarray, bank: np.ndarray, offsets: np.ndarray, foot: np.ndarray
@@ -257,9 +297,9 @@ def combine(s: np.ndarray, a: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------------------- clusters
 
-def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, cmax: int,
+def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, cmax: float,
                       rel: np.ndarray) -> dict[str, np.ndarray]:
-    """Halit §3.1.4 / §3.3 clustering of a candidate matrix (n, k), vectorised.
+    """Halit sec. 3.1.4 / sec. 3.3 clustering of a candidate matrix (n, k), vectorised.
 
     `foot` flags the foot curves, `rel` (n, k) is S_j(f) / mean(S_j). Returns per cluster its
     start, end, keyframe (0-based rows), foot flag and score.
@@ -271,7 +311,8 @@ def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, c
     new_run = np.ones(len(rows), dtype=bool)
     new_run[1:] = np.diff(rows) != 1
     run_start = rows[np.flatnonzero(new_run)][np.cumsum(new_run) - 1]
-    new_cl = new_run | ((rows - run_start) % cmax == 0)
+    i = (rows - run_start).astype(np.float64)
+    new_cl = new_run | (np.floor(i / cmax) > np.floor((i - 1.0) / cmax))  # `cuts`
     cl = np.cumsum(new_cl) - 1
     c = cand[rows]
     w_row = c.astype(np.float64) @ weights
@@ -292,7 +333,7 @@ def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, c
 
 
 def curve_weights(basis: Basis, contact: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalue weights of the curves and the foot-curve flags (feet last, §3.3).
+    """Eigenvalue weights of the curves and the foot-curve flags (feet last, sec. 3.3).
 
     Weights are floored at a tiny positive value: a rank-deficient motion (a synthetic one,
     a performer standing still) has zero or round-off negative eigenvalues, and a cluster
@@ -320,21 +361,22 @@ def fit_k(basis: Basis, k: int, contact: bool) -> Basis:
 
 
 def curves_of(basis: Basis, xs: np.ndarray, feet: np.ndarray, contact: bool) -> np.ndarray:
-    """The k curves: PCA projections, the last two replaced by the foot heights (§3.3)."""
+    """The k curves: PCA projections, the last two replaced by the foot heights (sec. 3.3)."""
     d = basis.project(xs)
     if contact:
         d = np.concatenate([d[:, :-2], feet], axis=1)
     return d
 
 
-def maps_of(c: np.ndarray, sigma: float, contact: bool) -> np.ndarray:
-    """Raw scale maps S_i (n, k, 4) of curvatures `c`; the foot curves use sigma = 3 (§3.3)."""
+def maps_of(c: np.ndarray, sigma: float, contact: bool, foot: float) -> np.ndarray:
+    """Raw scale maps S_i (n, k, 4) of curvatures `c`; the foot curves use sigma = `foot`
+    (sec. 3.3; both in frames)."""
     out = np.empty(c.shape + (4,))
     if not contact:
         out[...] = _maps_t(c, sigma)
     else:
         out[:, :-2] = _maps_t(c[:, :-2], sigma)
-        out[:, -2:] = _maps_t(c[:, -2:], FOOT_SIGMA)
+        out[:, -2:] = _maps_t(c[:, -2:], foot)
     return out
 
 
@@ -353,21 +395,22 @@ def _maps_t(c: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
-    """Halit §3.1.4 / §3.3 choice in one cluster (sequential twin of `cluster_keyframes`,
+    """Halit sec. 3.1.4 / sec. 3.3 choice in one cluster (sequential twin of `cluster_keyframes`,
     summing in row order as its `bincount` does; `_pick`, compiled)."""
     return int(_pick(np.asarray(rows, dtype=np.int64), np.asarray(wrow, dtype=np.float64),
                      np.asarray(foot, dtype=np.bool_), len(rows)))
 
 
 class Clusterer:
-    """Sequential clustering of classified frames: runs cut every `cmax` frames (§3.1.4);
+    """Sequential clustering of classified frames: runs cut every `cmax` frames (sec. 3.1.4,
+    `cuts`);
     the open cluster's state, which `classify_block` advances over a block of rows.
 
     `close()` may also be called early (an online decision deadline); the run then goes on
     in a new cluster that still ends on the run's `cmax` grid, as offline.
     """
 
-    def __init__(self, cmax: int) -> None:
+    def __init__(self, cmax: float) -> None:
         self.cmax = cmax
         self.rows: list[int] = []
         self.wrow: list[float] = []
@@ -477,14 +520,14 @@ def _pick(rows: np.ndarray, wrow: np.ndarray, foot: np.ndarray, n: int) -> int:
 @compiled
 def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.ndarray,
                    weights: np.ndarray, footmask: np.ndarray, wsum: float, g0: int,
-                   stop: int, cmax: int, rows: np.ndarray, wrow: np.ndarray,
+                   stop: int, cmax: float, rows: np.ndarray, wrow: np.ndarray,
                    foot: np.ndarray, n_open: int, score: float, last: int, run: int
                    ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, int, float, int,
                               int]:
     """`classify_terms` of the rows g0.. of maps `s`, fed to the clusterer in the same loop
-    (row by row, runs cut every `cmax` rows as `Clusterer`'s, stopping before the first row
+    (row by row, runs cut every `cmax` rows (`cuts`), stopping before the first row
     whose cluster would start after `stop`): the open cluster's rows / weights / foot flags
-    in the buffers `rows`, `wrow`, `foot` (at least cmax + 1 long, updated in place; its
+    in the buffers `rows`, `wrow`, `foot` (at least ceil(cmax) + 1 long, updated in place; its
     first n_open rows), its score, the last candidate row and the run length. Returns (rows
     classified, their trace levels, the keyframe rows and scores of the clusters closed, how
     many, n_open, score, last, run)."""
@@ -507,7 +550,7 @@ def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
             rows[n_open], wrow[n_open], foot[n_open] = row, wr[i], ft[i]
             n_open += 1
             score += term[i]
-            if run % cmax == 0:
+            if cuts(run, cmax):
                 keys[nk], kscore[nk] = _pick(rows, wrow, foot, n_open), score
                 nk, n_open, score = nk + 1, 0, 0.0
     return n, level, keys, kscore, nk, n_open, score, last, run
@@ -579,12 +622,13 @@ def remap_stats(st: MapStats, perm: np.ndarray) -> MapStats:
 @compiled
 def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarray,
                 sd: np.ndarray, vec: np.ndarray, contact: bool, d: np.ndarray, c: np.ndarray,
-                a0: int, a1: int) -> None:
+                a0: int, a1: int, step: float) -> None:
     """Online rows between basis updates, one compiled loop: curve rows a0..a1-1 of the ring
     (projection of the kept columns, the foot heights last with contact) and the interior
-    curvatures (eq. 3.4) of rows a0-1..a1-2. Row by row, so any block split gives the same
-    bits."""
+    curvatures (eq. 3.4, `step` as `curvature`'s) of rows a0-1..a1-2. Row by row, so any
+    block split gives the same bits."""
     npca = vec.shape[1]
+    h2, hh = 2.0 * step, step * step
     for r in range(a0, a1):
         for j in range(npca):
             acc = 0.0
@@ -596,8 +640,8 @@ def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarr
             d[r, d.shape[1] - 1] = ft[r, 1]
     for r in range(a0 - 1, a1 - 1):
         for j in range(d.shape[1]):
-            d1 = (d[r + 1, j] - d[r - 1, j]) / 2.0
-            num = (d[r + 1, j] - 2.0 * d[r, j]) + d[r - 1, j]
+            d1 = (d[r + 1, j] - d[r - 1, j]) / h2
+            num = ((d[r + 1, j] - 2.0 * d[r, j]) + d[r - 1, j]) / hh
             c[r, j] = abs(num) / (1.0 + d1 * d1) ** 1.5
 
 
@@ -642,7 +686,7 @@ def _warm() -> None:
     xs, ft = np.zeros((8, 3)), np.zeros((8, 2))
     d, c = np.zeros((8, 3)), np.zeros((8, 3))
     keep = np.arange(3, dtype=np.int64)
-    ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8)
+    ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8, 1.0)
     z = np.zeros((3, 4))
     ring_maps_of(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
                  np.ones((3, 12)), 4 * np.arange(3), z, z.copy(),
@@ -652,5 +696,5 @@ def _warm() -> None:
                                    np.zeros((3, 4), dtype=np.int64), z, z)
     classify_terms(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0)
     classify_block(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0,
-                   0, 1, 2, np.zeros(3, dtype=np.int64), np.zeros(3), np.zeros(3, dtype=bool),
+                   0, 1, 2.0, np.zeros(3, dtype=np.int64), np.zeros(3), np.zeros(3, dtype=bool),
                    0, 0.0, -2, 0)

@@ -1,0 +1,239 @@
+"""Saliency keys are keys of the motion, not of the recording: the same take at another rate,
+after a calibration hold or before stillness gives the same keys (real CMU clips)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import cache
+
+import numpy as np
+import pytest
+from cmu import DATA
+
+from streamkey import variants as V
+from streamkey.amc import read_motion
+from streamkey.errors import UsageError
+from streamkey.keyframes import KeyframeEvent
+from streamkey.methods import saliency
+from streamkey.methods.saliency_auto import AutoOnline
+from streamkey.motion import Motion
+from streamkey.units import Duration
+
+FEW = ["07_01.bvh", "05_02.bvh", "09_06.bvh", "16_11.bvh", "131_03.bvh"]
+ALL = sorted(p.name for p in DATA.iterdir() if p.suffix in (".bvh", ".amc"))
+MAKERS: dict[str, Callable[[Motion], V.Variant]] = {
+    "60 Hz": lambda m: V.resample(m, 60.0),
+    "30 Hz": lambda m: V.resample(m, 30.0),
+    "calibration before": V.with_calibration,
+    "stillness after": V.with_stillness,
+}
+F1_MEAN, F1_WORST, RATIO = 0.9, 0.75, (0.8, 1.25)
+
+
+@cache
+def motion(name: str) -> Motion:
+    return read_motion(DATA / name)
+
+
+@cache
+def variant(name: str, kind: str) -> V.Variant:
+    return V.clean_take(motion(name)) if kind == "clean" else MAKERS[kind](motion(name))
+
+
+def online_keys(m: Motion, **kw: object) -> np.ndarray:
+    kf = AutoOnline(m.skeleton, m.fps, **kw)  # type: ignore[arg-type]
+    events = kf.push_block(m.frames()) + kf.flush()
+    return np.array(sorted(e.frame for e in events if isinstance(e, KeyframeEvent)))
+
+
+@cache
+def keys(name: str, kind: str, mode: str) -> np.ndarray:
+    """Keys of a variant (its own frame numbers): offline default, or online default."""
+    m = variant(name, kind).motion
+    return np.asarray(saliency.extract(m).frames) if mode == "offline" else online_keys(m)
+
+
+@cache
+def score(name: str, kind: str, mode: str) -> tuple[float, float]:
+    """(F1 against the clean take's keys of the same mode, key count ratio)."""
+    v = variant(name, kind)
+    clean = keys(name, "clean", mode)
+    got = V.keys_in_take(v, keys(name, kind, mode))
+    return V.f1_against(clean, got, v.clean_fps), len(got) / max(1, len(clean))
+
+
+def summary(clips: list[str], kind: str, mode: str) -> str:
+    s = np.array([score(c, kind, mode) for c in clips])
+    return (f"F1 mean {s[:, 0].mean():.3f} worst {s[:, 0].min():.3f}, count ratio "
+            f"{s[:, 1].min():.2f}-{s[:, 1].max():.2f}")
+
+
+# Measured on FEW / ALL. Durations in seconds (and clusters of 2 sigma without rounding) fixed
+# the key counts at other rates; key positions still move: ~90 % of frames are candidates, so
+# clusters are runs cut every 2 sigma from the run's start and any change of a threshold moves
+# the cut grid, and the curvature of the raw curves at 120 Hz is mostly content above the 15 Hz
+# Nyquist of a 30 Hz take (the mean |D''| falls 3x at 60 Hz, 9x at 30 Hz).
+XFAIL_F1: dict[tuple[str, str], str] = {
+    ("offline", "60 Hz"): "F1 mean 0.551 worst 0.229",
+    ("offline", "30 Hz"): "F1 mean 0.636 worst 0.545",
+    ("offline", "calibration before"): "F1 mean 0.680 worst 0.473",
+    ("offline", "stillness after"): "F1 mean 0.589 worst 0.340",
+    ("online", "60 Hz"): "F1 mean 0.579 worst 0.412",
+    ("online", "30 Hz"): "F1 mean 0.675 worst 0.464",
+    ("online", "calibration before"): "F1 mean 0.605 worst 0.303",
+    ("online", "stillness after"): "F1 mean 0.891 worst 0.625",
+}
+_SHORT_RUN = ("a run shorter than 2 s: the auto preset decides 2 s after the motion starts, in "
+              "the stillness, when most held high-preset keys are past their deadline")
+XFAIL_COUNT: dict[tuple[str, str], str] = {
+    ("online", "stillness after"): f"count ratio 0.45-1.00 (09_06, {_SHORT_RUN})",
+}
+XFAIL_F1_ALL: dict[tuple[str, str], str] = {
+    ("offline", "60 Hz"): "F1 mean 0.585 worst 0.229",
+    ("offline", "30 Hz"): "F1 mean 0.557 worst 0.255",
+    ("offline", "calibration before"): "F1 mean 0.622 worst 0.225",
+    ("offline", "stillness after"): "F1 mean 0.633 worst 0.250",
+    ("online", "60 Hz"): "F1 mean 0.611 worst 0.344",
+    ("online", "30 Hz"): "F1 mean 0.557 worst 0.214",
+    ("online", "calibration before"): "F1 mean 0.519 worst 0.109",
+    ("online", "stillness after"): "F1 mean 0.926 worst 0.625",
+}
+_BLEND = ("05_06, 07_12: the 0.5 s blend from the T-pose slows the first 2 s of motion below "
+          "the auto threshold, so the low preset is chosen")
+XFAIL_COUNT_ALL: dict[tuple[str, str], str] = {
+    ("offline", "30 Hz"): "count ratio 0.79-1.18",
+    ("offline", "calibration before"): f"count ratio 0.32-1.18 ({_BLEND})",
+    ("online", "calibration before"): f"count ratio 0.39-1.12 ({_BLEND})",
+    ("online", "stillness after"): f"count ratio 0.45-1.05 ({_SHORT_RUN})",
+}
+
+
+def _cases(table: dict[tuple[str, str], str]) -> list[object]:
+    out = []
+    for mode in ("offline", "online"):
+        for kind in MAKERS:
+            why = table.get((mode, kind))
+            marks = [pytest.mark.xfail(strict=True, reason=f"measured: {why}")] if why else []
+            out.append(pytest.param(mode, kind, marks=marks, id=f"{mode}-{kind}"))
+    return out
+
+
+@pytest.mark.parametrize(("mode", "kind"), _cases(XFAIL_F1))
+def test_keys_of_a_variant_match_the_clean_takes_keys(mode: str, kind: str) -> None:
+    f1 = np.array([score(c, kind, mode)[0] for c in FEW])
+    assert f1.mean() >= F1_MEAN and f1.min() >= F1_WORST, summary(FEW, kind, mode)
+
+
+@pytest.mark.parametrize(("mode", "kind"), _cases(XFAIL_COUNT))
+def test_a_variant_has_as_many_keys_as_the_clean_take(mode: str, kind: str) -> None:
+    ratio = np.array([score(c, kind, mode)[1] for c in FEW])
+    assert RATIO[0] <= ratio.min() and ratio.max() <= RATIO[1], summary(FEW, kind, mode)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("mode", "kind"), _cases(XFAIL_F1_ALL))
+def test_keys_of_a_variant_match_the_clean_takes_keys_on_every_shared_clip(mode: str, kind: str
+                                                                            ) -> None:
+    f1 = np.array([score(c, kind, mode)[0] for c in ALL])
+    assert f1.mean() >= F1_MEAN and f1.min() >= F1_WORST, summary(ALL, kind, mode)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("mode", "kind"), _cases(XFAIL_COUNT_ALL))
+def test_a_variant_has_as_many_keys_as_the_clean_take_on_every_shared_clip(mode: str, kind: str
+                                                                            ) -> None:
+    ratio = np.array([score(c, kind, mode)[1] for c in ALL])
+    assert RATIO[0] <= ratio.min() and ratio.max() <= RATIO[1], summary(ALL, kind, mode)
+
+
+# ----------------------------------------------------------------------------- units
+
+def test_defaults_are_seconds_equal_to_the_frame_values_at_120_hz() -> None:
+    sk = motion("07_01.bvh").skeleton
+    at = {fps: saliency.Online(sk, fps) for fps in (120.0, 60.0, 30.0)}
+    got = {fps: (kf.sigma, kf.foot_sigma, kf.cmax, kf.radius, kf.lookahead, kf.update_every,
+                 kf.params["history"]) for fps, kf in at.items()}
+    assert got[120.0] == (10.0, 3.0, 20, 100, 121, 1200, 1200)
+    assert got[60.0] == (5.0, 1.5, 10, 50, 61, 600, 600)
+    assert got[30.0] == (2.5, 0.75, 5, 25, 31, 300, 300)
+    high = saliency.Online(sk, 60.0, preset="high")
+    assert (high.sigma, high.radius, high.lookahead) == (1.5, 15, 19)
+    assert at[60.0].params["sigma_s"] == at[120.0].params["sigma_s"] == 10.0 / 120.0
+
+
+def test_plain_numbers_stay_frames_and_durations_follow_the_rate() -> None:
+    sk = motion("07_01.bvh").skeleton
+    kf = saliency.Online(sk, 60.0, sigma=10.0, lookahead=50, update_every=900, history=700)
+    assert (kf.sigma, kf.lookahead, kf.update_every, kf.params["history"]) == (10.0, 50, 900, 700)
+    kf = saliency.Online(sk, 60.0, sigma=Duration.seconds(0.1), lookahead=Duration.seconds(1.0),
+                         update_every=Duration.seconds(5.0), history=Duration.seconds(20.0))
+    assert (kf.sigma, kf.lookahead, kf.update_every, kf.params["history"]) == (6.0, 60, 300, 1200)
+    assert saliency.Online(sk, 60.0, sigma=Duration.frames(8)).sigma == 8.0
+    for bad in ({"sigma": Duration.seconds(0.005)}, {"lookahead": Duration.seconds(0.001)},
+                {"update_every": Duration.seconds(0.0)}, {"sigma": "ten"}):
+        with pytest.raises(UsageError):
+            saliency.Online(sk, 60.0, **bad)  # type: ignore[arg-type]
+
+
+def test_the_curvature_is_per_time_not_per_frame() -> None:
+    def parabola(fps: float) -> np.ndarray:
+        t = np.arange(0, int(fps) + 1) / fps  # one second
+        return (3.0 * t * t - t)[:, None] * 50.0
+
+    c120 = saliency.curvature(parabola(120.0), saliency.time_step(120.0))[4:-1:4, 0]
+    c30 = saliency.curvature(parabola(30.0), saliency.time_step(30.0))[1:-1, 0]
+    assert len(c120) == len(c30) == 29 and np.allclose(c120, c30, rtol=1e-9)
+    assert np.array_equal(saliency.curvature(parabola(120.0)),
+                          saliency.curvature(parabola(120.0), 1.0))  # 120 Hz: per frame
+
+
+def test_offline_parameters_are_reported_in_frames_of_the_take() -> None:
+    kf = saliency.extract(variant("07_01.bvh", "60 Hz").motion, preset="low")
+    p = kf.params
+    assert (p["sigma"], p["foot_sigma"], p["cluster_max"]) == (5.0, 1.5, 10)
+    assert p["sigma_s"] == 10.0 / 120.0
+
+
+@pytest.mark.parametrize(("name", "kind"), [("07_01.bvh", "60 Hz"), ("07_01.bvh", "30 Hz"),
+                                            ("09_06.bvh", "calibration before"),
+                                            ("09_06.bvh", "stillness after")])
+def test_online_with_unbounded_lookahead_equals_offline_on_a_variant(name: str, kind: str
+                                                                     ) -> None:
+    m = variant(name, kind).motion
+    offline = saliency.extract(m)
+    got = online_keys(m, lookahead=m.n_frames + 1)
+    assert got.tolist() == list(offline.frames)
+    kf = saliency.Online(m.skeleton, m.fps, preset="high", lookahead=m.n_frames + 1)
+    events = kf.push_block(m.frames()) + kf.flush()
+    assert [e.frame for e in events if isinstance(e, KeyframeEvent)] == list(
+        saliency.extract(m, preset="high").frames)
+
+
+@pytest.mark.parametrize("kind", ["60 Hz", "30 Hz"])
+def test_every_online_event_is_within_the_lookahead_at_another_rate(kind: str) -> None:
+    m = variant("16_11.bvh", kind).motion
+    for kw in ({}, {"lookahead": 12}):
+        kf = AutoOnline(m.skeleton, m.fps, **kw)  # type: ignore[arg-type]
+        events = [e for e in kf.push_block(m.frames()) + kf.flush()
+                  if isinstance(e, KeyframeEvent)]
+        assert events and max(e.latency_frames for e in events) <= kf.lookahead
+
+
+def test_the_auto_preset_counts_motion_not_a_calibration_hold_or_stillness() -> None:
+    presets = {kind: saliency.extract(variant("09_06.bvh", kind).motion).params["preset"]
+               for kind in ("clean", "calibration before", "stillness after", "60 Hz")}
+    assert set(presets.values()) == {"high"}, presets  # a 1.2 s run
+    m = variant("09_06.bvh", "calibration before").motion
+    kf = AutoOnline(m.skeleton, m.fps)
+    kf.push_block(m.frames())
+    kf.flush()
+    assert kf.params["preset"] == "high" and kf.params["auto_speed"] > 0.85
+
+
+def test_online_at_30_hz_runs_through_ring_shifts_and_spread_updates() -> None:
+    # 30 Hz: a 300-frame window in a 512-row ring, which moves on the frame a spread basis
+    # update starts (it once lost the window's first row there)
+    m = variant("02_07.bvh", "30 Hz").motion
+    kf = saliency.Online(m.skeleton, m.fps)
+    events = [e for e in kf.push_block(m.frames()) + kf.flush() if isinstance(e, KeyframeEvent)]
+    assert len(events) > 50 and max(e.latency_frames for e in events) <= kf.lookahead
