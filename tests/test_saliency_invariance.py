@@ -237,3 +237,16 @@ def test_online_at_30_hz_runs_through_ring_shifts_and_spread_updates() -> None:
     kf = saliency.Online(m.skeleton, m.fps)
     events = [e for e in kf.push_block(m.frames()) + kf.flush() if isinstance(e, KeyframeEvent)]
     assert len(events) > 50 and max(e.latency_frames for e in events) <= kf.lookahead
+
+
+@pytest.mark.parametrize("pushed", [0, 1, 2])
+def test_auto_preset_flushes_a_stream_of_a_frame_or_two(pushed: int) -> None:
+    """The engine warms a spare pipeline with a frame or two and flushes it: the auto
+    preset decides on no moving step (low) instead of failing."""
+    motion = read_motion(DATA / "07_01.bvh")
+    kf = AutoOnline(motion.skeleton, motion.fps)
+    for frame in motion.frames()[:pushed]:
+        kf.push(frame)
+    assert not [e for e in kf.flush() if isinstance(e, KeyframeEvent)]
+    if pushed:
+        assert kf.params["preset"] == "low" and kf.params["auto_speed"] == 0.0

@@ -61,16 +61,18 @@ class Param:
 
 SALIENCY = (
     Param("preset", "choice", "default auto: high (sigma 3, k 10) if the body moves >= 0.85 "
-          "body heights/s over the first 2 s, else low (sigma 10, k 7); online decides after "
-          "those 2 s too", choices=("auto", "low", "high"), default="auto"),
-    Param("sigma", "duration", "base scale in frames (default: the preset's)", unit="FRAMES"),
+          "body heights/s over the first 2 s of motion, else low (sigma 10, k 7); online "
+          "decides after those 2 s too", choices=("auto", "low", "high"), default="auto"),
+    Param("sigma", "duration", "base scale (default: the preset's, 1/12 s or 1/40 s; "
+          "frames if a plain number)", unit="FRAMES"),
     Param("k", "number", "PCA curves (default: the preset's)", unit="N", integer=True),
     Param("contact", "flag", "no foot-contact curves (default: the ankle heights replace the "
           "last two curves)", flag="--no-contact", negate=True, default=True),
     Param("variance_rule", "flag", "k = at least the curves reaching 90 % of the variance",
           default=False),
     Param("update_every", "duration", "online: recompute the PCA basis at least this often "
-          "(default 1200 frames)", unit="FRAMES", default=1200, integer=True, online_only=True),
+          "(default 10 s)", unit="FRAMES", default=Duration.seconds(10.0), integer=True,
+          online_only=True),
 )
 SPEED = (
     Param("f_c", "number", "low-pass cut-off of the joint speeds (default 10 Hz)", unit="HZ",

@@ -193,7 +193,8 @@ class AutoOnline(OnlineKeyframer):
 
     def _decide(self, seq: int) -> list[Any]:
         """Choose the preset from the recorded frames; switch to "high" if it is chosen."""
-        name, speed = auto_preset(np.concatenate(self.steps), self.fps)
+        steps = np.concatenate(self.steps) if self.steps else np.zeros((0, 1))
+        name, speed = auto_preset(steps, self.fps)
         self.active = self.inners[name]
         self.params = {**self.active.params, "auto_speed": speed, "auto_seconds": AUTO_SECONDS}
         held, self.held, self.steps, self.last_row = self.held, [], [], None
