@@ -102,7 +102,8 @@ from .speed_kernels import (
 __all__ = ["extract", "scale_frequencies", "speed_signal", "HPBank", "scale_minima",
            "match_minima", "intensities", "mojena_threshold", "MojenaResult", "METHOD", "Online",
            "scale_lambdas", "settle_frames", "ward_1d", "WARD_1D_FROM", "scale_minimum", "Chain",
-           "speed_tail", "packed_factors", "LOOKAHEAD", "MAX_HOP", "HISTORY", "CUTOFF_HISTORY"]
+           "speed_tail", "packed_factors", "REST_SPEED", "candidates_of", "LOOKAHEAD", "MAX_HOP",
+           "HISTORY", "CUTOFF_HISTORY"]
 
 METHOD = "speed"
 _PBTRS = get_lapack_funcs("pbtrs", (np.empty(1),))
@@ -238,15 +239,31 @@ def scale_minima(v: np.ndarray, bank: HPBank) -> list[tuple[np.ndarray, np.ndarr
 
 
 def scale_minimum(v: np.ndarray, bank: HPBank, i: int) -> tuple[np.ndarray, np.ndarray]:
-    """Scale i of `scale_minima`: minima of HP(v, f_i), and u there."""
+    """Scale i of `scale_minima`: minima of HP(v, f_i) (rest left out), and u there."""
     trend = bank.solve(v, i)
     m = local_minima(trend)
+    m = m[trend[m] >= REST_SPEED]
     if len(m) == 0:  # no minimum: the f/2 trend is not needed
         return m, np.zeros(0)
     return m, np.abs(trend[m] - bank.solve(v, len(bank.lams) // 2 + i)[m])
 
 
 SETTLE = HP_SETTLE
+
+# Speeds below this (body heights per second, the norm over the 16 joints) are rest: no
+# candidate and no scale minimum lies there. An exact hold (a calibration pose, a take that
+# stops) leaves only rounding noise and the HP filters' ringing, whose minima are not motion:
+# 3 s of stillness added ~140 candidates (nearly all of zero intensity) to every shared clip
+# at 120 Hz, and their count moved Mojena's cut-off; the HP trends' ringing minima there took
+# over the chains of real candidates (06_02 at 30 Hz: every key moved by a step). The slowest
+# candidate of a captured take on the shared clips moves at 0.042 (49_18).
+REST_SPEED = 0.02
+
+
+def candidates_of(v: np.ndarray) -> np.ndarray:
+    """Keypose candidates: local minima of the speed `v`, rest (`REST_SPEED`) left out."""
+    m = local_minima(v)
+    return m[v[m] >= REST_SPEED]
 
 
 def settle_frames(lams: np.ndarray) -> np.ndarray:
@@ -482,7 +499,7 @@ def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10
     v = speed_signal(_positions(motion, features, off), dt, f_c)
     freqs = scale_frequencies(f_max, f_min, r)
     bank = HPBank(scale_lambdas(freqs, dt))
-    cand = local_minima(v)
+    cand = candidates_of(v)
     u = intensities(cand, scale_minima(v, bank))
     res = mojena_threshold(u, mojena_k)
     keep = u > res.threshold
@@ -757,7 +774,7 @@ class Online(OnlineKeyframer):
             self._scheduled_upto = min(self._scheduled_upto, t - self.lookahead)
         base = self._ring.first_seq
         v = self._speed()
-        cand = local_minima(v)
+        cand = candidates_of(v)
         u = intensities(cand, scale_minima(v, self._bank))
         seqs = cand + base
         new = seqs > (base - 1 if self._scheduled_upto is None else self._scheduled_upto)
@@ -837,7 +854,7 @@ class Online(OnlineKeyframer):
             self._v = job.v = v
             job.start = max(0, len(v) - self._region)
             job.lo_trend = max(job.start - 1, 0)  # a minimum needs its left neighbour
-            job.cand = local_minima(v[job.lo_trend :]) + job.lo_trend
+            job.cand = candidates_of(v[job.lo_trend :]) + job.lo_trend
             g0 = job.g0 - self._hp_base
             if self._hp_done < g0:  # the window outran the carried passes (tiny windows)
                 self._reset_carry(job.g0)
@@ -856,7 +873,8 @@ class Online(OnlineKeyframer):
             else:  # a system too short for the corner formulas (g0 is 0): whole solves
                 trends = np.stack([self._bank.solve(v, j)[job.lo_trend :]
                                    for j in range(2 * s)], axis=1)
-            job.minima, job.u, job.counts = tail_minima(trends, s, job.lo_trend, job.start)
+            job.minima, job.u, job.counts = tail_minima(trends, s, job.lo_trend, job.start,
+                                                        REST_SPEED)
         elif i == 2:  # the chains: intensities
             job.total = chain_totals(job.cand, job.minima, job.u, job.counts, BAND_BUDGET)
             if len(job.total) != len(job.cand):  # long lookaheads: the windowed DP
