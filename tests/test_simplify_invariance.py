@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 from cmu import clips
-from invariance import count_ratio, e_ratio, load
+from invariance import count_ratio, e_ratio, load, variant
 
 from streamkey.errors import UsageError
 from streamkey.methods import simplify
@@ -69,3 +69,11 @@ def test_duration_defaults_are_the_old_frame_counts_at_120_hz_and_follow_the_rat
     assert (mixed.lookahead, mixed.merge, mixed.history) == (60, 6, 120)  # numbers: frames
     with pytest.raises(UsageError, match="max_span"):
         simplify.Online(m.skeleton, 30.0, max_span=Duration.seconds(0.1))
+
+
+@pytest.mark.parametrize("which", ["30 Hz", "stillness"])
+def test_online_with_unbounded_lookahead_equals_offline_on_a_variant(which: str) -> None:
+    m = variant("07_05.bvh", which).motion
+    kf = simplify.Online(m.skeleton, m.fps, lookahead=m.n_frames)
+    events = kf.push_block(m.frames()) + kf.flush()
+    assert [e.frame for e in events] == simplify.extract(m).frames.tolist()

@@ -88,3 +88,13 @@ def test_rest_is_no_candidate() -> None:
     end = v.take_end
     assert k.info["candidates"].max() < end + 60  # ringing of the stop: under 0.5 s
     assert len(keys("speed", "offline", "07_05.bvh", "stillness")) >= 1
+
+
+@pytest.mark.parametrize("which", ["30 Hz", "stillness", "reference first"])
+def test_online_with_unbounded_lookahead_equals_offline_on_a_variant(which: str) -> None:
+    m = variant("07_05.bvh", which).motion
+    kf = speed.Online(m.skeleton, m.fps, lookahead=m.n_frames + 1)
+    events = kf.push_block(m.frames()) + kf.flush()
+    off = speed.extract(m)
+    assert [e.frame for e in events] == off.frames.tolist()
+    assert [e.score for e in events] == off.scores.tolist()
