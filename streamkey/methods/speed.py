@@ -6,7 +6,14 @@ Offline: `extract(motion)`. Definitions this module settles (the paper leaves th
   height, stacked into one 48-vector p(n) per captured frame and HP-filtered at f_c (eq. 2);
   v(n) = |p_F(n+1) - p_F(n)| / dt, the Euclidean norm over all 48 coordinates (eq. 3). v has
   one value fewer than the motion has captured frames and v(n) is reported at frame n (the
-  first frame of the forward difference).
+  first frame of the forward difference). A first frame that is a reference T-pose (or an
+  all-zero dropout) by `motion.detect_reference_frame` is not captured motion and is left
+  out, by `extract` and by a stream (`Online` holds a stream's first frame until its second
+  arrives): its one-frame jump would be the largest speed of all and leave one cluster above
+  Mojena's cut (07_05 streamed with its reference frame: 1 key instead of 6).
+- Rest: candidates (local minima of v) and the minima of every scale's trend lie at speeds of
+  at least `REST_SPEED` (0.02 body heights/s); below it an exact hold has only rounding noise
+  and HP ringing, whose minima counted as candidates and moved Mojena's cut-off.
 - Correspondence (Miura Fig. 3): between two sorted lists of minima, the order-preserving
   one-to-one matching that pairs every element of the shorter list and minimises the total
   absolute time difference (`match_minima`). Chains start at the candidates, are matched to
