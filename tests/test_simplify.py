@@ -16,6 +16,7 @@ from streamkey.errors import UsageError
 from streamkey.features import Features, compute_features
 from streamkey.methods import simplify
 from streamkey.motion import Motion
+from streamkey.units import Duration, whole_frames
 
 CLIPS = clips()
 
@@ -196,10 +197,11 @@ def test_bad_parameters_raise_usage_error():
 # --- online (issue 3) ------------------------------------------------------------------------
 
 MIN_MEAN_F1, MIN_CLIP_F1, MAX_COUNT_RATIO = 0.92, 0.80, 1.2
+LOOKAHEAD_120 = whole_frames(simplify.DEFAULT_LOOKAHEAD, 120.0)  # the shared clips' rate
 
 
 @cache
-def online_keys(name: str, lookahead: int = simplify.DEFAULT_LOOKAHEAD,
+def online_keys(name: str, lookahead: int | Duration = simplify.DEFAULT_LOOKAHEAD,
                 space: str = simplify.DEFAULT_SPACE) -> tuple[np.ndarray, np.ndarray]:
     """Online keyframes of a clip streamed in one block (== frame by frame), and latencies."""
     m = load(name)
@@ -241,7 +243,7 @@ def test_online_keeps_the_guarantee_latency_and_count_bounds_on_every_clip():
         assert frames[0] == m.first_frame and frames[-1] == m.n_frames - 1, name
         err = simplify.max_chord_error(x, frames - m.first_frame).max()
         assert err <= simplify.DEFAULT_TOLERANCE[simplify.DEFAULT_SPACE] + _slack(x), name
-        assert latency.max() <= simplify.DEFAULT_LOOKAHEAD, name
+        assert latency.max() <= LOOKAHEAD_120, name
         n_off, n_on, p, r, f1 = agreement(name)
         assert n_on <= MAX_COUNT_RATIO * n_off, (name, n_on, n_off)
         rows.append(f"| {name} | {n_off} | {n_on} | {n_on / n_off:.2f} | {p:.2f} | {r:.2f} "
@@ -251,7 +253,7 @@ def test_online_keeps_the_guarantee_latency_and_count_bounds_on_every_clip():
             f"Written by tests/test_simplify.py. Default tolerance "
             f"{simplify.DEFAULT_TOLERANCE[simplify.DEFAULT_SPACE]} ({simplify.DEFAULT_SPACE} "
             "space), lookahead "
-            f"{simplify.DEFAULT_LOOKAHEAD} frames. One-to-one matching within 1/4 of the median "
+            f"{LOOKAHEAD_120} frames. One-to-one matching within 1/4 of the median "
             "offline key interval (DESIGN §5). Every online frame is within the tolerance of "
             "its chord (checked).", "",
             "| clip | offline | online | ratio | P | R | F1 | max latency |",
@@ -311,7 +313,7 @@ def test_online_keeps_the_guarantee_in_channel_space(name):
     x = simplify.curve(m, "channels", features(name))
     err = simplify.max_chord_error(x, frames - m.first_frame).max()
     assert err <= simplify.DEFAULT_TOLERANCE["channels"] + _slack(x)
-    assert latency.max() <= simplify.DEFAULT_LOOKAHEAD
+    assert latency.max() <= LOOKAHEAD_120
 
 
 @pytest.mark.parametrize(("lookahead", "hop", "max_span"), [(1, 1, 2), (5, 3, 6), (17, 8, 40),

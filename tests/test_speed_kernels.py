@@ -130,7 +130,7 @@ def test_tail_minima_equal_local_minima_of_each_trend() -> None:
     rng = np.random.default_rng(17)
     trends = np.round(rng.normal(size=(300, 8)), 1)  # flat bottoms too
     lo, start = 40, 47
-    ms, us, counts = kern.tail_minima(trends, 4, lo, start)
+    ms, us, counts = kern.tail_minima(trends, 4, lo, start, -np.inf)
     at = 0
     for s in range(4):
         m = local_minima(trends[:, s]) + lo
@@ -140,6 +140,20 @@ def test_tail_minima_equal_local_minima_of_each_trend() -> None:
                               np.abs(trends[m - lo, s] - trends[m - lo, 4 + s]))
         at += counts[s]
     assert at == len(ms) > 0
+
+
+def test_tail_minima_leave_out_minima_below_the_rest_speed() -> None:
+    rng = np.random.default_rng(19)
+    trends = np.round(rng.normal(size=(300, 8)), 1)
+    ms, _, counts = kern.tail_minima(trends, 4, 0, 1, 0.3)
+    every, _, all_counts = kern.tail_minima(trends, 4, 0, 1, -np.inf)
+    at = 0
+    for s in range(4):
+        m = every[at : at + all_counts[s]]
+        at += all_counts[s]
+        assert np.array_equal(ms[counts[:s].sum() : counts[: s + 1].sum()],
+                              m[trends[m, s] >= 0.3])
+    assert 0 < len(ms) < len(every)
 
 
 @pytest.mark.numeric

@@ -83,8 +83,9 @@ SPEED = (
           flag="--scale-ratio"),
     Param("mojena_k", "number", "Mojena constant of the Ward cut-off, larger: fewer keys "
           "(default 2.75)", unit="K", default=2.75),
-    Param("cutoff_history", "duration", "online: frames of candidates feeding the cut-off "
-          "(default 7200)", unit="FRAMES", default=7200, integer=True, online_only=True),
+    Param("cutoff_history", "duration", "online: how far back candidates feed the cut-off "
+          "(default 60 s)", unit="FRAMES", default=Duration.seconds(60.0), integer=True,
+          online_only=True),
     Param("warmup_candidates", "number", "online: candidates before the cut-off is trusted "
           "(default 20)", unit="N", default=20, integer=True, online_only=True),
 )
@@ -98,8 +99,8 @@ SIMPLIFY = (
           choices=("positions", "channels"), default="positions", always=True,
           also=("decimate",)),
     Param("merge", "duration", "online: a key this close after the last committed one is "
-          "taken to be it (no near-duplicates; default 8 frames)", unit="FRAMES", default=8,
-          integer=True, online_only=True),
+          "taken to be it (no near-duplicates; default 1/15 s)", unit="FRAMES",
+          default=Duration.seconds(8 / 120), integer=True, online_only=True),
     Param("max_span", "duration", "online: longest open segment (default 8 x lookahead)",
           unit="FRAMES", integer=True, online_only=True),
 )
@@ -148,15 +149,16 @@ TITLES: Mapping[str, str] = {
 # Online parameters several methods take, set for all of them or `METHOD=VALUE` one by one:
 # (parameter, the methods that take it).
 SHARED_PARAMS: tuple[tuple[Param, tuple[str, ...]], ...] = (
-    (Param("lookahead", "duration", "frames a decision may wait (default: the method's, "
-           "saliency 121 (37 with --preset high), speed 120, simplify 60, optimal 120)",
+    (Param("lookahead", "duration", "how long a decision may wait (default: the method's, "
+           "saliency 2 x 2.5 sigma + 2 sigma + 1 frame (121 frames at 120 Hz, 37 with --preset "
+           "high), speed 1 s, simplify 0.5 s, optimal 1 s)",
            unit="FRAMES", integer=True, online_only=True),
      ("saliency", "speed", "simplify", "optimal")),
-    (Param("history", "duration", "past frames kept: saliency (default 10 s), speed (2400), "
+    (Param("history", "duration", "past motion kept: saliency (default 10 s), speed (20 s), "
            "simplify (2 x lookahead)", unit="FRAMES", integer=True, online_only=True),
      ("saliency", "speed", "simplify")),
-    (Param("hop", "duration", "frames between re-analyses: speed (default lookahead / 5, at "
-           "most 24), simplify (8)", unit="FRAMES", integer=True, online_only=True),
+    (Param("hop", "duration", "time between re-analyses: speed (default lookahead / 5, "
+           "at most 0.2 s), simplify (1/15 s)", unit="FRAMES", integer=True, online_only=True),
      ("speed", "simplify")),
 )
 

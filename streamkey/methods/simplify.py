@@ -41,12 +41,13 @@ quantity is the recursion over the whole clip, whose splits depend on segment en
 future. Online it becomes a recursion over a window, and frame d = t - lookahead is decided
 when frame t arrives (c is the last committed keyframe, t the newest frame):
 
-- Windowed recursion: every `hop` frames (default 8), P = the keys of the recursion on [a, t],
-  anchored at the oldest committed keyframe a at most `history` frames (default 2 x lookahead)
-  before the deadline: a longer past reproduces more of the offline split hierarchy (on the
-  shared clips, mean F1 against offline 0.80 anchored at c, 0.88 with 120 frames of history).
+- Windowed recursion: every `hop` frames (default 1/15 s: 8 at 120 Hz), P = the keys of
+  the recursion on [a, t], anchored at the oldest committed keyframe a at most `history`
+  frames (default 2 x lookahead) before the deadline: a longer past reproduces more of the
+  offline split hierarchy (on the shared clips, mean F1 against offline 0.80 anchored at c,
+  0.88 with 120 frames of history).
 - Decision: d is committed if d is in P, the segment [c, d] meets the rule (checked directly),
-  and d is not P's version of c (a P key within `merge` frames after c, default 8, while c
+  and d is not P's version of c (a P key within `merge` frames after c, default 1/15 s, while c
   itself is not in P, is taken to be c: without this rule near-duplicate keys appear).
 - Witness (the guarantee): otherwise a frame w > d with [c, w] meeting the rule is kept: the
   first key of P after d that meets it, else the first key k1 after c of the recursion on
@@ -78,9 +79,11 @@ from ..kinematics import root_relative_joints
 from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..signal import unwrap_degrees
+from ..units import Duration, DurationLike, whole_frames
 
 __all__ = ["extract", "curve", "farthest", "split_keys", "split_order", "max_chord_error",
-           "first_key", "Online", "METHOD", "DEFAULT_TOLERANCE", "DEFAULT_LOOKAHEAD", "SPACES",
+           "first_key", "Online", "METHOD", "DEFAULT_TOLERANCE", "DEFAULT_LOOKAHEAD", "DEFAULT_HOP",
+           "DEFAULT_MERGE", "SPACES",
            "DEFAULT_SPACE", "position_rows"]
 
 METHOD = "simplify"
@@ -88,7 +91,9 @@ SPACES = ("channels", "positions")
 # Default absolute tolerances per space: degrees (file units for the root) / body heights.
 DEFAULT_TOLERANCE = {"channels": 40.0, "positions": 0.03}
 DEFAULT_SPACE = "positions"
-DEFAULT_LOOKAHEAD = 60  # frames: 0.5 s at 120 Hz
+DEFAULT_LOOKAHEAD = Duration.seconds(0.5)  # online defaults: 60 and 8 frames at 120 Hz
+DEFAULT_HOP = Duration.seconds(8 / 120)
+DEFAULT_MERGE = Duration.seconds(8 / 120)
 
 
 def curve(motion: Motion, space: str = DEFAULT_SPACE,
@@ -354,33 +359,51 @@ def extract(motion: Motion, *, tolerance: float | None = None, ratio: float | No
     return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
 
 
+def _frames(name: str, value: object, fps: float, low: int) -> int:
+    """A duration parameter in whole frames at `fps`: a `Duration`, or an integer count of
+    frames (the meaning plain numbers always had); at least `low` frames."""
+    if isinstance(value, Duration):
+        frames = whole_frames(value, fps)
+    elif isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise UsageError(f"simplify online: {name} must be an integer number of frames or a "
+                         f"Duration, got {value!r}")
+    else:
+        frames = int(value)
+    if frames < low:
+        raise UsageError(f"simplify online: {name} must be an integer >= {low}, got {value!r}"
+                         + (f" ({frames} frames at {fps:g} fps)" if isinstance(value, Duration)
+                            else ""))
+    return frames
+
+
 class Online(OnlineKeyframer):
     """Online curve simplification: keyframes within `lookahead` frames, tolerance guaranteed.
 
     Tolerance or ratio rule (a count needs the whole clip). See the module docstring for the
-    windowed recursion, the decision and witness rules and the window bound.
+    windowed recursion, the decision and witness rules and the window bound. Durations
+    (`lookahead`, `history`, `hop`, `merge`, `max_span`) are `Duration`s or integer frame
+    counts; the defaults are in seconds (0.5 s, 2 x lookahead, 1/15 s, 1/15 s, 8 x lookahead:
+    60, 120, 8, 8 and 480 frames at 120 Hz), so a stream at another rate sees the same motion.
     """
 
     method = METHOD
 
     def __init__(self, skeleton: Skeleton, fps: float, *, tolerance: float | None = None,
                  ratio: float | None = None, space: str = DEFAULT_SPACE,
-                 lookahead: int = DEFAULT_LOOKAHEAD, history: int | None = None, hop: int = 8,
-                 merge: int = 8, max_span: int | None = None, stream: str = "default",
+                 lookahead: DurationLike = DEFAULT_LOOKAHEAD, history: DurationLike | None = None,
+                 hop: DurationLike = DEFAULT_HOP, merge: DurationLike = DEFAULT_MERGE,
+                 max_span: DurationLike | None = None, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
         if space not in SPACES:
             raise UsageError(f"space must be one of {SPACES}, got {space!r}")
         tolerance, ratio, _ = _rule(tolerance, ratio, None, space)
-        history = 2 * lookahead if history is None else history
-        span = 8 * lookahead if max_span is None else max_span
-        for name, value, low in (("lookahead", lookahead, 1), ("history", history, 0),
-                                 ("hop", hop, 1), ("merge", merge, 0),
-                                 ("max_span", span, lookahead + 1)):
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
-                raise UsageError(f"simplify online: {name} must be an integer >= {low}, "
-                                 f"got {value!r}")
-        super().__init__(skeleton, fps, lookahead=int(lookahead), stream=stream,
+        lookahead = _frames("lookahead", lookahead, fps, 1)
+        history = 2 * lookahead if history is None else _frames("history", history, fps, 0)
+        span = (8 * lookahead if max_span is None
+                else _frames("max_span", max_span, fps, lookahead + 1))
+        hop, merge = _frames("hop", hop, fps, 1), _frames("merge", merge, fps, 0)
+        super().__init__(skeleton, fps, lookahead=lookahead, stream=stream,
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
                          params={"space": space, "tolerance": tolerance, "ratio": ratio,
                                  "history": int(history), "hop": int(hop),
@@ -508,7 +531,7 @@ class Online(OnlineKeyframer):
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: the recursion on the open segment decides the rest."""
-        events = []
+        events: list[KeyframeEvent] = []
         t, d = self._t, self._t - self.lookahead
         if t <= self._c:
             return events

@@ -6,7 +6,14 @@ Offline: `extract(motion)`. Definitions this module settles (the paper leaves th
   height, stacked into one 48-vector p(n) per captured frame and HP-filtered at f_c (eq. 2);
   v(n) = |p_F(n+1) - p_F(n)| / dt, the Euclidean norm over all 48 coordinates (eq. 3). v has
   one value fewer than the motion has captured frames and v(n) is reported at frame n (the
-  first frame of the forward difference).
+  first frame of the forward difference). A first frame that is a reference T-pose (or an
+  all-zero dropout) by `motion.detect_reference_frame` is not captured motion and is left
+  out, by `extract` and by a stream (`Online` holds a stream's first frame until its second
+  arrives): its one-frame jump would be the largest speed of all and leave one cluster above
+  Mojena's cut (07_05 streamed with its reference frame: 1 key instead of 6).
+- Rest: candidates (local minima of v) and the minima of every scale's trend lie at speeds of
+  at least `REST_SPEED` (0.02 body heights/s); below it an exact hold has only rounding noise
+  and HP ringing, whose minima counted as candidates and moved Mojena's cut-off.
 - Correspondence (Miura Fig. 3): between two sorted lists of minima, the order-preserving
   one-to-one matching that pairs every element of the shorter list and minimises the total
   absolute time difference (`match_minima`). Chains start at the candidates, are matched to
@@ -37,7 +44,7 @@ sent yet. Windowed replacements of the offline global steps:
   forward substitution of every scale's HP system (U'y = v, the factor of `hp_factor`) only
   looks back, so it is carried from one analysis to the next over the final speeds (those
   leaving the window included); an analysis adds the fresh speeds and the factor's bottom
-  corner and back-substitutes over the newest `lookahead + 2 hop + 240` frames (the region),
+  corner and back-substitutes over the newest `lookahead + 2 hop` frames plus 2 s (the region),
   all 144 lambdas side by side in one compiled kernel (`speed_kernels.hp_tail`, ~40 µs).
   Minima outside the region are ignored. Until issue 13 each scale was solved on the region
   plus 20 lambda^(1/4) frames of the window (the 0.1 Hz half-scale saw 20 s): the trends now
@@ -83,10 +90,11 @@ from scipy.linalg import get_blas_funcs, get_lapack_funcs
 from ..errors import UsageError
 from ..features import Features, compute_features
 from ..keyframes import KeyframeEvent, Keyframes
-from ..motion import Motion, Skeleton
+from ..motion import Motion, Skeleton, detect_reference_frame
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
 from ..signal import HP_SETTLE, hp_factor, hp_filter, hp_lambda, hp_prefix, hp_settle, local_minima
+from ..units import Duration, DurationLike, whole_frames
 from .speed_kernels import (
     band_offsets,
     chain_totals,
@@ -101,7 +109,8 @@ from .speed_kernels import (
 __all__ = ["extract", "scale_frequencies", "speed_signal", "HPBank", "scale_minima",
            "match_minima", "intensities", "mojena_threshold", "MojenaResult", "METHOD", "Online",
            "scale_lambdas", "settle_frames", "ward_1d", "WARD_1D_FROM", "scale_minimum", "Chain",
-           "speed_tail", "packed_factors"]
+           "speed_tail", "packed_factors", "REST_SPEED", "candidates_of", "LOOKAHEAD", "MAX_HOP",
+           "HISTORY", "CUTOFF_HISTORY"]
 
 METHOD = "speed"
 _PBTRS = get_lapack_funcs("pbtrs", (np.empty(1),))
@@ -237,9 +246,10 @@ def scale_minima(v: np.ndarray, bank: HPBank) -> list[tuple[np.ndarray, np.ndarr
 
 
 def scale_minimum(v: np.ndarray, bank: HPBank, i: int) -> tuple[np.ndarray, np.ndarray]:
-    """Scale i of `scale_minima`: minima of HP(v, f_i), and u there."""
+    """Scale i of `scale_minima`: minima of HP(v, f_i) (rest left out), and u there."""
     trend = bank.solve(v, i)
     m = local_minima(trend)
+    m = m[trend[m] >= REST_SPEED]
     if len(m) == 0:  # no minimum: the f/2 trend is not needed
         return m, np.zeros(0)
     return m, np.abs(trend[m] - bank.solve(v, len(bank.lams) // 2 + i)[m])
@@ -247,13 +257,32 @@ def scale_minimum(v: np.ndarray, bank: HPBank, i: int) -> tuple[np.ndarray, np.n
 
 SETTLE = HP_SETTLE
 
+# Speeds below this (body heights per second, the norm over the 16 joints) are rest: no
+# candidate and no scale minimum lies there. An exact hold (a calibration pose, a take that
+# stops) leaves only rounding noise and the HP filters' ringing, whose minima are not motion:
+# 3 s of stillness added ~140 candidates (nearly all of zero intensity) to every shared clip
+# at 120 Hz, and their count moved Mojena's cut-off; the HP trends' ringing minima there took
+# over the chains of real candidates (06_02 at 30 Hz: every key moved by a step). The slowest
+# candidate of a captured take on the shared clips moves at 0.042 (49_18).
+REST_SPEED = 0.02
+
+
+def candidates_of(v: np.ndarray) -> np.ndarray:
+    """Keypose candidates: local minima of the speed `v`, rest (`REST_SPEED`) left out."""
+    m = local_minima(v)
+    return m[v[m] >= REST_SPEED]
+
 
 def settle_frames(lams: np.ndarray) -> np.ndarray:
     """Frames after which an HP filter forgets a boundary to ~1e-6 (`signal.hp_settle`)."""
     return hp_settle(lams)
 
 
-REGION_MARGIN = 240  # frames of DP context left of the decision zone in a regular update
+REGION_MARGIN = Duration.seconds(2.0)  # DP context left of the decision zone in an update
+LOOKAHEAD = Duration.seconds(1.0)  # online defaults; at 120 Hz: 120, 24, 2400 and 7200 frames
+MAX_HOP = Duration.seconds(0.2)
+HISTORY = Duration.seconds(20.0)
+CUTOFF_HISTORY = Duration.seconds(60.0)
 BAND_BUDGET = 4_000_000  # full band DP table entries; above it the windowed DP is used
 
 
@@ -441,9 +470,27 @@ def mojena_threshold(u: np.ndarray, k: float = 2.75) -> MojenaResult:
     return MojenaResult(float(threshold), n_clusters, cutoff, bool(contiguous))
 
 
-def _positions(motion: Motion, features: Features | None) -> np.ndarray:
+def _reference_lead(skeleton: Skeleton, first: np.ndarray, second: np.ndarray) -> bool:
+    """Is `first`, followed by `second`, a reference T-pose (or an all-zero dropout) frame
+    rather than a captured one (`motion.detect_reference_frame`)? A sender that streams a
+    whole cgspeed BVH starts with it: its one-frame jump into the take would be the largest
+    speed of the stream and leave a single cluster above Mojena's cut."""
+    return detect_reference_frame(skeleton, np.stack([first, second])) > 0
+
+
+def _first_captured(motion: Motion) -> int:
+    """`motion.first_frame`, past a reference frame there too (as `Online` skips it)."""
+    first = motion.first_frame
+    if motion.n_frames - first >= 2 and _reference_lead(
+            motion.skeleton, motion.channels[first], motion.channels[first + 1]):
+        first += 1
+    return first
+
+
+def _positions(motion: Motion, features: Features | None, first: int | None = None
+               ) -> np.ndarray:
     feats = features if features is not None else compute_features(motion)
-    p = feats.role_positions(MIURA_ROLES)[motion.first_frame :]
+    p = feats.role_positions(MIURA_ROLES)[motion.first_frame if first is None else first :]
     return p.reshape(len(p), -1) / feats.body_height
 
 
@@ -455,14 +502,14 @@ def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10
     params: dict[str, Any] = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r,
                               "mojena_k": mojena_k}
     dt = motion.frame_time
-    v = speed_signal(_positions(motion, features), dt, f_c)
+    off = _first_captured(motion)
+    v = speed_signal(_positions(motion, features, off), dt, f_c)
     freqs = scale_frequencies(f_max, f_min, r)
     bank = HPBank(scale_lambdas(freqs, dt))
-    cand = local_minima(v)
+    cand = candidates_of(v)
     u = intensities(cand, scale_minima(v, bank))
     res = mojena_threshold(u, mojena_k)
     keep = u > res.threshold
-    off = motion.first_frame
     info = {"candidates": cand + off, "intensities": u, "n_clusters": res.n_clusters,
             "level_cutoff": res.level_cutoff, "threshold": res.threshold,
             "contiguous_clusters": res.contiguous, "n_scales": len(freqs)}
@@ -559,7 +606,11 @@ class _Job:
 class Online(OnlineKeyframer):
     """Online speed-minima keyposes: `push` frames, get keypose events within `lookahead`.
 
-    Every `hop` frames (default lookahead // 5, at most 24) an analysis of the window
+    Durations (`lookahead`, `hop`, `history`, `cutoff_history`) are `Duration`s or integer
+    frame counts; the defaults are in seconds (1 s, a fifth of the lookahead but at most
+    0.2 s, 20 s and 60 s: 120, 24, 2400 and 7200 frames at 120 Hz), so a stream at another
+    rate sees the same motion. `lookahead` (the attribute) is the latency bound in frames.
+    Every `hop` frames an analysis of the window
     (`history` + `lookahead` + `hop` frames) starts; its work is spread over the next `delay`
     frames (two thirds of the hop, fewer if the lookahead is short: four steps on four
     frames instead of a burst) and it decides the candidates whose deadline (frame + `lookahead`)
@@ -577,24 +628,24 @@ class Online(OnlineKeyframer):
 
     def __init__(self, skeleton: Skeleton, fps: float, *, f_c: float = 10.0, f_max: float = 8.0,
                  f_min: float = 0.2, r: float = 0.95, mojena_k: float = 2.75,
-                 lookahead: int = 120, hop: int | None = None, history: int = 2400,
-                 cutoff_history: int = 7200, warmup_candidates: int = 20,
-                 stream: str = "default", role_mapping: dict[str, str] | None = None,
+                 lookahead: DurationLike = LOOKAHEAD, hop: DurationLike | None = None,
+                 history: DurationLike = HISTORY, cutoff_history: DurationLike = CUTOFF_HISTORY,
+                 warmup_candidates: int = 20, stream: str = "default",
+                 role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
         _check_params(f_c, f_max, f_min, r, mojena_k)
-        _check_count("lookahead", lookahead, 3)
-        if hop is None:  # a fifth of the lookahead, at most 0.2 s at 120 fps
-            hop = max(1, min(24, int(lookahead) // 5))
-        _check_count("hop", hop, 1)
-        _check_count("lookahead", lookahead, int(hop) + 2)
-        _check_count("history", history, 0)
-        _check_count("cutoff_history", cutoff_history, 0)
+        lookahead = _frames("lookahead", lookahead, fps, 3)
+        if hop is None:  # a fifth of the lookahead, at most 0.2 s (24 frames at 120 Hz)
+            hop = max(1, min(whole_frames(MAX_HOP, fps), lookahead // 5))
+        hop = _frames("hop", hop, fps, 1)
+        _check_count("lookahead", lookahead, hop + 2)
+        history = _frames("history", history, fps, 0)
+        cutoff_history = _frames("cutoff_history", cutoff_history, fps, 0)
         _check_count("warmup_candidates", warmup_candidates, 0)
         params = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r, "mojena_k": mojena_k,
-                  "hop": int(hop), "history": int(history),
-                  "cutoff_history": int(cutoff_history),
+                  "hop": hop, "history": history, "cutoff_history": cutoff_history,
                   "warmup_candidates": int(warmup_candidates)}
-        super().__init__(skeleton, fps, lookahead=int(lookahead), stream=stream,
+        super().__init__(skeleton, fps, lookahead=lookahead, stream=stream,
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
                          params=params)
         self.f_c, self.mojena_k, self.hop = f_c, mojena_k, int(hop)
@@ -608,7 +659,7 @@ class Online(OnlineKeyframer):
         self._height = self.features.body_height
         self._lams = scale_lambdas(scale_frequencies(f_max, f_min, r), 1.0 / self.fps)
         # Region re-analysed by a regular update: the lookahead plus room for the DP context.
-        self._region = self.lookahead + 2 * self.hop + REGION_MARGIN
+        self._region = self.lookahead + 2 * self.hop + whole_frames(REGION_MARGIN, self.fps)
         self._pos_settle = int(settle_frames(np.array([hp_lambda(f_c, 1.0 / self.fps)]))[0])
         # Speeds redone by a regular update: those a frame of the last hop can still change.
         self._fresh = min(self._region, self.hop + self._pos_settle + 1)
@@ -639,6 +690,8 @@ class Online(OnlineKeyframer):
         self._resume_after: int | None = None  # last seq before a restart (history kept)
         self._pending: list[tuple[int, float, float]] = []  # provisional hook
         self._g0 = 0  # speeds dropped from the window since the reset
+        self._lead_pending = True  # the stream's first frame is not yet known to be captured
+        self._lead: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._reset_carry(0)
 
     def restart(self, keep_statistics: bool = True) -> None:
@@ -654,17 +707,38 @@ class Online(OnlineKeyframer):
         """Append frames, doing each frame's share of the running analysis; every `hop`
         frames start the next one. The block's last frame leaves its share to `idle`."""
         rows = block.pelvis_points(self._joints).reshape(len(block), -1) / self._height
-        if self._resume_after is not None and len(block):
-            shift = int(block.seq[0]) - 1 - self._resume_after
+        seqs, times = np.asarray(block.seq), np.asarray(block.time)
+        if self._lead_pending:  # the stream's first frame waits for its second
+            if self._lead is None and len(block):
+                self._lead = (rows[:1].copy(), seqs[:1].copy(), times[:1].copy(),
+                              np.array(block.channels[0], dtype=np.float64))
+                rows, seqs, times = rows[1:], seqs[1:], times[1:]
+                channels = block.channels[1:]
+            else:
+                channels = block.channels
+            if not len(rows):
+                return []
+            lead, self._lead, self._lead_pending = self._lead, None, False
+            assert lead is not None
+            if not _reference_lead(self.skeleton, lead[3], channels[0]):
+                rows = np.concatenate([lead[0], rows])
+                seqs, times = np.concatenate([lead[1], seqs]), np.concatenate([lead[2], times])
+        return self._ingest(rows, seqs, times)
+
+    def _ingest(self, rows: np.ndarray, seqs: np.ndarray, times: np.ndarray
+                ) -> list[KeyframeEvent]:
+        """`process` on the rows kept (the stream's reference frame left out)."""
+        if self._resume_after is not None and len(rows):
+            shift = int(seqs[0]) - 1 - self._resume_after
             if shift < 0:  # the source started over: the kept history stays in the past
                 self._hist_seq = deque(seq + shift for seq in self._hist_seq)
             self._resume_after = None
         events: list[KeyframeEvent] = []
         i = 0
-        seqs, n, hop = block.seq, len(block.seq), self.hop
+        n, hop = len(seqs), self.hop
         while i < n:
             take = min(n - i, hop - self._count % hop)
-            self._ring.extend(int(seqs[i]), rows[i : i + take], block.time[i : i + take])
+            self._ring.extend(int(seqs[i]), rows[i : i + take], times[i : i + take])
             self._count += take
             i += take
             self._last_seq = int(seqs[i - 1])
@@ -695,6 +769,9 @@ class Online(OnlineKeyframer):
         with the whole window, like everything else still pending; so is a running analysis.
         """
         events = self.idle()  # normally already run by the driver
+        if self._lead is not None:  # a one-frame stream: its frame is all there is
+            lead, self._lead, self._lead_pending = self._lead, None, False
+            events += self._ingest(lead[0], lead[1], lead[2]) + self.idle()
         self._job = None
         if not len(self._ring):
             return events
@@ -704,7 +781,7 @@ class Online(OnlineKeyframer):
             self._scheduled_upto = min(self._scheduled_upto, t - self.lookahead)
         base = self._ring.first_seq
         v = self._speed()
-        cand = local_minima(v)
+        cand = candidates_of(v)
         u = intensities(cand, scale_minima(v, self._bank))
         seqs = cand + base
         new = seqs > (base - 1 if self._scheduled_upto is None else self._scheduled_upto)
@@ -742,8 +819,8 @@ class Online(OnlineKeyframer):
         rows = self._ring.rows()
         n = len(rows)
         seg = self._fresh + self._pos_settle
-        old = self._v[self._ring.dropped_since :][: n - 1 - self._fresh]
-        if n <= seg or len(old) < n - 1 - self._fresh:
+        old: np.ndarray | None = self._v[self._ring.dropped_since :][: n - 1 - self._fresh]
+        if n <= seg or old is None or len(old) < n - 1 - self._fresh:
             snap, old = rows.copy(), None
         else:
             snap = rows[n - seg :].copy()
@@ -784,7 +861,7 @@ class Online(OnlineKeyframer):
             self._v = job.v = v
             job.start = max(0, len(v) - self._region)
             job.lo_trend = max(job.start - 1, 0)  # a minimum needs its left neighbour
-            job.cand = local_minima(v[job.lo_trend :]) + job.lo_trend
+            job.cand = candidates_of(v[job.lo_trend :]) + job.lo_trend
             g0 = job.g0 - self._hp_base
             if self._hp_done < g0:  # the window outran the carried passes (tiny windows)
                 self._reset_carry(job.g0)
@@ -803,7 +880,8 @@ class Online(OnlineKeyframer):
             else:  # a system too short for the corner formulas (g0 is 0): whole solves
                 trends = np.stack([self._bank.solve(v, j)[job.lo_trend :]
                                    for j in range(2 * s)], axis=1)
-            job.minima, job.u, job.counts = tail_minima(trends, s, job.lo_trend, job.start)
+            job.minima, job.u, job.counts = tail_minima(trends, s, job.lo_trend, job.start,
+                                                        REST_SPEED)
         elif i == 2:  # the chains: intensities
             job.total = chain_totals(job.cand, job.minima, job.u, job.counts, BAND_BUDGET)
             if len(job.total) != len(job.cand):  # long lookaheads: the windowed DP
@@ -858,6 +936,19 @@ class Online(OnlineKeyframer):
 def _check_count(name: str, value: object, low: int) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
         raise UsageError(f"speed online: {name} must be an integer >= {low}, got {value!r}")
+
+
+def _frames(name: str, value: object, fps: float, low: int) -> int:
+    """A duration parameter in whole frames at `fps`: a `Duration`, or an integer count of
+    frames (the meaning plain numbers always had); at least `low` frames."""
+    if isinstance(value, Duration):
+        frames = whole_frames(value, fps)
+        if frames < low:
+            raise UsageError(f"speed online: {name} must be at least {low} frames, got {value} "
+                             f"({frames} frames at {fps:g} fps)")
+        return frames
+    _check_count(name, value, low)
+    return int(value)  # type: ignore[call-overload]
 
 
 def _two_cluster_threshold(u: np.ndarray) -> float:

@@ -6,7 +6,7 @@
   analysis only adds the fresh speeds, the factor's bottom corner and the back substitution
   over its region. Rows are frames, columns lambdas (independent recursions side by side).
 - `tail_minima`: local minima of each scale's trend (the comparisons of
-  `signal.local_minima`) and the speed descent u there.
+  `signal.local_minima`) at or above a rest speed, and the speed descent u there.
 - `chain_totals`: the candidates' chains of matched minima (`speed.Chain`, the band DP of
   `speed._band_dp`, same ties): the same intensities, bit for bit.
 - `ward_levels`: `speed.ward_1d`'s greedy merging of sorted neighbours with an array heap.
@@ -145,10 +145,11 @@ def hp_tail(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.
 
 
 @kernel
-def tail_minima(trends: np.ndarray, n_scales: int, lo: int, start: int
+def tail_minima(trends: np.ndarray, n_scales: int, lo: int, start: int, floor: float
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per scale s: local minima m >= start of column s of `trends` (rows from frame lo),
-    u = |trend_s - trend_(S+s)| there. Flat (m, u) and per-scale counts."""
+    """Per scale s: local minima m >= start of column s of `trends` (rows from frame lo)
+    whose value is at least `floor`, u = |trend_s - trend_(S+s)| there. Flat (m, u) and
+    per-scale counts."""
     rows = trends.shape[0]
     first = max(1, start - lo)
     found = np.empty((n_scales, max(rows // 2, 1)), dtype=np.int64)  # rows of each's minima
@@ -156,7 +157,7 @@ def tail_minima(trends: np.ndarray, n_scales: int, lo: int, start: int
     for i in range(first, rows - 1):  # row by row: the trends' memory order
         before, here, after = trends[i - 1], trends[i], trends[i + 1]
         for s in range(n_scales):
-            if (here[s] < before[s]) & (here[s] <= after[s]):
+            if (here[s] < before[s]) & (here[s] <= after[s]) & (here[s] >= floor):
                 found[s, counts[s]] = i
                 counts[s] += 1
     ms = np.empty(counts.sum(), dtype=np.int64)
@@ -412,8 +413,8 @@ def _warm() -> None:
     v = np.linspace(0.0, 1.0, 7)
     done = hp_advance(v, 0, 0, 3, ys, pre, off, conv)
     trends = hp_tail(v, 0, 0, done, ys, pre, off, conv, lams, np.empty((9, 2)))
-    m, u, c = tail_minima(trends, 1, 0, 1)
-    tail_minima(np.ascontiguousarray(trends), 1, 0, 1)
+    m, u, c = tail_minima(trends, 1, 0, 1, 0.0)
+    tail_minima(np.ascontiguousarray(trends), 1, 0, 1, 0.0)
     chain_totals(np.array([1, 3], dtype=np.int64), m, u, c, 100)
     band_offsets(np.array([1, 2, 3], dtype=np.int64), np.array([2], dtype=np.int64))
     alpha, bounds = ward_levels(np.array([0.0, 1.0, 3.0]), 2.0)

@@ -1,0 +1,88 @@
+"""Curve-simplification keyframes (Lowe; Lim & Thalmann; Önder et al.) are keys of the
+motion, not of the recording: the same take at 60 and 30 Hz, after a calibration hold or
+before stillness, offline and online, keeps the clean take's key count and, rebuilt from its
+keys (mapped back to the clean take), the clean take's error E."""
+
+from __future__ import annotations
+
+import pytest
+from cmu import clips
+from invariance import count_ratio, e_ratio, load, variant
+
+from streamkey.errors import UsageError
+from streamkey.methods import simplify
+from streamkey.units import Duration
+
+CLIPS = ["07_05.bvh", "02_01.bvh", "09_12.bvh", "06_02.bvh"]
+VARIANTS = ["60 Hz", "30 Hz", "calibration", "stillness"]
+RATIOS, MAX_E_RATIO = (0.8, 1.25), 1.10
+
+# Unmet targets, as measured (count ratios, largest E ratio).
+XFAIL: dict[tuple[str, str], str] = {
+    ("60 Hz", "online"): "measured: counts 0.88-1.00, E ratio 1.14 (09_12), 1.11 (07_05)",
+    ("calibration", "offline"): "measured: counts 0.88-1.06, E ratio 1.50 (06_02): the "
+                                "recursion's first chords start at the calibration pose",
+    ("calibration", "online"): "measured: counts 0.93-1.00, E ratio 1.32 (02_01), 1.11 (06_02)",
+    ("stillness", "offline"): "measured: counts 0.88-1.06, E ratio 1.60 (02_01): the last "
+                              "chord ends after the stillness",
+}
+XFAIL_ALL: dict[tuple[str, str], str] = {  # key counts within 0.86-1.20 everywhere
+    ("60 Hz", "offline"): "measured: E ratio above 1.10 on 3 of 35 clips, at most 1.33 (05_06)",
+    ("60 Hz", "online"): "measured: E ratio above 1.10 on 10 of 35 clips, at most 1.30 (05_11)",
+    ("30 Hz", "offline"): "measured: E ratio above 1.10 on 6 of 35 clips, at most 1.44 (09_06)",
+    ("30 Hz", "online"): "measured: E ratio above 1.10 on 7 of 35 clips, at most 1.66 (07_12)",
+    ("calibration", "offline"): "measured: E ratio above 1.10 on 6 of 35, at most 1.50 (06_02)",
+    ("calibration", "online"): "measured: E ratio above 1.10 on 4 of 35, at most 1.32 (02_01)",
+    ("stillness", "offline"): "measured: E ratio above 1.10 on 4 of 35, at most 1.60 (02_01)",
+    ("stillness", "online"): "measured: E ratio above 1.10 on 1 of 35: 1.12 (06_08)",
+}
+
+
+def _case(which: str, mode: str, table: dict[tuple[str, str], str]) -> object:
+    reason = table.get((which, mode))
+    marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+    return pytest.param(which, mode, marks=marks, id=f"{which}-{mode}")
+
+
+def check(names: list[str], which: str, mode: str) -> None:
+    ratios = {n: count_ratio("simplify", mode, n, which) for n in names}
+    errors = {n: e_ratio("simplify", mode, n, which) for n in names}
+    summary = f"count ratios {ratios}, E ratios {errors}"
+    assert all(RATIOS[0] <= r <= RATIOS[1] for r in ratios.values()), summary
+    assert all(e <= MAX_E_RATIO for e in errors.values()), summary
+
+
+@pytest.mark.parametrize(("which", "mode"), [_case(w, m, XFAIL) for w in VARIANTS
+                                             for m in ("offline", "online")])
+def test_a_variant_keeps_the_clean_takes_key_count_and_error(which: str, mode: str) -> None:
+    check(CLIPS, which, mode)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("which", "mode"), [_case(w, m, XFAIL_ALL) for w in VARIANTS
+                                             for m in ("offline", "online")])
+def test_a_variant_keeps_the_clean_takes_key_count_and_error_on_every_clip(which: str,
+                                                                          mode: str) -> None:
+    check(clips(), which, mode)
+
+
+def test_duration_defaults_are_the_old_frame_counts_at_120_hz_and_follow_the_rate() -> None:
+    m = load("07_05.bvh")
+    at120 = simplify.Online(m.skeleton, 120.0)
+    assert (at120.lookahead, at120.history, at120.hop, at120.merge, at120.max_span) == (
+        60, 120, 8, 8, 480)
+    at30 = simplify.Online(m.skeleton, 30.0)
+    assert (at30.lookahead, at30.history, at30.hop, at30.merge, at30.max_span) == (
+        15, 30, 2, 2, 120)
+    mixed = simplify.Online(m.skeleton, 30.0, lookahead=60, merge=Duration.seconds(0.2))
+    assert (mixed.lookahead, mixed.merge, mixed.history) == (60, 6, 120)  # numbers: frames
+    with pytest.raises(UsageError, match="max_span"):
+        simplify.Online(m.skeleton, 30.0, max_span=Duration.seconds(0.1))
+
+
+@pytest.mark.parametrize("which", ["30 Hz", "stillness"])
+def test_online_with_unbounded_lookahead_equals_offline_on_a_variant(which: str) -> None:
+    m = variant("07_05.bvh", which).motion
+    kf = simplify.Online(m.skeleton, m.fps, lookahead=m.n_frames)
+    events = kf.push_block(m.frames()) + kf.flush()
+    assert [e.frame for e in events] == simplify.extract(m).frames.tolist()
