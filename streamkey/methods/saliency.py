@@ -100,7 +100,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UsageError
-from ..features import Features, compute_features
+from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import KeyframeEvent, Keyframes
 from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
@@ -230,7 +230,7 @@ def _rotations(motion: Motion, features: Features) -> np.ndarray:
     if first == 0:
         return features.rotations
     cols = motion.skeleton.rotation_columns()
-    return unwrap_degrees(motion.channels[first:, cols])
+    return unwrap_degrees(features.motion.channels[first:, cols])  # the filtered channels
 
 
 def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: bool,
@@ -245,12 +245,13 @@ def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: boo
 
 def extract(motion: Motion, *, sigma: float | None = None, k: int | None = None,
             contact: bool = True, preset: str = "auto", variance_rule: bool = False,
-            features: Features | None = None) -> Keyframes:
+            features: Features | None = None,
+            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
     """Keyframes of `motion` by multiscale motion saliency (Halit & Capin, DESIGN §4.1)."""
     if preset not in ("auto", *PRESETS):
         raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")
     if features is None:
-        features = compute_features(motion)
+        features = compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     first = motion.first_frame
     speed = None
     used = preset

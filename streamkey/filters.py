@@ -1,0 +1,288 @@
+"""The sensor-noise front end: every frame's joint angles and root position, low-passed before
+any feature is computed, the same way offline and online.
+
+Capture noise is white-ish: its power spreads evenly up to the Nyquist frequency, while the
+energy of human movement lies almost all below 6-10 Hz (Winter, "Biomechanics and Motor
+Control of Human Movement", 2009: residual analysis puts the cut-off of gait marker data at
+about 6 Hz). Curvature and speed features differentiate the signal, which multiplies each
+frequency's noise by its frequency (once per derivative), so even 0.3 degrees of noise
+swamps the second derivative at 120 Hz. A low-pass at a cut-off in Hz removes that noise and
+leaves the movement.
+
+The filter is the discrete analogue of the Gaussian (Lindeberg, "Scale-space for discrete
+signals", 1990): taps ``e^-t I_n(t)`` with ``t = sigma^2`` frames^2, whose frequency
+response is exactly ``exp(t (cos w - 1))`` (w in radians per frame) before truncation:
+real, positive and monotone (zero phase, no ringing, no overshoot at a sharp turn, which a
+windowed sinc or a Butterworth filter would add), and it keeps its shape at small sigma,
+where a sampled continuous Gaussian does not. `sigma` is chosen so that the gain is 50 % at
+`cutoff_hz` (the same convention as the Hodrick-Prescott cut-off of `signal.hp_lambda`), so
+the filter follows the stream's rate; the taps are truncated at `TRUNCATE` sigma, which makes
+the half-width `h` (frames) the filter's delay: the filtered frame f needs frame f + h.
+
+At the ends of a window (a clip, a stream, the stretch between two long gaps) the first and
+last frames are repeated h times (edge replication), offline and online alike, so a
+filtered clip and a filtered stream are the same numbers, bit for bit: `FrontEnd` is one
+streaming object, and the offline path runs the whole clip through it as one block
+(`FrontEnd.run`). The one Euro filter (Casiez, Roussel & Vogel, "1 Euro filter", CHI 2012)
+needs no lookahead but lags by a speed-dependent amount, which moves keys in time; a
+zero-phase filter does not.
+
+`FrontEnd` is the per-stream stage before the features: it unwraps the rotation channels,
+low-passes them and the root position, and holds each frame for `delay` frames. A later
+session-state stage (calibration holds, still stretches, reported as segments) plugs in
+here, seeing the same rows with the same delay.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import UsageError
+from .jit import kernel, warmer
+from .motion import Skeleton
+from .signal import unwrap_into, unwrap_state
+
+__all__ = ["DEFAULT_NOISE_CUTOFF_HZ", "TRUNCATE", "gaussian_sigma", "lowpass_kernel",
+           "frequency_response", "fir_into", "LowPass", "Rows", "FrontEnd", "smooth",
+           "warm_filters"]
+
+DEFAULT_NOISE_CUTOFF_HZ = 6.0  # Winter's cut-off for gait; human motion energy lies below
+TRUNCATE = 3.0  # taps kept: +-3 sigma (the dropped tails hold < 0.3 % of the weight)
+
+
+def _check(cutoff_hz: float, fps: float) -> None:
+    if not np.isfinite(cutoff_hz) or cutoff_hz <= 0:
+        raise UsageError(f"noise cut-off must be a positive number of Hz, got {cutoff_hz}")
+    if not np.isfinite(fps) or fps <= 0:
+        raise UsageError(f"frame rate must be positive, got {fps}")
+
+
+def gaussian_sigma(cutoff_hz: float, fps: float) -> float:
+    """Standard deviation (frames) of the discrete Gaussian whose gain is 50 % at
+    `cutoff_hz`; 0 when the cut-off is at or above the Nyquist frequency (nothing to do)."""
+    _check(cutoff_hz, fps)
+    if cutoff_hz >= fps / 2:
+        return 0.0
+    w = 2.0 * np.pi * cutoff_hz / fps
+    return float(np.sqrt(np.log(2.0) / (1.0 - np.cos(w))))
+
+
+def lowpass_kernel(cutoff_hz: float, fps: float) -> np.ndarray:
+    """Taps (2h + 1, symmetric, summing to 1) of the discrete Gaussian low-pass with 50 %
+    gain at `cutoff_hz` at `fps`, truncated at `TRUNCATE` sigma; [1.0] when nothing to do."""
+    from scipy.special import ive
+
+    sigma = gaussian_sigma(cutoff_hz, fps)
+    h = int(np.ceil(TRUNCATE * sigma))
+    if h == 0:
+        return np.ones(1)
+    taps = ive(np.abs(np.arange(-h, h + 1)), sigma * sigma)
+    return np.asarray(taps / taps.sum(), dtype=np.float64)
+
+
+def frequency_response(taps: np.ndarray, freqs_hz: np.ndarray, fps: float) -> np.ndarray:
+    """Gain of the symmetric FIR `taps` at `freqs_hz` (real: the filter has zero phase)."""
+    h = (len(taps) - 1) // 2
+    n = np.arange(-h, h + 1)
+    w = 2.0 * np.pi * np.asarray(freqs_hz, dtype=np.float64)[..., None] / fps
+    return np.asarray(np.cos(w * n) @ taps)
+
+
+@kernel
+def fir_into(padded: np.ndarray, taps: np.ndarray, out: np.ndarray) -> None:
+    """out[i] = sum_k taps[k] padded[i + k], summed in k order (the same bits for any split
+    of a signal into blocks)."""
+    m = out.shape[1]
+    for i in range(out.shape[0]):
+        for j in range(m):
+            out[i, j] = taps[0] * padded[i, j]
+        for k in range(1, taps.shape[0]):
+            t = taps[k]
+            for j in range(m):
+                out[i, j] += t * padded[i + k, j]
+
+
+class LowPass:
+    """The streaming zero-phase FIR over rows of signals: rows in, the rows whose future
+    `delay` rows have arrived out. Window ends repeat the first and last row `delay` times."""
+
+    def __init__(self, taps: np.ndarray) -> None:
+        self.taps = np.ascontiguousarray(taps, dtype=np.float64)
+        self.delay = (len(self.taps) - 1) // 2
+        self._tail: np.ndarray | None = None  # padded rows not yet consumed (None: new window)
+
+    @property
+    def pending(self) -> int:
+        """Rows received whose output has not been given yet."""
+        return 0 if self._tail is None else len(self._tail) - self.delay
+
+    def push(self, rows: np.ndarray) -> np.ndarray:
+        """Filter the rows that are now complete (possibly none)."""
+        rows = np.asarray(rows, dtype=np.float64)
+        if len(rows) == 0:
+            return np.empty((0, rows.shape[1]))
+        if self._tail is None:
+            head = np.repeat(rows[:1], self.delay, axis=0)
+        else:
+            head = self._tail
+        return self._run(np.concatenate([head, rows]))
+
+    def drain(self) -> np.ndarray:
+        """End of window: the pending rows, with the last row repeated; then a new window."""
+        if self._tail is None:
+            return np.empty((0, 0))
+        tail = self._tail
+        out = self._run(np.concatenate([tail, np.repeat(tail[-1:], self.delay, axis=0)]))
+        self._tail = None
+        return out
+
+    def reset(self) -> None:
+        """A new window (nothing pending is given)."""
+        self._tail = None
+
+    def _run(self, padded: np.ndarray) -> np.ndarray:
+        k = len(self.taps)
+        n = max(0, len(padded) - (k - 1))
+        out = np.empty((n, padded.shape[1]))
+        if n:
+            fir_into(padded, self.taps, out)
+        self._tail = padded[n:].copy()
+        return out
+
+
+def smooth(x: np.ndarray, cutoff_hz: float, fps: float) -> np.ndarray:
+    """Signals (frames along axis 0) low-passed at `cutoff_hz`, ends edge-replicated."""
+    x = np.asarray(x, dtype=np.float64)
+    shape = x.shape
+    rows = np.ascontiguousarray(x.reshape(len(x), -1))
+    lp = LowPass(lowpass_kernel(cutoff_hz, fps))
+    out = np.concatenate([lp.push(rows), lp.drain().reshape(-1, rows.shape[1])])
+    return out.reshape(shape)
+
+
+@dataclass
+class Rows:
+    """Frames through the front end: `seq`, `time`, `channels` (the model's channel
+    layout; rotation columns unwrapped and filtered when the filter is on, raw when off)
+    and `rotations` (the unwrapped, filtered rotation columns)."""
+
+    seq: np.ndarray
+    time: np.ndarray
+    channels: np.ndarray
+    rotations: np.ndarray
+
+    def __len__(self) -> int:
+        return int(len(self.seq))
+
+
+class FrontEnd:
+    """Per-stream stage before the features: unwrap the rotation channels (state carried
+    across windows), low-pass them and the position channels, give each frame `delay`
+    frames later. `noise_cutoff_hz` None or 0: no filter, no delay, raw channels.
+
+    `last_seq` is the seq of the last frame put in this window: a decision made on a
+    filtered frame f was made when frame f + delay arrived (`arrival`), or at most
+    `last_seq` once the window is drained.
+    """
+
+    def __init__(self, skeleton: Skeleton, fps: float,
+                 noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> None:
+        self.n_channels = skeleton.n_channels
+        self.rotation_columns = skeleton.rotation_columns().astype(np.int64)
+        self.position_columns = skeleton.position_columns().astype(np.int64)
+        self.fps = float(fps)
+        self.noise_cutoff_hz = float(noise_cutoff_hz) if noise_cutoff_hz else None
+        taps = (np.ones(1) if self.noise_cutoff_hz is None
+                else lowpass_kernel(self.noise_cutoff_hz, self.fps))
+        self.lowpass: LowPass | None = LowPass(taps) if len(taps) > 1 else None
+        self.delay = 0 if self.lowpass is None else self.lowpass.delay
+        self.unwrap_prev: np.ndarray | None = None
+        self.unwrap_offset: np.ndarray | None = None
+        self.last_seq: int | None = None
+        self._held: Rows | None = None  # frames in the filter, not given yet
+
+    def push(self, seq: np.ndarray, time: np.ndarray, channels: np.ndarray) -> Rows:
+        """Put consecutive frames in; returns the frames now complete (maybe none)."""
+        n = len(seq)
+        cols = self.rotation_columns
+        if n == 0:
+            return _empty(self.n_channels, len(cols))
+        rotations = np.empty((n, len(cols)))
+        if self.unwrap_prev is None or self.unwrap_offset is None:
+            self.unwrap_prev, self.unwrap_offset = unwrap_state(channels[0, cols], None, None)
+        unwrap_into(channels, cols, self.unwrap_prev, self.unwrap_offset, rotations)
+        self.last_seq = int(seq[-1])
+        if self.lowpass is None:
+            return Rows(seq, time, channels, rotations)
+        signal = np.concatenate([rotations, channels[:, self.position_columns]], axis=1)
+        held = Rows(seq, time, channels, rotations)
+        if self._held is not None:
+            held = _cat(self._held, held)
+        return self._give(held, self.lowpass.push(signal))
+
+    def drain(self) -> Rows:
+        """End of a window: every frame held, the window's last frame repeated."""
+        if self.lowpass is None or self._held is None:
+            return _empty(self.n_channels, len(self.rotation_columns))
+        return self._give(self._held, self.lowpass.drain())
+
+    def _give(self, held: Rows, filtered: np.ndarray) -> Rows:
+        n = len(filtered)
+        ready = Rows(held.seq[:n], held.time[:n], held.channels[:n].copy(), filtered[:, :0])
+        r = len(self.rotation_columns)
+        ready.rotations = np.ascontiguousarray(filtered[:, :r])
+        ready.channels[:, self.rotation_columns] = ready.rotations
+        ready.channels[:, self.position_columns] = filtered[:, r:]
+        rest = Rows(held.seq[n:], held.time[n:], held.channels[n:], held.rotations[n:])
+        self._held = rest if len(rest) else None
+        return ready
+
+    def arrival(self, decided_at: int) -> int:
+        """The seq of the frame whose arrival made a decision on filtered frame `decided_at`."""
+        if self.delay == 0 or self.last_seq is None:
+            return decided_at
+        return min(decided_at + self.delay, self.last_seq)
+
+    def restart(self) -> None:
+        """A new window (after a long gap or a source restart, once drained): the unwrap
+        state is kept, the filter starts afresh."""
+        if self.lowpass is not None:
+            self.lowpass.reset()
+        self._held = None
+
+    def reset(self) -> None:
+        """A new stream: forget the unwrap state too."""
+        self.restart()
+        self.unwrap_prev = None
+        self.unwrap_offset = None
+        self.last_seq = None
+
+    def run(self, channels: np.ndarray) -> Rows:
+        """A whole clip as one window (the offline path): push, then drain."""
+        channels = np.ascontiguousarray(channels, dtype=np.float64)
+        n = len(channels)
+        seq = np.arange(n, dtype=np.int64)
+        a = self.push(seq, np.zeros(n), channels)
+        b = self.drain()
+        self.reset()
+        return _cat(a, b) if len(b) else a
+
+
+def _empty(n_channels: int, n_rot: int) -> Rows:
+    return Rows(np.empty(0, dtype=np.int64), np.empty(0), np.empty((0, n_channels)),
+                np.empty((0, n_rot)))
+
+
+def _cat(a: Rows, b: Rows) -> Rows:
+    return Rows(np.concatenate([a.seq, b.seq]), np.concatenate([a.time, b.time]),
+                np.concatenate([a.channels, b.channels]),
+                np.concatenate([a.rotations, b.rotations]))
+
+
+@warmer
+def warm_filters() -> None:
+    """Compile (or load from the cache) the FIR kernel."""
+    out = np.empty((1, 1))
+    fir_into(np.ones((3, 1)), np.array([0.25, 0.5, 0.25]), out)

@@ -1,0 +1,257 @@
+"""The sensor-noise front end: the filter's facts, online = offline through it, and what it
+buys on noisy takes of the shared clips."""
+
+from __future__ import annotations
+
+import pickle
+from functools import cache
+
+import numpy as np
+import pytest
+from cmu import DATA
+
+from streamkey import variants as V
+from streamkey.amc import read_motion
+from streamkey.features import compute_features
+from streamkey.filters import (
+    DEFAULT_NOISE_CUTOFF_HZ,
+    FrontEnd,
+    LowPass,
+    frequency_response,
+    gaussian_sigma,
+    lowpass_kernel,
+    smooth,
+)
+from streamkey.keyframes import KeyframeEvent
+from streamkey.methods import offline_method, saliency, simplify, speed
+from streamkey.methods import optimal as optimal_method
+from streamkey.motion import Frame, Motion
+from streamkey.online import Pipeline
+
+FC = DEFAULT_NOISE_CUTOFF_HZ
+
+
+@cache
+def motion(name: str) -> Motion:
+    return read_motion(DATA / name)
+
+
+# --- the filter --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("fps", [120.0, 60.0, 30.0])
+def test_the_gain_is_half_at_the_cut_off_and_the_delay_follows_the_rate(fps: float) -> None:
+    taps = lowpass_kernel(FC, fps)
+    h = (len(taps) - 1) // 2
+    assert np.all(taps > 0) and np.array_equal(taps, taps[::-1])
+    assert abs(taps.sum() - 1.0) < 1e-12
+    assert h == int(np.ceil(3.0 * gaussian_sigma(FC, fps)))
+    # the same time span at every rate: 12, 6, 4 frames = 100, 100, 133 ms
+    assert h == {120.0: 12, 60.0: 6, 30.0: 4}[fps]
+    gain = frequency_response(taps, np.array([0.0, 1.0, FC, 15.0]), fps)
+    assert gain[0] == pytest.approx(1.0, abs=1e-12)
+    assert gain[1] > 0.97  # movement passes
+    assert gain[2] == pytest.approx(0.5, abs=0.005)  # 50 % at the cut-off
+    f = np.linspace(0.0, fps / 2, 400)
+    full = frequency_response(taps, f, fps)
+    low = full < 0.01  # where the Gaussian's own gain falls below 1 % (not at 30 Hz)
+    band = int(np.argmax(low)) if low.any() else len(full)
+    assert np.all(np.diff(full[: band + 1]) < 0)  # monotone: no overshoot, no ringing
+    assert np.all(np.abs(full[band:]) < 0.01)  # truncating the taps leaves < 1 % ripple
+    if fps == 120.0:
+        assert gain[3] < 0.02  # noise at 15 Hz: -34 dB
+
+
+def test_the_taps_are_the_discrete_gaussian_whose_response_is_known_in_closed_form() -> None:
+    fps = 120.0
+    taps = lowpass_kernel(FC, fps)
+    t = gaussian_sigma(FC, fps) ** 2
+    f = np.linspace(0.0, 60.0, 121)
+    exact = np.exp(t * (np.cos(2 * np.pi * f / fps) - 1.0))  # Lindeberg's, untruncated
+    assert np.max(np.abs(frequency_response(taps, f, fps) - exact)) < 0.005
+
+
+def test_the_filter_has_no_phase_a_ramp_passes_and_a_sine_is_not_shifted() -> None:
+    fps = 120.0
+    n = np.arange(600)
+    ramp = smooth(0.3 * n, FC, fps)
+    h = (len(lowpass_kernel(FC, fps)) - 1) // 2
+    np.testing.assert_allclose(ramp[h:-h], 0.3 * n[h:-h], atol=1e-9)
+    x = np.sin(2 * np.pi * 2.0 * n / fps)
+    y = smooth(x, FC, fps)
+    lags = list(range(-5, 6))
+    corr = [float(np.dot(x[50:-50], np.roll(y, k)[50:-50])) for k in lags]
+    assert lags[int(np.argmax(corr))] == 0
+
+
+def test_noise_shrinks_by_the_tap_energy_and_its_second_difference_by_far_more() -> None:
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0.0, 1.0, (20000, 4))
+    out = smooth(noise, FC, 120.0)
+    taps = lowpass_kernel(FC, 120.0)
+    assert np.std(out) == pytest.approx(np.sqrt(np.sum(taps**2)), rel=0.05)  # ~0.27
+    acc = np.std(np.diff(out, 2, axis=0)) / np.std(np.diff(noise, 2, axis=0))
+    assert acc < 0.01
+
+
+def test_any_split_into_blocks_gives_the_same_bits_edges_included() -> None:
+    rng = np.random.default_rng(2)
+    for n in (1, 5, 12, 25, 300):
+        x = rng.normal(size=(n, 3)).cumsum(axis=0)
+        whole = smooth(x, FC, 120.0)
+        lp = LowPass(lowpass_kernel(FC, 120.0))
+        parts, i = [], 0
+        for k in (1, 2, 7, 1, 40, 1000):
+            parts.append(lp.push(x[i : i + k]))
+            i += k
+        parts.append(lp.drain())
+        got = np.concatenate([p.reshape(-1, 3) for p in parts])
+        assert np.array_equal(got, whole), n
+
+
+def test_off_is_the_raw_channels_and_no_delay() -> None:
+    m = motion("07_01.bvh")
+    front = FrontEnd(m.skeleton, m.fps, None)
+    assert front.delay == 0
+    f = compute_features(m, noise_cutoff_hz=None)
+    assert f.motion is m and f.noise_cutoff_hz is None
+    assert compute_features(m, noise_cutoff_hz=0).motion is m
+    on = compute_features(m)
+    assert on.noise_cutoff_hz == FC
+    first = m.first_frame
+    assert np.array_equal(on.motion.channels[:first], m.channels[:first])  # reference pose
+    rot = m.skeleton.rotation_columns()
+    assert np.array_equal(on.motion.channels[first:, rot], on.rotations[first:])
+    assert np.percentile(np.abs(on.rotations[first:] - f.rotations[first:]), 99) < 5.0  # 3.3
+
+
+# --- online = offline ---------------------------------------------------------------------
+
+def _events(kf: object, frames: list[Frame]) -> list[KeyframeEvent]:
+    out = []
+    for f in frames:
+        out += kf.push(f)  # type: ignore[attr-defined]
+    out += kf.flush()  # type: ignore[attr-defined]
+    return [e for e in out if isinstance(e, KeyframeEvent)]
+
+
+def _online(method: str, m: Motion) -> object:
+    n = m.n_frames + 1
+    if method == "saliency":
+        return saliency.Online(m.skeleton, m.fps, lookahead=n, preset="low")
+    if method == "speed":
+        return speed.Online(m.skeleton, m.fps, lookahead=n)
+    if method == "simplify":
+        return simplify.Online(m.skeleton, m.fps, lookahead=n)
+    return optimal_method.Online(m.skeleton, m.fps, lookahead=n)
+
+
+def _offline(method: str, m: Motion) -> np.ndarray:
+    if method == "saliency":
+        return saliency.extract(m, preset="low").frames
+    return offline_method(method)(m).frames
+
+
+@pytest.mark.parametrize("method", ["saliency", "speed", "simplify", "optimal"])
+@pytest.mark.parametrize("name", ["07_01.bvh", "05_11.amc"])
+def test_online_equals_offline_with_the_filter_at_unbounded_lookahead(method: str,
+                                                                      name: str) -> None:
+    m = motion(name)
+    kf = _online(method, m)
+    assert kf.features.delay == 12  # type: ignore[attr-defined]
+    events = _events(kf, m.frames())
+    off = _offline(method, m)
+    assert [e.frame for e in events] == off.tolist() and len(off) > 1
+    last = m.n_frames - 1
+    assert all(0 <= e.latency_frames <= e.lookahead and e.decided_at <= last for e in events)
+    assert all(e.lookahead == kf.lookahead + 12 for e in events)  # type: ignore[attr-defined]
+    # and the filter is what the offline keys went through: off, they differ
+    assert _offline_off(method, m) != off.tolist()
+
+
+def _offline_off(method: str, m: Motion) -> list[int]:
+    kw: dict[str, object] = {"noise_cutoff_hz": None}
+    if method == "saliency":
+        kw["preset"] = "low"
+    return offline_method(method)(m, **kw).frames.tolist()  # type: ignore[no-any-return]
+
+
+def test_decisions_are_dated_by_the_arrival_that_made_them() -> None:
+    m = motion("07_01.bvh")
+    kf = speed.Online(m.skeleton, m.fps)
+    h = kf.features.delay
+    frames = m.frames()
+    seen = []
+    for f in frames:
+        for e in kf.push(f):
+            if isinstance(e, KeyframeEvent):
+                assert e.decided_at == f.seq  # decided by this frame's arrival
+                assert 0 <= e.latency_frames <= e.lookahead == kf.lookahead + h
+                seen.append(e)
+    tail = [e for e in kf.flush() if isinstance(e, KeyframeEvent)]
+    assert seen and all(e.decided_at == frames[-1].seq for e in tail)
+
+
+def test_a_pipeline_sets_the_cut_off_and_off_is_the_raw_keyframers() -> None:
+    m = motion("07_01.bvh")
+    n = m.n_frames + 1
+    raw = Pipeline([speed.Online(m.skeleton, m.fps, lookahead=n)], noise_cutoff_hz=None)
+    assert raw.delay == 0
+    got = [e for e in raw.push_block(m.frames()) + raw.flush() if isinstance(e, KeyframeEvent)]
+    assert [e.frame for e in got] == speed.extract(m, noise_cutoff_hz=None).frames.tolist()
+    slow = Pipeline([speed.Online(m.skeleton, m.fps, lookahead=n)], noise_cutoff_hz=3.0)
+    assert slow.delay == 23  # half the cut-off: twice the half-width (ceil 3 sigma)
+    got = [e for e in slow.push_block(m.frames()) + slow.flush()
+           if isinstance(e, KeyframeEvent)]
+    assert [e.frame for e in got] == speed.extract(m, noise_cutoff_hz=3.0).frames.tolist()
+
+
+def test_a_pipeline_pickled_inside_the_filter_delay_resumes_identically() -> None:
+    m = motion("07_01.bvh")
+    frames = m.frames()
+
+    def pipe() -> Pipeline:
+        return Pipeline([speed.Online(m.skeleton, m.fps), simplify.Online(m.skeleton, m.fps)])
+
+    p = pipe()
+    whole = [e for f in frames for e in p.push(f)] + p.flush()
+    for cut in (5, 150):
+        q = pipe()
+        head = [e for f in frames[:cut] for e in q.push(f)]
+        clone = pickle.loads(pickle.dumps(q))
+        rest = [e for f in frames[cut:] for e in clone.push(f)] + clone.flush()
+        assert head + rest == whole, cut
+
+
+# --- noisy takes ----------------------------------------------------------------------------
+
+NOISE_CLIPS = ["07_01.bvh", "16_11.bvh", "02_01.bvh"]
+
+
+@cache
+def noisy_agreement(method: str, name: str, degrees: float) -> tuple[float, float]:
+    """(key count ratio, F1) of the take with noise against the clean take, offline."""
+    m = motion(name)
+    clean = V.clean_take(m)
+    variant = V.with_noise(m, degrees)
+    ck = offline_method(method)(clean.motion).frames
+    vk = V.keys_in_take(variant, offline_method(method)(variant.motion).frames)
+    return len(vk) / max(1, len(ck)), V.f1_against(ck, vk, clean.motion.fps)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["simplify", "optimal"])
+def test_with_the_filter_0_3_degrees_of_noise_keeps_the_key_count(method: str) -> None:
+    for name in NOISE_CLIPS:
+        ratio, _ = noisy_agreement(method, name, 0.3)
+        assert 0.8 <= ratio <= 1.25, (name, ratio)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["saliency", "speed"])
+def test_with_the_filter_0_3_degrees_of_noise_keeps_the_keys(method: str) -> None:
+    f1 = []
+    for name in NOISE_CLIPS:
+        ratio, f = noisy_agreement(method, name, 0.3)
+        assert 0.8 <= ratio <= 1.25, (name, ratio)
+        f1.append(f)
+    assert np.mean(f1) >= 0.9 and min(f1) >= 0.75, f1
