@@ -66,7 +66,10 @@ def test_damaged_streams_never_raise_and_report_the_missing_frames(method, motio
     assert set(missing) <= covered
     c = kf.guard.counters
     assert c.duplicates > 0 and c.out_of_order > 0 and c.invalid == 1 and c.gaps >= len(gaps)
-    lookahead = kf.lookahead
+    # the latency bound: the keyframer's lookahead and the noise filter's delay
+    lookahead = kf.lookahead + kf.features.delay
+    assert kf.features.delay > 0
+    assert all(e.lookahead == lookahead for e in events if isinstance(e, KeyframeEvent))
     assert all(0 <= e.latency_frames <= lookahead for e in events
                if isinstance(e, KeyframeEvent) and e.decided_at < seqs[-1])
     assert keyframes(events)
