@@ -91,64 +91,97 @@ def frequency_response(taps: np.ndarray, freqs_hz: np.ndarray, fps: float) -> np
 
 
 @kernel
-def fir_into(padded: np.ndarray, taps: np.ndarray, out: np.ndarray) -> None:
-    """out[i] = sum_k taps[k] padded[i + k], summed in k order (the same bits for any split
-    of a signal into blocks)."""
-    m = out.shape[1]
+def fir_into(padded: np.ndarray, taps: np.ndarray, width: int, out: np.ndarray) -> None:
+    """out[i, j] = sum_k taps[k] padded[i + k, j] for the first `width` columns, summed in k
+    order (the same bits for any split of a signal into blocks); the columns after them
+    (carried along, not filtered) are copied from the centre row padded[i + h]."""
+    h = (taps.shape[0] - 1) // 2
     for i in range(out.shape[0]):
-        for j in range(m):
+        for j in range(width):
             out[i, j] = taps[0] * padded[i, j]
         for k in range(1, taps.shape[0]):
             t = taps[k]
-            for j in range(m):
+            for j in range(width):
                 out[i, j] += t * padded[i + k, j]
+        for j in range(width, out.shape[1]):
+            out[i, j] = padded[i + h, j]
 
 
 class LowPass:
-    """The streaming zero-phase FIR over rows of signals: rows in, the rows whose future
-    `delay` rows have arrived out. Window ends repeat the first and last row `delay` times."""
+    """The streaming zero-phase FIR over rows of signals: rows in, the rows whose next
+    `delay` rows have arrived out. A window's ends repeat its first and last row `delay`
+    times. The last `carry` columns ride along unfiltered (a frame's seq and time)."""
 
-    def __init__(self, taps: np.ndarray) -> None:
+    def __init__(self, taps: np.ndarray, carry: int = 0) -> None:
         self.taps = np.ascontiguousarray(taps, dtype=np.float64)
         self.delay = (len(self.taps) - 1) // 2
-        self._tail: np.ndarray | None = None  # padded rows not yet consumed (None: new window)
+        self.carry = int(carry)
+        self._pad = np.empty((0, 0))  # the window's padded rows from `_lo` on
+        self._n = 0  # rows of `_pad` in use
+        self._c = 0  # row of `_pad` at the centre of the next output
+        self._open = False
 
     @property
     def pending(self) -> int:
         """Rows received whose output has not been given yet."""
-        return 0 if self._tail is None else len(self._tail) - self.delay
+        return self._n - self.delay - self._c if self._open else 0
 
     def push(self, rows: np.ndarray) -> np.ndarray:
         """Filter the rows that are now complete (possibly none)."""
         rows = np.asarray(rows, dtype=np.float64)
         if len(rows) == 0:
             return np.empty((0, rows.shape[1]))
-        if self._tail is None:
-            head = np.repeat(rows[:1], self.delay, axis=0)
-        else:
-            head = self._tail
-        return self._run(np.concatenate([head, rows]))
+        if not self._open:
+            self._start(rows.shape[1], rows[0])
+        self._append(rows)
+        return self._run()
 
     def drain(self) -> np.ndarray:
         """End of window: the pending rows, with the last row repeated; then a new window."""
-        if self._tail is None:
-            return np.empty((0, 0))
-        tail = self._tail
-        out = self._run(np.concatenate([tail, np.repeat(tail[-1:], self.delay, axis=0)]))
-        self._tail = None
+        if not self._open:
+            return np.empty((0, self._pad.shape[1]))
+        last = self._pad[self._n - 1].copy()
+        self._append(np.broadcast_to(last, (self.delay, len(last))))
+        out = self._run()
+        self.reset()
         return out
 
     def reset(self) -> None:
         """A new window (nothing pending is given)."""
-        self._tail = None
+        self._open = False
+        self._n = self._c = 0
 
-    def _run(self, padded: np.ndarray) -> np.ndarray:
-        k = len(self.taps)
-        n = max(0, len(padded) - (k - 1))
-        out = np.empty((n, padded.shape[1]))
-        if n:
-            fir_into(padded, self.taps, out)
-        self._tail = padded[n:].copy()
+    def _start(self, width: int, first: np.ndarray) -> None:
+        h = self.delay
+        if self._pad.shape[1] != width or len(self._pad) < 4 * h + 64:
+            self._pad = np.empty((4 * h + 64, width))
+        self._pad[:h] = first
+        self._n, self._c, self._open = h, h, True
+
+    def _append(self, rows: np.ndarray) -> None:
+        k, h = len(rows), self.delay
+        if self._n + k > len(self._pad):
+            lo = self._c - h  # rows before it are no longer needed
+            keep = self._n - lo
+            if keep + k > len(self._pad) // 2:
+                grown = np.empty((2 * (keep + k) + 2 * h, self._pad.shape[1]))
+                grown[:keep] = self._pad[lo : self._n]
+                self._pad = grown
+            else:
+                self._pad[:keep] = self._pad[lo : self._n]
+            self._n, self._c = keep, h
+        self._pad[self._n : self._n + k] = rows
+        self._n += k
+
+    def _run(self) -> np.ndarray:
+        h = self.delay
+        m = max(0, self._n - h - self._c)
+        out = np.empty((m, self._pad.shape[1]))
+        if m:
+            lo = self._c - h
+            fir_into(self._pad[lo : self._c + m + h], self.taps,
+                     self._pad.shape[1] - self.carry, out)
+            self._c += m
         return out
 
 
@@ -191,24 +224,23 @@ class FrontEnd:
                  noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> None:
         self.n_channels = skeleton.n_channels
         self.rotation_columns = skeleton.rotation_columns().astype(np.int64)
-        self.position_columns = skeleton.position_columns().astype(np.int64)
         self.fps = float(fps)
         self.noise_cutoff_hz = float(noise_cutoff_hz) if noise_cutoff_hz else None
         taps = (np.ones(1) if self.noise_cutoff_hz is None
                 else lowpass_kernel(self.noise_cutoff_hz, self.fps))
-        self.lowpass: LowPass | None = LowPass(taps) if len(taps) > 1 else None
+        # Rows in the filter: the channels (rotations unwrapped), then seq and time.
+        self.lowpass: LowPass | None = LowPass(taps, carry=2) if len(taps) > 1 else None
         self.delay = 0 if self.lowpass is None else self.lowpass.delay
         self.unwrap_prev: np.ndarray | None = None
         self.unwrap_offset: np.ndarray | None = None
         self.last_seq: int | None = None
-        self._held: Rows | None = None  # frames in the filter, not given yet
 
     def push(self, seq: np.ndarray, time: np.ndarray, channels: np.ndarray) -> Rows:
         """Put consecutive frames in; returns the frames now complete (maybe none)."""
         n = len(seq)
         cols = self.rotation_columns
         if n == 0:
-            return _empty(self.n_channels, len(cols))
+            return self._rows(np.empty((0, self.n_channels + 2)))
         rotations = np.empty((n, len(cols)))
         if self.unwrap_prev is None or self.unwrap_offset is None:
             self.unwrap_prev, self.unwrap_offset = unwrap_state(channels[0, cols], None, None)
@@ -216,28 +248,23 @@ class FrontEnd:
         self.last_seq = int(seq[-1])
         if self.lowpass is None:
             return Rows(seq, time, channels, rotations)
-        signal = np.concatenate([rotations, channels[:, self.position_columns]], axis=1)
-        held = Rows(seq, time, channels, rotations)
-        if self._held is not None:
-            held = _cat(self._held, held)
-        return self._give(held, self.lowpass.push(signal))
+        rows = np.empty((n, self.n_channels + 2))
+        rows[:, : self.n_channels] = channels
+        rows[:, cols] = rotations
+        rows[:, -2] = seq
+        rows[:, -1] = time
+        return self._rows(self.lowpass.push(rows))
 
     def drain(self) -> Rows:
         """End of a window: every frame held, the window's last frame repeated."""
-        if self.lowpass is None or self._held is None:
-            return _empty(self.n_channels, len(self.rotation_columns))
-        return self._give(self._held, self.lowpass.drain())
+        if self.lowpass is None:
+            return self._rows(np.empty((0, self.n_channels + 2)))
+        return self._rows(self.lowpass.drain())
 
-    def _give(self, held: Rows, filtered: np.ndarray) -> Rows:
-        n = len(filtered)
-        ready = Rows(held.seq[:n], held.time[:n], held.channels[:n].copy(), filtered[:, :0])
-        r = len(self.rotation_columns)
-        ready.rotations = np.ascontiguousarray(filtered[:, :r])
-        ready.channels[:, self.rotation_columns] = ready.rotations
-        ready.channels[:, self.position_columns] = filtered[:, r:]
-        rest = Rows(held.seq[n:], held.time[n:], held.channels[n:], held.rotations[n:])
-        self._held = rest if len(rest) else None
-        return ready
+    def _rows(self, out: np.ndarray) -> Rows:
+        channels = np.ascontiguousarray(out[:, : self.n_channels])
+        return Rows(out[:, -2].astype(np.int64), out[:, -1].copy(), channels,
+                    np.ascontiguousarray(channels[:, self.rotation_columns]))
 
     def arrival(self, decided_at: int) -> int:
         """The seq of the frame whose arrival made a decision on filtered frame `decided_at`."""
@@ -250,7 +277,6 @@ class FrontEnd:
         state is kept, the filter starts afresh."""
         if self.lowpass is not None:
             self.lowpass.reset()
-        self._held = None
 
     def reset(self) -> None:
         """A new stream: forget the unwrap state too."""
@@ -263,26 +289,18 @@ class FrontEnd:
         """A whole clip as one window (the offline path): push, then drain."""
         channels = np.ascontiguousarray(channels, dtype=np.float64)
         n = len(channels)
-        seq = np.arange(n, dtype=np.int64)
-        a = self.push(seq, np.zeros(n), channels)
+        a = self.push(np.arange(n, dtype=np.int64), np.zeros(n), channels)
         b = self.drain()
         self.reset()
-        return _cat(a, b) if len(b) else a
-
-
-def _empty(n_channels: int, n_rot: int) -> Rows:
-    return Rows(np.empty(0, dtype=np.int64), np.empty(0), np.empty((0, n_channels)),
-                np.empty((0, n_rot)))
-
-
-def _cat(a: Rows, b: Rows) -> Rows:
-    return Rows(np.concatenate([a.seq, b.seq]), np.concatenate([a.time, b.time]),
-                np.concatenate([a.channels, b.channels]),
-                np.concatenate([a.rotations, b.rotations]))
+        if not len(b):
+            return a
+        return Rows(np.concatenate([a.seq, b.seq]), np.concatenate([a.time, b.time]),
+                    np.concatenate([a.channels, b.channels]),
+                    np.concatenate([a.rotations, b.rotations]))
 
 
 @warmer
 def warm_filters() -> None:
     """Compile (or load from the cache) the FIR kernel."""
-    out = np.empty((1, 1))
-    fir_into(np.ones((3, 1)), np.array([0.25, 0.5, 0.25]), out)
+    out = np.empty((1, 2))
+    fir_into(np.ones((3, 2)), np.array([0.25, 0.5, 0.25]), 1, out)
