@@ -107,6 +107,9 @@ def fir_into(padded: np.ndarray, taps: np.ndarray, width: int, out: np.ndarray) 
             out[i, j] = padded[i + h, j]
 
 
+_CHUNK = 256  # rows appended to the filter's buffer at a time
+
+
 class LowPass:
     """The streaming zero-phase FIR over rows of signals: rows in, the rows whose next
     `delay` rows have arrived out. A window's ends repeat its first and last row `delay`
@@ -133,8 +136,14 @@ class LowPass:
             return np.empty((0, rows.shape[1]))
         if not self._open:
             self._start(rows.shape[1], rows[0])
-        self._append(rows)
-        return self._run()
+        if len(rows) <= _CHUNK:
+            self._append(rows)
+            return self._run()
+        out = []  # a long block a chunk at a time: the buffer stays small (same bits)
+        for lo in range(0, len(rows), _CHUNK):
+            self._append(rows[lo : lo + _CHUNK])
+            out.append(self._run())
+        return np.concatenate(out)
 
     def drain(self) -> np.ndarray:
         """End of window: the pending rows, with the last row repeated; then a new window."""
@@ -150,6 +159,15 @@ class LowPass:
         """A new window (nothing pending is given)."""
         self._open = False
         self._n = self._c = 0
+
+    def __getstate__(self) -> dict[str, object]:
+        state = dict(self.__dict__)
+        if self._open:  # the rows still needed, not the buffer's spare room
+            lo = self._c - self.delay
+            state.update(_pad=self._pad[lo : self._n].copy(), _n=self._n - lo, _c=self.delay)
+        else:
+            state.update(_pad=np.empty((0, 0)), _n=0, _c=0)
+        return state
 
     def _start(self, width: int, first: np.ndarray) -> None:
         h = self.delay

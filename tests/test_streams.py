@@ -270,7 +270,9 @@ async def test_due_decisions_of_every_stream_go_before_any_re_analysis():
 
     for due_first in (True, False):
         calls = await order(due_first)
-        idles = [c for c in calls if c[0] == "idle" and c[1] == "a"]
+        # (the flush's own re-analysis of the frames the noise filter held has no later
+        # frame to wait for)
+        idles = [c for c in calls if c[0] == "idle" and c[1] == "a" and c[2] < frames[-1].seq]
         assert idles
         for _, _, seq in idles:
             b_done = calls.index(("process", "b", seq)) < calls.index(("idle", "a", seq))
