@@ -77,19 +77,21 @@ class Features:
 def filtered_motion(motion: Motion, noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ
                     ) -> tuple[Motion, np.ndarray]:
     """`motion` through the front end, and its unwrapped rotation columns. The captured
-    frames are one window (unwrapped from the first captured frame, as a stream of them
-    is); a reference frame before them stays as it is. Off (None or 0): `motion` itself."""
+    frames are one window, unwrapped from the first captured frame as a stream of them is
+    (filter on or off); a reference frame before them stays as it is. Off (None or 0):
+    `motion` itself."""
     skel = motion.skeleton
     cols = skel.rotation_columns()
     front = FrontEnd(skel, motion.fps, noise_cutoff_hz)
-    if front.lowpass is None:
-        return motion, unwrap_columns(motion.channels, cols)
     first = motion.first_frame
+    rotations = np.empty((motion.n_frames, len(cols)))
+    rotations[:first] = unwrap_columns(motion.channels[:first], cols)
+    if front.lowpass is None:
+        rotations[first:] = unwrap_columns(motion.channels[first:], cols)
+        return motion, rotations
     rows = front.run(motion.channels[first:])
     channels = motion.channels.copy()
     channels[first:] = rows.channels
-    rotations = np.empty((motion.n_frames, len(cols)))
-    rotations[:first] = unwrap_columns(motion.channels[:first], cols)
     rotations[first:] = rows.rotations
     return Motion(skel, channels, motion.fps, first, motion.name), rotations
 

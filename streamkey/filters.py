@@ -107,6 +107,78 @@ def fir_into(padded: np.ndarray, taps: np.ndarray, width: int, out: np.ndarray) 
             out[i, j] = padded[i + h, j]
 
 
+@kernel
+def joint_quaternions(rows: np.ndarray, cols: np.ndarray, axes: np.ndarray, prev: np.ndarray,
+                      out: np.ndarray) -> None:
+    """Unit quaternions (w, x, y, z) of the 3-rotation joints: joint j composes the angles
+    rows[:, cols[j]] (degrees) about the axes axes[j] (0 X, 1 Y, 2 Z), intrinsically, into
+    out[:, 4j : 4j + 4]; each on the side of the sphere of the one before it (`prev`, the
+    last row's, updated; w = 2 marks a stream start), so the signal has no sign flips."""
+    for f in range(rows.shape[0]):
+        for j in range(cols.shape[0]):
+            w, x, y, z = 1.0, 0.0, 0.0, 0.0
+            for k in range(3):
+                half = 0.5 * np.radians(rows[f, cols[j, k]])
+                c, s = np.cos(half), np.sin(half)
+                a = axes[j, k]
+                if a == 0:  # (w, x, y, z) * (c, s, 0, 0)
+                    w, x, y, z = w * c - x * s, x * c + w * s, y * c + z * s, z * c - y * s
+                elif a == 1:  # * (c, 0, s, 0)
+                    w, x, y, z = w * c - y * s, x * c - z * s, y * c + w * s, z * c + x * s
+                else:  # * (c, 0, 0, s)
+                    w, x, y, z = w * c - z * s, x * c + y * s, y * c - x * s, z * c + w * s
+            if prev[j, 0] <= 1.0 and (w * prev[j, 0] + x * prev[j, 1] + y * prev[j, 2]
+                                      + z * prev[j, 3]) < 0.0:
+                w, x, y, z = -w, -x, -y, -z
+            prev[j, 0], prev[j, 1], prev[j, 2], prev[j, 3] = w, x, y, z
+            out[f, 4 * j], out[f, 4 * j + 1], out[f, 4 * j + 2], out[f, 4 * j + 3] = w, x, y, z
+
+
+@kernel
+def joint_angles(quats: np.ndarray, axes: np.ndarray, ref: np.ndarray, out: np.ndarray) -> None:
+    """Angles (degrees) of the (normalised) quaternions quats[:, 4j : 4j + 4] in joint j's
+    intrinsic axis order axes[j]: of the two Tait-Bryan triples of each rotation, shifted by
+    multiples of 360, the one nearest ref[:, 3j : 3j + 3] (the raw unwrapped angles, so the
+    channels stay as continuous as they came)."""
+    for f in range(quats.shape[0]):
+        for j in range(axes.shape[0]):
+            w, x, y, z = (quats[f, 4 * j], quats[f, 4 * j + 1], quats[f, 4 * j + 2],
+                          quats[f, 4 * j + 3])
+            n = np.sqrt(w * w + x * x + y * y + z * z)
+            w, x, y, z = w / n, x / n, y / n, z / n
+            r = np.empty((3, 3))
+            r[0, 0], r[0, 1], r[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (
+                x * z + w * y)
+            r[1, 0], r[1, 1], r[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (
+                y * z - w * x)
+            r[2, 0], r[2, 1], r[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (
+                x * x + y * y)
+            a, b, c = axes[j, 0], axes[j, 1], axes[j, 2]
+            e = 1.0 if (b - a) % 3 == 1 else -1.0  # an even (cyclic) order or not
+            cb = np.sqrt(r[a, a] * r[a, a] + r[a, b] * r[a, b])  # |cos beta|
+            beta = np.arctan2(e * r[a, c], cb)  # accurate near +-90 degrees, unlike asin
+            if cb > 1e-12:
+                alpha = np.arctan2(-e * r[b, c], r[c, c])
+                gamma = np.arctan2(-e * r[a, b], r[a, a])
+            else:  # gimbal lock: only alpha +- gamma is known; gamma 0
+                alpha = np.arctan2(e * r[c, b], r[b, b])
+                gamma = 0.0
+            one0, one1, one2 = np.degrees(alpha), np.degrees(beta), np.degrees(gamma)
+            two0, two1, two2 = one0 + 180.0, 180.0 - one1, one2 + 180.0
+            r0, r1, r2 = ref[f, 3 * j], ref[f, 3 * j + 1], ref[f, 3 * j + 2]
+            one0 += 360.0 * np.round((r0 - one0) / 360.0)
+            one1 += 360.0 * np.round((r1 - one1) / 360.0)
+            one2 += 360.0 * np.round((r2 - one2) / 360.0)
+            two0 += 360.0 * np.round((r0 - two0) / 360.0)
+            two1 += 360.0 * np.round((r1 - two1) / 360.0)
+            two2 += 360.0 * np.round((r2 - two2) / 360.0)
+            d1 = (one0 - r0) ** 2 + (one1 - r1) ** 2 + (one2 - r2) ** 2
+            d2 = (two0 - r0) ** 2 + (two1 - r1) ** 2 + (two2 - r2) ** 2
+            if d2 < d1:
+                one0, one1, one2 = two0, two1, two2
+            out[f, 3 * j], out[f, 3 * j + 1], out[f, 3 * j + 2] = one0, one1, one2
+
+
 _CHUNK = 256  # rows appended to the filter's buffer at a time
 
 
@@ -230,8 +302,16 @@ class Rows:
 
 class FrontEnd:
     """Per-stream stage before the features: unwrap the rotation channels (state carried
-    across windows), low-pass them and the position channels, give each frame `delay`
-    frames later. `noise_cutoff_hz` None or 0: no filter, no delay, raw channels.
+    across windows), low-pass the rotations and the position channels, give each frame
+    `delay` frames later. `noise_cutoff_hz` None or 0: no filter, no delay, raw channels.
+
+    A joint with three rotation channels is filtered as a rotation, not as three angles: its
+    unit quaternion (kept on one side of the sphere from frame to frame) is low-passed and
+    normalised, and turned back into the angles nearest the raw ones. Euler angles flip
+    (a, b, c) -> (a + 180, 180 - b, c + 180) for the same rotation, and mocap solvers do;
+    averaging angles across such a flip makes a pose that is neither (a foot turned by up to
+    0.7 body heights on the dance takes), averaging quaternions does not. Joints with one
+    or two rotation channels, and positions, are filtered as they are.
 
     `last_seq` is the seq of the last frame put in this window: a decision made on a
     filtered frame f was made when frame f + delay arrived (`arrival`), or at most
@@ -240,17 +320,30 @@ class FrontEnd:
 
     def __init__(self, skeleton: Skeleton, fps: float,
                  noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> None:
-        self.n_channels = skeleton.n_channels
+        c = self.n_channels = skeleton.n_channels
         self.rotation_columns = skeleton.rotation_columns().astype(np.int64)
         self.fps = float(fps)
         self.noise_cutoff_hz = float(noise_cutoff_hz) if noise_cutoff_hz else None
         taps = (np.ones(1) if self.noise_cutoff_hz is None
                 else lowpass_kernel(self.noise_cutoff_hz, self.fps))
-        # Rows in the filter: the channels (rotations unwrapped), then seq and time.
-        self.lowpass: LowPass | None = LowPass(taps, carry=2) if len(taps) > 1 else None
+        self.joint_columns, self.joint_axes = _three_rotation_joints(skeleton)
+        used = set(self.joint_columns.ravel().tolist())
+        # Filtered as they are: the other rotation channels and the positions.
+        self.plain_columns = np.array(
+            [i for i in range(c) if i not in used and (i in set(self.rotation_columns.tolist())
+                                                       or i in set(skeleton.position_columns()
+                                                                   .tolist()))],
+            dtype=np.int64)
+        # A row in the filter: the joints' quaternions and the plain channels (filtered),
+        # then the unwrapped channels, seq and time (carried).
+        self.n_quat = 4 * len(self.joint_columns)
+        self.width = self.n_quat + len(self.plain_columns)
+        self.lowpass: LowPass | None = (LowPass(taps, carry=c + 2) if len(taps) > 1
+                                        else None)
         self.delay = 0 if self.lowpass is None else self.lowpass.delay
         self.unwrap_prev: np.ndarray | None = None
         self.unwrap_offset: np.ndarray | None = None
+        self.quat_prev = np.full((len(self.joint_columns), 4), 2.0)  # w = 2: none yet
         self.last_seq: int | None = None
 
     def push(self, seq: np.ndarray, time: np.ndarray, channels: np.ndarray) -> Rows:
@@ -258,7 +351,7 @@ class FrontEnd:
         n = len(seq)
         cols = self.rotation_columns
         if n == 0:
-            return self._rows(np.empty((0, self.n_channels + 2)))
+            return self._rows(np.empty((0, self.width + self.n_channels + 2)))
         rotations = np.empty((n, len(cols)))
         if self.unwrap_prev is None or self.unwrap_offset is None:
             self.unwrap_prev, self.unwrap_offset = unwrap_state(channels[0, cols], None, None)
@@ -266,9 +359,16 @@ class FrontEnd:
         self.last_seq = int(seq[-1])
         if self.lowpass is None:
             return Rows(seq, time, channels, rotations)
-        rows = np.empty((n, self.n_channels + 2))
-        rows[:, : self.n_channels] = channels
-        rows[:, cols] = rotations
+        w, c = self.width, self.n_channels
+        rows = np.empty((n, w + c + 2))
+        unwrapped = rows[:, w : w + c]
+        unwrapped[:] = channels
+        unwrapped[:, cols] = rotations
+        quats = np.empty((n, self.n_quat))
+        joint_quaternions(np.ascontiguousarray(unwrapped), self.joint_columns, self.joint_axes,
+                          self.quat_prev, quats)
+        rows[:, : self.n_quat] = quats
+        rows[:, self.n_quat : w] = unwrapped[:, self.plain_columns]
         rows[:, -2] = seq
         rows[:, -1] = time
         return self._rows(self.lowpass.push(rows))
@@ -276,11 +376,19 @@ class FrontEnd:
     def drain(self) -> Rows:
         """End of a window: every frame held, the window's last frame repeated."""
         if self.lowpass is None:
-            return self._rows(np.empty((0, self.n_channels + 2)))
+            return self._rows(np.empty((0, self.width + self.n_channels + 2)))
         return self._rows(self.lowpass.drain())
 
     def _rows(self, out: np.ndarray) -> Rows:
-        channels = np.ascontiguousarray(out[:, : self.n_channels])
+        w, c = self.width, self.n_channels
+        channels = np.ascontiguousarray(out[:, w : w + c])  # the unwrapped channels
+        channels[:, self.plain_columns] = out[:, self.n_quat : w]
+        if len(out) and self.n_quat:
+            ref = np.ascontiguousarray(channels[:, self.joint_columns.ravel()])
+            angles = np.empty_like(ref)
+            joint_angles(np.ascontiguousarray(out[:, : self.n_quat]), self.joint_axes, ref,
+                         angles)
+            channels[:, self.joint_columns.ravel()] = angles
         return Rows(out[:, -2].astype(np.int64), out[:, -1].copy(), channels,
                     np.ascontiguousarray(channels[:, self.rotation_columns]))
 
@@ -297,10 +405,11 @@ class FrontEnd:
             self.lowpass.reset()
 
     def reset(self) -> None:
-        """A new stream: forget the unwrap state too."""
+        """A new stream: forget the unwrap and quaternion sign state too."""
         self.restart()
         self.unwrap_prev = None
         self.unwrap_offset = None
+        self.quat_prev[:] = 2.0
         self.last_seq = None
 
     def run(self, channels: np.ndarray) -> Rows:
@@ -317,8 +426,28 @@ class FrontEnd:
                     np.concatenate([a.rotations, b.rotations]))
 
 
+_AXES = {"Xrotation": 0, "Yrotation": 1, "Zrotation": 2}
+
+
+def _three_rotation_joints(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """Columns (J, 3) and axes (J, 3), in compose order, of the joints with three distinct
+    rotation channels."""
+    cols, axes = [], []
+    assert skeleton.rotation_order is not None
+    for j, order in enumerate(skeleton.rotation_order):
+        if len(order) == 3 and len(set(order)) == 3:
+            cols.append([skeleton.channel_index(j, ch) for ch in order])
+            axes.append([_AXES[ch] for ch in order])
+    return (np.array(cols, dtype=np.int64).reshape(-1, 3),
+            np.array(axes, dtype=np.int64).reshape(-1, 3))
+
+
 @warmer
 def warm_filters() -> None:
     """Compile (or load from the cache) the FIR kernel."""
     out = np.empty((1, 2))
     fir_into(np.ones((3, 2)), np.array([0.25, 0.5, 0.25]), 1, out)
+    cols, axes = np.array([[0, 1, 2]]), np.array([[2, 0, 1]])
+    q, e = np.empty((1, 4)), np.empty((1, 3))
+    joint_quaternions(np.ones((1, 3)), cols, axes, np.full((1, 4), 2.0), q)
+    joint_angles(q, axes, np.ones((1, 3)), e)

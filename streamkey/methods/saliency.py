@@ -105,7 +105,6 @@ from ..keyframes import KeyframeEvent, Keyframes
 from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
-from ..signal import unwrap_degrees
 from .saliency_math import (
     FOOT_SIGMA,
     SCALES,
@@ -226,11 +225,7 @@ class _Curves:
 
 
 def _rotations(motion: Motion, features: Features) -> np.ndarray:
-    first = motion.first_frame
-    if first == 0:
-        return features.rotations
-    cols = motion.skeleton.rotation_columns()
-    return unwrap_degrees(features.motion.channels[first:, cols])  # the filtered channels
+    return features.rotations[motion.first_frame :]  # unwrapped from the first captured row
 
 
 def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: bool,

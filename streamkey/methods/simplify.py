@@ -98,7 +98,7 @@ def curve(motion: Motion, space: str = DEFAULT_SPACE,
     if space == "channels":  # the filtered channels when features were computed
         x = (motion if features is None else features.motion).channels[first:].copy()
         rot = motion.skeleton.rotation_columns()
-        x[:, rot] = unwrap_degrees(x[:, rot])
+        x[:, rot] = unwrap_degrees(x[:, rot]) if features is None else features.rotations[first:]
         return x
     if space == "positions":
         feats = features if features is not None else compute_features(motion)
