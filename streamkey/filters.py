@@ -375,7 +375,7 @@ class FrontEnd:
 
     def drain(self) -> Rows:
         """End of a window: every frame held, the window's last frame repeated."""
-        if self.lowpass is None:
+        if self.lowpass is None or self.lowpass.pending == 0:
             return self._rows(np.empty((0, self.width + self.n_channels + 2)))
         return self._rows(self.lowpass.drain())
 

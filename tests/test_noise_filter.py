@@ -247,6 +247,15 @@ def test_a_pipeline_sets_the_cut_off_and_off_is_the_raw_keyframers() -> None:
     assert [e.frame for e in got] == speed.extract(m, noise_cutoff_hz=3.0).frames.tolist()
 
 
+def test_a_flush_before_any_frame_and_a_second_flush_give_nothing() -> None:
+    m = motion("07_01.bvh")
+    for kf in (speed.Online(m.skeleton, m.fps), Pipeline([simplify.Online(m.skeleton, m.fps)])):
+        assert kf.flush() == []
+        kf.push(m.frames()[0])
+        kf.flush()
+        assert kf.flush() == []
+
+
 def test_a_pipeline_pickled_inside_the_filter_delay_resumes_identically() -> None:
     m = motion("07_01.bvh")
     frames = m.frames()
