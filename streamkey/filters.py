@@ -199,7 +199,7 @@ class LowPass:
     @property
     def pending(self) -> int:
         """Rows received whose output has not been given yet."""
-        return self._n - self.delay - self._c if self._open else 0
+        return self._n - self._c if self._open else 0
 
     def push(self, rows: np.ndarray) -> np.ndarray:
         """Filter the rows that are now complete (possibly none)."""

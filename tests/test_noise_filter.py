@@ -103,7 +103,9 @@ def test_any_split_into_blocks_gives_the_same_bits_edges_included() -> None:
         for k in (1, 2, 7, 1, 40, 1000):
             parts.append(lp.push(x[i : i + k]))
             i += k
+        assert lp.pending == min(n, (len(lp.taps) - 1) // 2)
         parts.append(lp.drain())
+        assert lp.pending == 0
         got = np.concatenate([p.reshape(-1, 3) for p in parts])
         assert np.array_equal(got, whole), n
 
