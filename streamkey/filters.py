@@ -135,18 +135,19 @@ def joint_quaternions(rows: np.ndarray, cols: np.ndarray, axes: np.ndarray, prev
 
 
 @kernel
-def joint_angles(quats: np.ndarray, axes: np.ndarray, ref: np.ndarray, out: np.ndarray) -> None:
-    """Angles (degrees) of the (normalised) quaternions quats[:, 4j : 4j + 4] in joint j's
-    intrinsic axis order axes[j]: of the two Tait-Bryan triples of each rotation, shifted by
-    multiples of 360, the one nearest ref[:, 3j : 3j + 3] (the raw unwrapped angles, so the
-    channels stay as continuous as they came)."""
+def joint_angles(quats: np.ndarray, axes: np.ndarray, ref: np.ndarray, cols: np.ndarray,
+                 out: np.ndarray) -> None:
+    """Angles (degrees) of the quaternions quats[:, 4j : 4j + 4] (normalised here) in joint
+    j's intrinsic axis order axes[j], into out[:, cols[j]]: of the two Tait-Bryan triples of
+    each rotation, shifted by multiples of 360, the one nearest ref[:, cols[j]] (the raw
+    unwrapped angles, so the channels stay as continuous as they came; `ref` may be `out`)."""
+    r = np.empty((3, 3))  # the rotation matrix of one joint (scratch)
     for f in range(quats.shape[0]):
         for j in range(axes.shape[0]):
             w, x, y, z = (quats[f, 4 * j], quats[f, 4 * j + 1], quats[f, 4 * j + 2],
                           quats[f, 4 * j + 3])
             n = np.sqrt(w * w + x * x + y * y + z * z)
             w, x, y, z = w / n, x / n, y / n, z / n
-            r = np.empty((3, 3))
             r[0, 0], r[0, 1], r[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (
                 x * z + w * y)
             r[1, 0], r[1, 1], r[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (
@@ -165,18 +166,61 @@ def joint_angles(quats: np.ndarray, axes: np.ndarray, ref: np.ndarray, out: np.n
                 gamma = 0.0
             one0, one1, one2 = np.degrees(alpha), np.degrees(beta), np.degrees(gamma)
             two0, two1, two2 = one0 + 180.0, 180.0 - one1, one2 + 180.0
-            r0, r1, r2 = ref[f, 3 * j], ref[f, 3 * j + 1], ref[f, 3 * j + 2]
-            one0 += 360.0 * np.round((r0 - one0) / 360.0)
-            one1 += 360.0 * np.round((r1 - one1) / 360.0)
-            one2 += 360.0 * np.round((r2 - one2) / 360.0)
-            two0 += 360.0 * np.round((r0 - two0) / 360.0)
-            two1 += 360.0 * np.round((r1 - two1) / 360.0)
-            two2 += 360.0 * np.round((r2 - two2) / 360.0)
+            r0, r1, r2 = ref[f, cols[j, 0]], ref[f, cols[j, 1]], ref[f, cols[j, 2]]
+            one0 += 360.0 * np.floor(0.5 + (r0 - one0) / 360.0)
+            one1 += 360.0 * np.floor(0.5 + (r1 - one1) / 360.0)
+            one2 += 360.0 * np.floor(0.5 + (r2 - one2) / 360.0)
+            two0 += 360.0 * np.floor(0.5 + (r0 - two0) / 360.0)
+            two1 += 360.0 * np.floor(0.5 + (r1 - two1) / 360.0)
+            two2 += 360.0 * np.floor(0.5 + (r2 - two2) / 360.0)
             d1 = (one0 - r0) ** 2 + (one1 - r1) ** 2 + (one2 - r2) ** 2
             d2 = (two0 - r0) ** 2 + (two1 - r1) ** 2 + (two2 - r2) ** 2
             if d2 < d1:
                 one0, one1, one2 = two0, two1, two2
-            out[f, 3 * j], out[f, 3 * j + 1], out[f, 3 * j + 2] = one0, one1, one2
+            out[f, cols[j, 0]], out[f, cols[j, 1]], out[f, cols[j, 2]] = one0, one1, one2
+
+
+@kernel
+def pack_rows(channels: np.ndarray, rot_cols: np.ndarray, rotations: np.ndarray,
+              joint_cols: np.ndarray, axes: np.ndarray, prev: np.ndarray, plain: np.ndarray,
+              seq: np.ndarray, time: np.ndarray, rows: np.ndarray) -> None:
+    """Rows for the filter (`FrontEnd`): the joints' quaternions and the plain channels
+    (filtered), then the channels with their rotations unwrapped, seq and time (carried)."""
+    c = channels.shape[1]
+    nq = 4 * joint_cols.shape[0]
+    w = rows.shape[1] - c - 2
+    for f in range(channels.shape[0]):
+        for i in range(c):
+            rows[f, w + i] = channels[f, i]
+        for i in range(rot_cols.shape[0]):
+            rows[f, w + rot_cols[i]] = rotations[f, i]
+        for i in range(plain.shape[0]):
+            rows[f, nq + i] = rows[f, w + plain[i]]
+        rows[f, w + c] = seq[f]
+        rows[f, w + c + 1] = time[f]
+    joint_quaternions(rows[:, w : w + c], joint_cols, axes, prev, rows)
+
+
+@kernel
+def unpack_rows(rows: np.ndarray, joint_cols: np.ndarray, axes: np.ndarray, plain: np.ndarray,
+                rot_cols: np.ndarray, channels: np.ndarray, rotations: np.ndarray,
+                seq: np.ndarray, time: np.ndarray) -> None:
+    """`pack_rows` filtered, back to channels (rotations: their angles nearest the raw
+    unwrapped ones), the rotation columns, seq and time."""
+    c = channels.shape[1]
+    nq = 4 * joint_cols.shape[0]
+    w = rows.shape[1] - c - 2
+    for f in range(rows.shape[0]):
+        for i in range(c):
+            channels[f, i] = rows[f, w + i]
+        for i in range(plain.shape[0]):
+            channels[f, plain[i]] = rows[f, nq + i]
+        seq[f] = np.int64(rows[f, w + c])
+        time[f] = rows[f, w + c + 1]
+    joint_angles(rows, axes, channels, joint_cols, channels)
+    for f in range(rows.shape[0]):
+        for i in range(rot_cols.shape[0]):
+            rotations[f, i] = channels[f, rot_cols[i]]
 
 
 _CHUNK = 256  # rows appended to the filter's buffer at a time
@@ -359,18 +403,10 @@ class FrontEnd:
         self.last_seq = int(seq[-1])
         if self.lowpass is None:
             return Rows(seq, time, channels, rotations)
-        w, c = self.width, self.n_channels
-        rows = np.empty((n, w + c + 2))
-        unwrapped = rows[:, w : w + c]
-        unwrapped[:] = channels
-        unwrapped[:, cols] = rotations
-        quats = np.empty((n, self.n_quat))
-        joint_quaternions(np.ascontiguousarray(unwrapped), self.joint_columns, self.joint_axes,
-                          self.quat_prev, quats)
-        rows[:, : self.n_quat] = quats
-        rows[:, self.n_quat : w] = unwrapped[:, self.plain_columns]
-        rows[:, -2] = seq
-        rows[:, -1] = time
+        rows = np.empty((n, self.width + self.n_channels + 2))
+        pack_rows(channels, cols, rotations, self.joint_columns, self.joint_axes,
+                  self.quat_prev, self.plain_columns, np.asarray(seq, dtype=np.float64),
+                  np.asarray(time, dtype=np.float64), rows)
         return self._rows(self.lowpass.push(rows))
 
     def drain(self) -> Rows:
@@ -380,17 +416,14 @@ class FrontEnd:
         return self._rows(self.lowpass.drain())
 
     def _rows(self, out: np.ndarray) -> Rows:
-        w, c = self.width, self.n_channels
-        channels = np.ascontiguousarray(out[:, w : w + c])  # the unwrapped channels
-        channels[:, self.plain_columns] = out[:, self.n_quat : w]
-        if len(out) and self.n_quat:
-            ref = np.ascontiguousarray(channels[:, self.joint_columns.ravel()])
-            angles = np.empty_like(ref)
-            joint_angles(np.ascontiguousarray(out[:, : self.n_quat]), self.joint_axes, ref,
-                         angles)
-            channels[:, self.joint_columns.ravel()] = angles
-        return Rows(out[:, -2].astype(np.int64), out[:, -1].copy(), channels,
-                    np.ascontiguousarray(channels[:, self.rotation_columns]))
+        m = len(out)
+        rows = Rows(np.empty(m, dtype=np.int64), np.empty(m), np.empty((m, self.n_channels)),
+                    np.empty((m, len(self.rotation_columns))))
+        if m:
+            unpack_rows(out, self.joint_columns, self.joint_axes, self.plain_columns,
+                        self.rotation_columns, rows.channels, rows.rotations, rows.seq,
+                        rows.time)
+        return rows
 
     def arrival(self, decided_at: int) -> int:
         """The seq of the frame whose arrival made a decision on filtered frame `decided_at`."""
@@ -450,4 +483,8 @@ def warm_filters() -> None:
     cols, axes = np.array([[0, 1, 2]]), np.array([[2, 0, 1]])
     q, e = np.empty((1, 4)), np.empty((1, 3))
     joint_quaternions(np.ones((1, 3)), cols, axes, np.full((1, 4), 2.0), q)
-    joint_angles(q, axes, np.ones((1, 3)), e)
+    joint_angles(q, axes, np.ones((1, 3)), cols, e)
+    skeleton = Skeleton(["root"], [-1], np.zeros((1, 3)),
+                        [["Xposition", "Zrotation", "Xrotation", "Yrotation"]])
+    front = FrontEnd(skeleton, 120.0)
+    front.run(np.zeros((3, 4)))
