@@ -249,6 +249,25 @@ def test_a_pipeline_sets_the_cut_off_and_off_is_the_raw_keyframers() -> None:
     assert [e.frame for e in got] == speed.extract(m, noise_cutoff_hz=3.0).frames.tolist()
 
 
+def test_a_long_gap_ends_the_filter_window_as_a_clip_ends() -> None:
+    """Each side of a hole too long to bridge is filtered as a clip of its own (its ends
+    repeated), the unwrap state carried over the hole."""
+    from streamkey.online import FeatureStage
+
+    m = motion("07_01.bvh")
+    frames = m.frames()
+    stage = FeatureStage(m.skeleton, m.fps, noise_cutoff_hz=FC)
+    a = [stage.compute(frames[:150]), stage.drain()]
+    stage.restart()
+    b = [stage.compute(frames[180:]), stage.drain()]
+    for parts, lo, hi in ((a, 1, 151), (b, 181, m.n_frames)):
+        piece = Motion(m.skeleton, m.channels[lo:hi], m.fps, 0, m.name)
+        want = compute_features(piece)
+        got = np.concatenate([p.positions for p in parts])
+        assert np.concatenate([p.seq for p in parts]).tolist() == list(range(lo, hi))
+        np.testing.assert_allclose(got, want.fk.positions, rtol=0, atol=1e-9)
+
+
 def test_a_flush_before_any_frame_and_a_second_flush_give_nothing() -> None:
     m = motion("07_01.bvh")
     for kf in (speed.Online(m.skeleton, m.fps), Pipeline([simplify.Online(m.skeleton, m.fps)])):
