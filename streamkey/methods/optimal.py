@@ -462,9 +462,9 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
             root_translation: bool = False, features: Features | None = None,
             noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
     """Optimal keys of `motion` (module docstring); default mode: `rate=DEFAULT_RATE`."""
-    features = features or compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     mode = _mode(count, rate, tolerance, lam)
     max_len = _frames(max_segment, motion.fps, "max_segment")
+    features = features or compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     x = curve(motion, features, weights, root_translation)
     n = len(x)
     if n == 0:

@@ -452,8 +452,8 @@ def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10
             mojena_k: float = 2.75,
             noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
     """Keyposes at speed minima whose multiscale intensity survives Ward + Mojena (Miura §3)."""
-    features = features or compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     _check_params(f_c, f_max, f_min, r, mojena_k)
+    features = features or compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     params: dict[str, Any] = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r,
                               "mojena_k": mojena_k}
     dt = motion.frame_time
