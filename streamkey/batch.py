@@ -112,7 +112,7 @@ def extract_motion(motion: Motion, methods: list[str],
     """
     params = {name: to_method_units(name, kwargs, motion.fps) if name != "*" else kwargs
               for name, kwargs in common_params(params, max_gap, min_interval).items()}
-    features = compute_features(motion)
+    features = compute_features(motion, noise_cutoff_hz=params.get("*", {}).get("noise_cutoff_hz"))
     results: dict[str, Keyframes] = {}
     order = sorted(methods, key=lambda m: m in COUNTED_METHODS)
     for name in order:

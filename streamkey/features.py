@@ -1,9 +1,13 @@
-"""Derived signals of a motion, computed once and shared by every method (DESIGN §2).
+"""Derived signals of a motion, computed once and shared by every method.
 
 Offline: `compute_features(motion)`. Every array is indexed by the motion's own frame numbers
-(reference frame included); methods slice from `motion.first_frame`. FK and the unwrapped
-rotations are computed up front (compiled kernels writing straight into the results); the
-pelvis frame on demand, for the points a method asks for (`role_positions`, `pelvis_points`).
+(reference frame included); methods slice from `motion.first_frame`. The captured frames go
+through the sensor-noise front end first (`filters.FrontEnd`: rotations unwrapped, rotations
+and root position low-passed at `noise_cutoff_hz`, the same numbers an online stream of the
+clip gets), and `Features.motion` is that filtered motion: a method reads its channels, never
+the raw ones. The unwrapped rotations are computed up front, FK on first use (compiled
+kernels writing straight into the results); the pelvis frame on demand, for the points a
+method asks for (`role_positions`, `pelvis_points`).
 """
 
 from __future__ import annotations
@@ -12,25 +16,36 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .filters import DEFAULT_NOISE_CUTOFF_HZ, FrontEnd
 from .kinematics import FKResult, body_height, forward_kinematics, pelvis_frame
 from .motion import Motion
 from .roles import resolve_roles
 from .signal import unwrap_columns
 
-__all__ = ["Features", "compute_features"]
+__all__ = ["Features", "compute_features", "filtered_motion", "DEFAULT_NOISE_CUTOFF_HZ"]
 
 
 class Features:
-    """FK positions, pelvis-frame positions, foot heights, unwrapped rotations, body height."""
+    """FK positions, pelvis-frame positions, foot heights, unwrapped rotations, body height,
+    of `motion` (the filtered motion when the noise filter is on)."""
 
-    def __init__(self, motion: Motion, fk: FKResult, roles: dict[str, int], body_height: float,
-                 rotations: np.ndarray) -> None:
+    def __init__(self, motion: Motion, fk: FKResult | None, roles: dict[str, int],
+                 body_height: float, rotations: np.ndarray,
+                 noise_cutoff_hz: float | None = None) -> None:
         self.motion = motion
-        self.fk = fk
+        self._fk = fk
         self.roles = roles
         self.body_height = body_height
         self.rotations = rotations
+        self.noise_cutoff_hz = noise_cutoff_hz
         self._pelvis: np.ndarray | None = None
+
+    @property
+    def fk(self) -> FKResult:
+        """World FK of every joint of `motion` (computed on first use)."""
+        if self._fk is None:
+            self._fk = forward_kinematics(self.motion.skeleton, self.motion.channels)
+        return self._fk
 
     @property
     def pelvis_positions(self) -> np.ndarray:
@@ -59,10 +74,34 @@ class Features:
         return self.pelvis_points(idx) if pelvis else self.fk.positions[:, idx]
 
 
-def compute_features(motion: Motion, role_mapping: dict[str, str] | None = None) -> Features:
-    """Compute FK and derived signals for every frame of `motion`."""
+def filtered_motion(motion: Motion, noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ
+                    ) -> tuple[Motion, np.ndarray]:
+    """`motion` through the front end, and its unwrapped rotation columns. The captured
+    frames are one window, unwrapped from the first captured frame as a stream of them is
+    (filter on or off); a reference frame before them stays as it is. Off (None or 0):
+    `motion` itself."""
     skel = motion.skeleton
-    fk = forward_kinematics(skel, motion.channels)
+    cols = skel.rotation_columns()
+    front = FrontEnd(skel, motion.fps, noise_cutoff_hz)
+    first = motion.first_frame
+    rotations = np.empty((motion.n_frames, len(cols)))
+    rotations[:first] = unwrap_columns(motion.channels[:first], cols)
+    if front.lowpass is None:
+        rotations[first:] = unwrap_columns(motion.channels[first:], cols)
+        return motion, rotations
+    rows = front.run(motion.channels[first:])
+    channels = motion.channels.copy()
+    channels[first:] = rows.channels
+    rotations[first:] = rows.rotations
+    return Motion(skel, channels, motion.fps, first, motion.name), rotations
+
+
+def compute_features(motion: Motion, role_mapping: dict[str, str] | None = None,
+                     noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Features:
+    """Derived signals for every frame of `motion`, after the sensor-noise filter
+    (`noise_cutoff_hz` in Hz; None or 0: off)."""
+    skel = motion.skeleton
+    filtered, rotations = filtered_motion(motion, noise_cutoff_hz)
     roles = resolve_roles(skel, role_mapping)
-    rotations = unwrap_columns(motion.channels, skel.rotation_columns())
-    return Features(motion, fk, roles, body_height(skel), rotations)
+    cutoff = noise_cutoff_hz if filtered is not motion else None
+    return Features(filtered, None, roles, body_height(skel), rotations, cutoff)

@@ -1,14 +1,26 @@
 """The online (streaming) side shared by every keyframer: stream hygiene, the per-stream
 feature stage, the `OnlineKeyframer` base class and the `Pipeline` that runs several
-keyframers on one stream while computing features once (DESIGN §2, §5).
+keyframers on one stream while computing features once.
 
 Sans-I/O: nothing here reads clocks, files or sockets. Frames come in through `push`,
 events go out as return values.
 
 Flow of one frame::
 
-    Frame -> StreamGuard.accept -> [clean frames] -> FeatureStage.compute -> FeatureBlock
-          -> keyframer.process(block) -> [KeyframeEvent ...]
+    Frame -> StreamGuard.accept -> [clean frames] -> FeatureStage.compute
+          -> FrontEnd (unwrap, noise low-pass: frame f comes out when f + delay is in)
+          -> FeatureBlock -> keyframer.process(block) -> [KeyframeEvent ...]
+          -> FeatureStage.arrived (decided_at: the frame whose arrival decided it)
+
+The noise filter (`filters.FrontEnd`, off by default, `noise_cutoff_hz=6.0` to use it) is the
+same offline (`features.compute_features`) and online, so the keyframers see the same
+numbers; it holds each frame `delay` frames (its half-width, from the cut-off and the rate).
+Keyframers decide on filtered frames as before; each event is then restated once, here: a
+decision made on filtered frame d was made when frame d + delay arrived (or at the last
+frame in, when the window ends), and its `lookahead` (the latency bound) is the keyframer's
+`lookahead` plus `delay`. At the end of a window (flush, a long gap, a source restart) the
+front end gives the frames it holds, the window's last frame standing in for those after
+it, as offline at the end of a clip; then the keyframers finish.
 
 Stream hygiene (`StreamGuard`): a frame whose `seq` is not greater than the last accepted one
 is dropped (counted as duplicate or out-of-order) unless it lies more than
@@ -30,18 +42,22 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from types import EllipsisType
 from typing import Any, ClassVar
 
 import numpy as np
 
 from .errors import UsageError
+from .filters import DEFAULT_NOISE_CUTOFF_HZ, FrontEnd, Rows, warm_filters
 from .jit import warm_up
 from .keyframes import (
     STRENGTH_WINDOW,
+    CancelEvent,
     Event,
     GapEvent,
     KeyframeEvent,
+    ProvisionalEvent,
     StatusEvent,
     params_digest,
     rank_strength,
@@ -56,7 +72,7 @@ from .kinematics import (
 )
 from .motion import Frame, Skeleton
 from .roles import resolve_roles
-from .signal import unwrap_into, unwrap_state, warm_unwrap
+from .signal import warm_unwrap
 
 __all__ = ["StreamGuard", "GuardCounters", "FeatureStage", "FeatureBlock", "OnlineKeyframer",
            "Pipeline", "DEFAULT_MAX_BRIDGE_FRAMES", "DEFAULT_MAX_REORDER_FRAMES"]
@@ -251,28 +267,50 @@ class FeatureBlock:
 
 
 class FeatureStage:
-    """Per-stream feature computation: FK and derived signals, once per frame.
+    """Per-stream feature computation: the front end, then FK and derived signals, once per
+    frame.
 
-    State carried between blocks: the unwrap state of the rotation channels (`unwrap_prev`,
-    `unwrap_offset`: owned here, updated in place), and the FK points some keyframer on this
-    stream reads (`fk_points`; None: every point), which each block composes in one pass.
+    The front end (`filters.FrontEnd`, `front`) unwraps the rotation channels (its unwrap
+    state is carried between blocks and across long gaps) and low-passes them and the root
+    position at `noise_cutoff_hz` (None: off), which holds each frame `delay` frames: a
+    block's features are those of the frames now complete, `delay` frames behind the last
+    frame in. `drain()` gives the rest at the end of a window. FK composes the points some
+    keyframer on this stream reads (`fk_points`; None: every point) in one pass a block.
     """
 
     def __init__(self, skeleton: Skeleton, fps: float,
-                 role_mapping: dict[str, str] | None = None) -> None:
+                 role_mapping: dict[str, str] | None = None,
+                 noise_cutoff_hz: float | None = None) -> None:
         self.skeleton = skeleton
         self.fps = float(fps)
         self.roles = resolve_roles(skeleton, role_mapping)
         self.body_height = body_height(skeleton)
         self.rotation_columns = skeleton.rotation_columns().astype(np.int64)
-        self.unwrap_prev: np.ndarray | None = None
-        self.unwrap_offset: np.ndarray | None = None
+        self.front = FrontEnd(skeleton, fps, noise_cutoff_hz)
+        self.given = 0  # frames whose features were given (keyframers ran on them)
         self.fk_points: frozenset[int] | None = frozenset()
         self._requests: dict[tuple[int, ...], tuple[np.ndarray, frozenset[int]]] = {}
-        warm_up(warm_kinematics, warm_unwrap)  # once per process: no frame waits to compile
+        warm_up(warm_kinematics, warm_unwrap, warm_filters)  # no frame waits to compile
+
+    @property
+    def delay(self) -> int:
+        """Frames the front end holds each frame (the filter's half-width)."""
+        return self.front.delay
+
+    @property
+    def noise_cutoff_hz(self) -> float | None:
+        """The front end's low-pass cut-off (None: off)."""
+        return self.front.noise_cutoff_hz
+
+    def configure(self, noise_cutoff_hz: float | None) -> None:
+        """Set the noise filter's cut-off (None or 0: off) before the stream starts."""
+        if self.front.last_seq is not None:
+            raise UsageError("the noise filter is set before the first frame")
+        self.front = FrontEnd(self.skeleton, self.fps, noise_cutoff_hz)
 
     def compute(self, frames: Sequence[Frame]) -> FeatureBlock:
-        """Features of consecutive clean frames (unwrapped rotations now; FK on demand)."""
+        """Features of the frames complete after these consecutive clean frames arrive
+        (the same frames when the filter is off; FK on demand)."""
         n = len(frames)
         if n == 1:
             f = frames[0]
@@ -283,19 +321,42 @@ class FeatureStage:
                 n, self.skeleton.n_channels)
             seq = np.array([f.seq for f in frames], dtype=np.int64)
             time = np.array([f.time for f in frames], dtype=np.float64)
-        cols = self.rotation_columns
-        rotations = np.empty((n, len(cols)))
-        if n:
-            if self.unwrap_prev is None or self.unwrap_offset is None:
-                self.unwrap_prev, self.unwrap_offset = unwrap_state(channels[0, cols], None,
-                                                                    None)
-            unwrap_into(channels, cols, self.unwrap_prev, self.unwrap_offset, rotations)
-        return FeatureBlock(seq, time, channels, rotations, self.skeleton, self.roles, self)
+        return self._block(self.front.push(seq, time, channels))
+
+    def drain(self) -> FeatureBlock:
+        """End of a window (a long gap, a restart, the end of the stream): features of the
+        frames still held, the window's last frame standing in for the frames after it."""
+        return self._block(self.front.drain())
+
+    def _block(self, rows: Rows) -> FeatureBlock:
+        self.given += len(rows)
+        return FeatureBlock(rows.seq, rows.time, rows.channels, rows.rotations, self.skeleton,
+                            self.roles, self)
+
+    def arrived(self, events: list[Event]) -> list[Event]:
+        """Events decided on filtered frames, restated at the frames whose arrival decided
+        them (`FrontEnd.arrival`), their lookahead including the filter's delay."""
+        if self.front.delay == 0 or not events:
+            return events
+        at, h = self.front.arrival, self.front.delay
+        out: list[Event] = []
+        for e in events:
+            if isinstance(e, KeyframeEvent):
+                e = replace(e, decided_at=at(e.decided_at), lookahead=e.lookahead + h)
+            elif isinstance(e, ProvisionalEvent):
+                e = replace(e, seen_at=at(e.seen_at))
+            elif isinstance(e, CancelEvent):
+                e = replace(e, decided_at=at(e.decided_at))
+            out.append(e)
+        return out
+
+    def restart(self) -> None:
+        """A new window after a long gap (once drained): the unwrap state is kept."""
+        self.front.restart()
 
     def reset(self) -> None:
-        """Start a new stream (after a long gap): forget the unwrap state."""
-        self.unwrap_prev = None
-        self.unwrap_offset = None
+        """Start a new stream: forget the unwrap state too."""
+        self.front.reset()
 
     def __getstate__(self) -> dict[str, Any]:
         return {k: v for k, v in self.__dict__.items() if k != "_requests"}  # a derived cache
@@ -320,7 +381,8 @@ class OnlineKeyframer:
     def __init__(self, skeleton: Skeleton, fps: float, *, lookahead: int, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES,
-                 params: dict[str, Any] | None = None) -> None:
+                 params: dict[str, Any] | None = None,
+                 noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> None:
         if lookahead < 1:
             raise UsageError(f"lookahead must be at least 1 frame, got {lookahead}")
         self.skeleton = skeleton
@@ -331,7 +393,7 @@ class OnlineKeyframer:
         self.params["lookahead"] = self.lookahead
         self.params_digest = params_digest({"method": self.method, **self.params})
         self.guard = StreamGuard(skeleton.n_channels, stream, self.method, max_bridge_frames)
-        self.features = FeatureStage(skeleton, fps, role_mapping)
+        self.features = FeatureStage(skeleton, fps, role_mapping, noise_cutoff_hz)
         # Scores of the last keys sent, for their strength (kept over gaps, not over a flush).
         self.recent_scores: deque[float] = deque(maxlen=STRENGTH_WINDOW)
 
@@ -346,7 +408,7 @@ class OnlineKeyframer:
 
     def flush(self) -> list[Event]:
         """End of stream: decide everything still pending, then restart the window."""
-        events: list[Event] = list(self.finish())
+        events = _end_window(self.features, [self])
         self.reset()
         self.guard.reset()
         self.features.reset()
@@ -421,12 +483,7 @@ def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineK
 
     def run_pending() -> None:
         if pending:
-            block = stage.compute(pending)
-            for kf in keyframers:
-                events.extend(kf.process(block))
-            if not defer_idle:
-                for kf in keyframers:
-                    events.extend(kf.idle())
+            events.extend(_feed(stage, keyframers, stage.compute(pending), defer_idle))
             pending.clear()
 
     for frame in frames:
@@ -434,15 +491,42 @@ def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineK
         if gaps:
             run_pending()
         if restart:  # a long gap or a source restart: new windows, statistics kept
+            events.extend(_end_window(stage, keyframers, defer_idle))
             for kf in keyframers:
-                events.extend(kf.finish())
                 kf.restart(keep_statistics=not reset_on_gap)
             if reset_on_gap:  # else the rotations unwrap on across the hole, as the
                 stage.reset()  # statistics kept in their frame of reference need
+            else:
+                stage.restart()
         events.extend(gaps)
         pending.extend(clean)
     run_pending()
     return events
+
+
+def _feed(stage: FeatureStage, keyframers: Sequence[OnlineKeyframer], block: FeatureBlock,
+          defer_idle: bool = False) -> list[Event]:
+    """Every keyframer's events on a block, at the frames whose arrival decided them."""
+    if not len(block):
+        return []
+    events: list[Event] = []
+    for kf in keyframers:
+        events.extend(kf.process(block))
+    if not defer_idle:
+        for kf in keyframers:
+            events.extend(kf.idle())
+    return stage.arrived(events)
+
+
+def _end_window(stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
+                defer_idle: bool = False) -> list[Event]:
+    """The frames the front end still holds, then everything pending decided: the end of
+    a window (a long gap, a restart, the end of the stream)."""
+    events = _feed(stage, keyframers, stage.drain(), defer_idle)
+    done: list[Event] = []
+    for kf in keyframers:
+        done.extend(kf.finish())
+    return events + stage.arrived(done)
 
 
 class Pipeline:
@@ -450,7 +534,8 @@ class Pipeline:
 
     def __init__(self, keyframers: Sequence[OnlineKeyframer], stream: str = "default",
                  max_bridge_frames: int | None = None,
-                 reset_on_gap: bool = False) -> None:
+                 reset_on_gap: bool = False,
+                 noise_cutoff_hz: float | None | EllipsisType = ...) -> None:
         if not keyframers:
             raise UsageError("a pipeline needs at least one keyframer")
         first = keyframers[0]
@@ -460,17 +545,25 @@ class Pipeline:
             max_bridge_frames = first.guard.max_bridge_frames
         self.guard = StreamGuard(first.skeleton.n_channels, stream, "*", max_bridge_frames)
         self.features = first.features
+        # `...`: the keyframers' own setting; else the pipeline's wins
+        if noise_cutoff_hz is not ... and noise_cutoff_hz != self.features.noise_cutoff_hz:
+            self.features.configure(noise_cutoff_hz)
         self._idle_due = False
+
+    @property
+    def delay(self) -> int:
+        """Frames the noise filter holds each frame (in every event's latency)."""
+        return self.features.delay
 
     def push(self, frame: Frame) -> list[Event]:
         """Feed one frame to every keyframer; returns the events due now. Deferred work (a
         re-analysis) waits for `idle()`, so due decisions leave first; if `idle()` is not
         called, its events come with the next call."""
         events = self.idle()
-        before = self.guard.counters.accepted
+        before = self.features.given
         events.extend(_drive(self.guard, self.features, self.keyframers, [frame], True,
                              self.reset_on_gap))
-        self._idle_due = self.guard.counters.accepted != before
+        self._idle_due = self.features.given != before
         return events
 
     def idle(self) -> list[Event]:
@@ -481,7 +574,7 @@ class Pipeline:
         events: list[Event] = []
         for kf in self.keyframers:
             events.extend(kf.idle())
-        return events
+        return self.features.arrived(events)
 
     def push_block(self, frames: Iterable[Frame]) -> list[Event]:
         """Feed many frames; same events as pushing them one by one."""
@@ -504,8 +597,9 @@ class Pipeline:
     def flush(self) -> list[Event]:
         """End of stream for every keyframer."""
         events: list[Event] = self.idle()
+        events.extend(_end_window(self.features, self.keyframers))
+        self._idle_due = False
         for kf in self.keyframers:
-            events.extend(kf.finish())
             kf.reset()
             forget_scores(kf)
         self.guard.reset()

@@ -38,7 +38,7 @@ __all__ = ["SnapshotError", "SnapshotHeader", "snapshot", "restore", "read_heade
            "SNAPSHOT_VERSION", "MAGIC"]
 
 MAGIC = b"SKSNAP"
-SNAPSHOT_VERSION = 2  # 2: issue 13 reshaped the state of speed, saliency and optimal
+SNAPSHOT_VERSION = 3  # 3: the feature stage holds the noise filter (FrontEnd)
 _PREFIX = struct.Struct(">6sBI")
 MAX_HEADER_BYTES = 1 << 16
 

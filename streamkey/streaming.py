@@ -80,7 +80,8 @@ def make_keyframers(motion: Motion, methods: list[str],
     (`params[name]["lookahead"]` wins; a `Duration` in seconds becomes frames at the motion's
     rate, as every duration parameter does); `params["*"]["max_gap"]` (seconds) wraps each in
     `optimal.MaxGap`, `params["*"]["max_bridge_frames"]` or `["max_bridge_seconds"]` sets the
-    longest interpolated hole of every keyframer (and so of a `Pipeline` of them)."""
+    longest interpolated hole of every keyframer (and so of a `Pipeline` of them), and
+    `params["*"]["noise_cutoff_hz"]` the input low-pass of each (off when None)."""
     params = params or {}
     common = params.get("*", {})
     max_gap = common.get("max_gap")
@@ -95,6 +96,8 @@ def make_keyframers(motion: Motion, methods: list[str],
         if bridge is not None:
             kwargs["max_bridge_frames"] = bridge
         kf = online_class(name)(motion.skeleton, motion.fps, stream=stream, **kwargs)
+        if common.get("noise_cutoff_hz") is not None:
+            kf.features.configure(common["noise_cutoff_hz"])
         if max_gap is not None:
             from .methods.optimal import MaxGap
 

@@ -132,7 +132,7 @@ def test_one_frame_fk_and_features_equal_the_whole_clip_bit_for_bit_on_every_cli
 
     for name in clips():
         motion = read_motion(DATA / name)
-        feats = compute_features(motion)
+        feats = compute_features(motion, noise_cutoff_hz=None)  # as the bare stage: raw
         first = motion.first_frame  # the stream starts at the first captured frame
         rotations = unwrap_degrees(motion.channels[first:, motion.skeleton.rotation_columns()])
         stage = FeatureStage(motion.skeleton, motion.fps)
@@ -291,7 +291,7 @@ def test_feature_block_composes_only_what_the_stream_reads():
 
     motion = read_bvh(DATA / "16_11.bvh")
     frames = motion.frames()
-    full = compute_features(motion)
+    full = compute_features(motion, noise_cutoff_hz=None)  # as the bare stage: raw
     first = motion.first_frame
     stage = FeatureStage(motion.skeleton, motion.fps)
     block = stage.compute(frames[:3])

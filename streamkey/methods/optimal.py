@@ -85,7 +85,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UsageError
-from ..features import Features, compute_features
+from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import KeyframeEvent, Keyframes
 from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
@@ -539,12 +539,14 @@ def _penalised_counts(band: np.ndarray, lams: np.ndarray) -> np.ndarray:
 def extract(motion: Motion, *, count: int | None = None, rate: float | None = None,
             tolerance: float | None = None, lam: float | None = None,
             max_segment: DurationLike = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
-            root_translation: bool = False, features: Features | None = None) -> Keyframes:
+            root_translation: bool = False, features: Features | None = None,
+            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
     """Optimal keys of `motion` (module docstring); default mode: `rate=DEFAULT_RATE`.
     `max_segment`: a `Duration`, or a plain number of seconds."""
     mode = _mode(count, rate, tolerance, lam)
     max_len = _frames(max_segment, motion.fps, "max_segment")
     ticks = TICKS_PER_SECOND / motion.fps
+    features = features or compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     x = curve(motion, features, weights, root_translation)
     n = len(x)
     if n == 0:

@@ -112,12 +112,11 @@ from typing import Any
 import numpy as np
 
 from ..errors import UsageError
-from ..features import Features, compute_features
+from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import KeyframeEvent, Keyframes
 from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
-from ..signal import unwrap_degrees
 from ..units import Duration, DurationLike, whole_frames
 from .saliency_math import (
     FOOT_SIGMA,
@@ -279,11 +278,7 @@ class _Curves:
 
 
 def _rotations(motion: Motion, features: Features) -> np.ndarray:
-    first = motion.first_frame
-    if first == 0:
-        return features.rotations
-    cols = motion.skeleton.rotation_columns()
-    return unwrap_degrees(motion.channels[first:, cols])
+    return features.rotations[motion.first_frame :]  # unwrapped from the first captured row
 
 
 def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: bool,
@@ -298,13 +293,14 @@ def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: boo
 
 def extract(motion: Motion, *, sigma: DurationLike | None = None, k: int | None = None,
             contact: bool = True, preset: str = "auto", variance_rule: bool = False,
-            features: Features | None = None) -> Keyframes:
+            features: Features | None = None,
+            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
     """Keyframes of `motion` by multiscale motion saliency (Halit & Capin);
     `sigma` a `Duration`, or frames as a plain number."""
     if preset not in ("auto", *PRESETS):
         raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")
     if features is None:
-        features = compute_features(motion)
+        features = compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     first = motion.first_frame
     speed = None
     used = preset

@@ -72,7 +72,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UsageError
-from ..features import Features, compute_features
+from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..jit import kernel, warmer
 from ..keyframes import KeyframeEvent, Keyframes
 from ..kinematics import root_relative_joints
@@ -100,10 +100,10 @@ def curve(motion: Motion, space: str = DEFAULT_SPACE,
           features: Features | None = None) -> np.ndarray:
     """The motion as a curve in R^d, one row per captured frame (see the module docstring)."""
     first = motion.first_frame
-    if space == "channels":
-        x = motion.channels[first:].copy()
+    if space == "channels":  # the filtered channels when features were computed
+        x = (motion if features is None else features.motion).channels[first:].copy()
         rot = motion.skeleton.rotation_columns()
-        x[:, rot] = unwrap_degrees(x[:, rot])
+        x[:, rot] = unwrap_degrees(x[:, rot]) if features is None else features.rotations[first:]
         return x
     if space == "positions":
         feats = features if features is not None else compute_features(motion)
@@ -326,7 +326,8 @@ def _rule(tolerance: float | None, ratio: float | None, count: int | None,
 
 def extract(motion: Motion, *, tolerance: float | None = None, ratio: float | None = None,
             count: int | None = None, space: str = DEFAULT_SPACE,
-            features: Features | None = None) -> Keyframes:
+            features: Features | None = None,
+            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
     """Curve-simplification keyframes of `motion` (one stopping rule; default: tolerance).
 
     Frames before `motion.first_frame` are skipped; indices are in the file's numbering.
@@ -334,6 +335,7 @@ def extract(motion: Motion, *, tolerance: float | None = None, ratio: float | No
     if space not in SPACES:
         raise UsageError(f"space must be one of {SPACES}, got {space!r}")
     tolerance, ratio, count = _rule(tolerance, ratio, count, space)
+    features = features or compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     x = curve(motion, space, features)
     n = len(x)
     if n == 0:

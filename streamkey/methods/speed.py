@@ -88,7 +88,7 @@ from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.linalg import get_blas_funcs, get_lapack_funcs
 
 from ..errors import UsageError
-from ..features import Features, compute_features
+from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import KeyframeEvent, Keyframes
 from ..motion import Motion, Skeleton, detect_reference_frame
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
@@ -496,9 +496,11 @@ def _positions(motion: Motion, features: Features | None, first: int | None = No
 
 def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10.0,
             f_max: float = 8.0, f_min: float = 0.2, r: float = 0.95,
-            mojena_k: float = 2.75) -> Keyframes:
+            mojena_k: float = 2.75,
+            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
     """Keyposes at speed minima whose multiscale intensity survives Ward + Mojena (Miura §3)."""
     _check_params(f_c, f_max, f_min, r, mojena_k)
+    features = features or compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     params: dict[str, Any] = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r,
                               "mojena_k": mojena_k}
     dt = motion.frame_time
