@@ -101,7 +101,7 @@ def _bones(motion: Motion) -> list[tuple[int, int]]:
     return bones
 
 
-def _new_figure(width: float, height: float) -> Any:
+def _new_figure(width: float, height: float) -> Figure:
     """A matplotlib Figure outside pyplot (no global state, the backend left alone; the
     caller keeps or saves it)."""
     try:
@@ -156,7 +156,7 @@ def contact_sheet(motion: Motion, keys: Keyframes | list[int] | np.ndarray,
 
 
 def _sheet_figure(motion: Motion, frames: np.ndarray, pts: np.ndarray, columns: int,
-                  title: str | None, cell_inches: float, frames_like: int | None = None) -> Any:
+                  title: str | None, cell_inches: float, frames_like: int | None = None) -> Figure:
     """One page: a grid of stick figures with a caption each and the title above them all.
     `frames_like`: the figure count the grid is sized for (every page of a sheet alike)."""
     from matplotlib.collections import LineCollection
