@@ -31,7 +31,7 @@ def main() -> int:
     parser.add_argument("--duplicates", type=int, default=0,
                         help="with --count: also wait for M skipped duplicates")
     args = parser.parse_args()
-    sock = zmq.Context.instance().socket(zmq.SUB)
+    sock: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.SUB)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.SUBSCRIBE, b"event")
     for endpoint in args.endpoints:

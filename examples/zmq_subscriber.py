@@ -18,7 +18,7 @@ def main() -> int:
     parser.add_argument("endpoint", nargs="?", default="tcp://127.0.0.1:5556")
     parser.add_argument("--count", type=int, default=0, help="exit after N keyframes (0: never)")
     args = parser.parse_args()
-    sock = zmq.Context.instance().socket(zmq.SUB)
+    sock: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.SUB)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.SUBSCRIBE, b"event")
     sock.connect(args.endpoint)

@@ -1,4 +1,4 @@
-"""Online-versus-offline agreement (DESIGN §5): one-to-one matching of keyframes within a
+"""Online-versus-offline agreement: one-to-one matching of keyframes within a
 method's tolerance, per clip and against lookahead.
 
 Tolerances: saliency, sigma frames; speed minima and curve simplification, 1/4 of the median
@@ -41,7 +41,8 @@ class Agreement:
 
 
 def tolerance_for(method: str, offline: Keyframes) -> float:
-    """The matching tolerance in frames for `method` (DESIGN §5)."""
+    """The matching tolerance in frames for `method`: sigma for saliency, else 1/4 of the
+    median interval between the offline keyframes (Miura et al. 2014, §4.4)."""
     if method == "saliency":
         return float(offline.params.get("sigma", 10.0))
     frames = np.asarray(offline.frames)

@@ -20,6 +20,7 @@ import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -247,7 +248,9 @@ def _build_skeleton(asf: _Asf, last_line: int) -> Skeleton:
     root_c = _axis_matrix(list(asf.root_orientation), asf.root_axis, asf.angle_scale,
                           asf.source, last_line)
     pre: list[np.ndarray | None] = [None if np.allclose(root_c, np.eye(3)) else root_c]
-    pre += [b.axis if b.dof and not np.allclose(b.axis, np.eye(3)) else None for b in bones]
+    # every bone has an axis (_finish_bone)
+    pre += [b.axis if b.dof and not np.allclose(cast(np.ndarray, b.axis), np.eye(3)) else None
+            for b in bones]
     ends = {j: vectors[j] for j in range(1, len(names)) if j not in parents}
     skeleton = Skeleton(names, parents, offsets, channels, ends, order, pre)
     defect = skeleton_defect(skeleton, inputs.VALUE_LIMIT)

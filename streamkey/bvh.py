@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 
@@ -93,7 +94,17 @@ def _parse_channels(tok: _Tokens) -> list[str]:
     return chans
 
 
-def _parse_joints(tok: _Tokens, skel: dict[str, list]) -> None:
+class _Hierarchy(TypedDict):
+    """The HIERARCHY section as parsed, before it becomes a `Skeleton`."""
+
+    names: list[str]
+    parents: list[int]
+    offsets: list[list[float]]
+    channels: list[list[str]]
+    end_sites: dict[int, np.ndarray]
+
+
+def _parse_joints(tok: _Tokens, skel: _Hierarchy) -> None:
     """The joint blocks from the root's '{', iteratively (no recursion on hostile depth)."""
     stack: list[int] = []
     opening = 0  # the joint whose '{' comes next
@@ -136,8 +147,8 @@ def _parse_header(lines: list[str], source: str) -> Skeleton:
     tok.expect("HIERARCHY")
     tok.expect("ROOT")
     name, _ = tok.next("a root joint name")
-    skel: dict[str, list] = {"names": [name], "parents": [-1], "offsets": [], "channels": [],
-                             "end_sites": {}}
+    skel: _Hierarchy = {"names": [name], "parents": [-1], "offsets": [], "channels": [],
+                        "end_sites": {}}
     _parse_joints(tok, skel)
     if tok.peek() is not None:
         raise tok.error("MOTION after the hierarchy")

@@ -1,6 +1,7 @@
-"""Evaluation (DESIGN §6): reconstruction from keyframes, the thesis' error E (seed 000,
-eq. 4.1) and PSNR (eq. 4.2), Miura's F-measure (seed 002, §4.4) and the equal-count comparison
-(thesis Table 4.1).
+"""Evaluation: reconstruction from keyframes, the error E of Halit's thesis (Halit 2010, "A
+multi scale motion saliency method for keyframe extraction from motion capture sequences",
+eq. 4.1) and PSNR (eq. 4.2), the F-measure of Miura et al. 2014 ("Adaptive keypose extraction
+from motion capture data", §4.4) and the equal-count comparison (Halit Table 4.1).
 
 Definitions this module settles:
 
@@ -15,15 +16,15 @@ Definitions this module settles:
   angle shifted by 360° multiples) nearest the linear interpolation of the unwrapped key
   angles, so Euler-space errors are not inflated by representation jumps. ``mode="linear"``
   interpolates every channel linearly (rotations unwrapped). Keyframes are copied exactly;
-  the first and last captured frames are always keys of a reconstruction (DESIGN §6, settled
-  in turn 2: every animation has them, so a method that does not pick them is not charged
-  for holding a key backwards or forwards); the reference frame (before `first_frame`) is
-  copied and never scored.
+  the first and last captured frames are always keys of a reconstruction (every animation
+  has them, so a method that does not pick them is not charged for holding a key backwards
+  or forwards, and numbers compare with other tools' reconstructions); the reference frame
+  (before `first_frame`) is copied and never scored.
 - E (eq. 4.1): mean over captured frames and the skeleton's joints (ROOT and JOINT entries,
   not End Sites) of the squared distance between original and reconstructed root-relative
   positions (p - p_root, world orientation, so root rotation errors count, root translation
   does not), file units squared. The thesis divides by n x (number of dofs); we divide by
-  n x (number of joints), the brief's "mean over frames and joints". Normalised:
+  n x (number of joints), the mean over frames and joints. Normalised:
   E / body_height^2 (squared body heights).
 - PSNR (eq. 4.2): 20 log10(360 / sqrt(E_euler)), E_euler the mean over captured frames and
   rotation channels of the squared angle difference, wrapped to [-180, 180). Of the two
@@ -80,7 +81,8 @@ def _segments(keys: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 def _lerp(x: np.ndarray, a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
-    return x[a] + t[:, None] * (x[b] - x[a])
+    result: np.ndarray = x[a] + t[:, None] * (x[b] - x[a])
+    return result
 
 
 def _rotation_groups(skeleton: Skeleton) -> dict[str, np.ndarray]:
@@ -106,7 +108,8 @@ def _slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray) -> np.ndarray:
     w0 = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
     w1 = np.where(small, t, np.sin(t * theta) / safe)
     q = w0 * q0 + w1 * q1
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    result: np.ndarray = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return result
 
 
 def _slerp_joints(x: np.ndarray, seq: str, cols: np.ndarray, a: np.ndarray, b: np.ndarray,
@@ -129,7 +132,8 @@ def _nearest_euler(euler: np.ndarray, ref: np.ndarray) -> np.ndarray:
     alt[:, 1] = 180.0 - euler[:, 1]  # R_a(α+180) R_b(180-β) R_c(γ+180) = R_a(α) R_b(β) R_c(γ)
     one, two = (c + 360.0 * np.round((ref - c) / 360.0) for c in (euler, alt))
     closer = np.sum((two - ref) ** 2, axis=1) < np.sum((one - ref) ** 2, axis=1)
-    return np.where(closer[:, None], two, one)
+    result: np.ndarray = np.where(closer[:, None], two, one)
+    return result
 
 
 def _unwrapped(motion: Motion) -> np.ndarray:
@@ -179,7 +183,7 @@ class Evaluator:
         return root_relative_joints(pos, self.motion.skeleton.n_joints)
 
     def error_e(self, reconstructed: np.ndarray, normalised: bool = False) -> float:
-        """Thesis eq. 4.1 (file units^2), or divided by body height^2 when `normalised`."""
+        """Halit eq. 4.1 (file units^2), or divided by body height^2 when `normalised`."""
         diff = self._relative(reconstructed) - self._original
         e = float(np.mean(np.sum(diff * diff, axis=-1)))
         return e / self.body_height**2 if normalised else e
@@ -199,7 +203,7 @@ class Evaluator:
         return float(np.mean(d * d))
 
     def psnr(self, reconstructed: np.ndarray) -> float:
-        """Thesis eq. 4.2 with MAX = 360 degrees (inf for a perfect reconstruction)."""
+        """Halit eq. 4.2 with MAX = 360 degrees (inf for a perfect reconstruction)."""
         e = self.euler_mse(reconstructed)
         return float("inf") if e == 0.0 else float(20.0 * np.log10(360.0 / np.sqrt(e)))
 
@@ -223,12 +227,12 @@ class Scores:
 
 
 def error_e(motion: Motion, reconstructed: np.ndarray, *, normalised: bool = False) -> float:
-    """Thesis eq. 4.1: mean squared root-relative joint distance over captured frames."""
+    """Halit eq. 4.1: mean squared root-relative joint distance over captured frames."""
     return Evaluator(motion).error_e(reconstructed, normalised)
 
 
 def psnr(motion: Motion, reconstructed: np.ndarray) -> float:
-    """Thesis eq. 4.2: PSNR in Euler space (MAX = 360 degrees) over captured frames."""
+    """Halit eq. 4.2: PSNR in Euler space (MAX = 360 degrees) over captured frames."""
     return Evaluator(motion).psnr(reconstructed)
 
 
@@ -301,7 +305,7 @@ def compare_at_equal_count(motion: Motion,
                            methods: Mapping[str, Callable[[Motion, int], Keyframes]]
                            | Sequence[str], count: int,
                            mode: str = "slerp") -> dict[str, Scores]:
-    """Thesis Table 4.1: every method forced to `count` keyframes, scored the same way.
+    """Halit Table 4.1: every method forced to `count` keyframes, scored the same way.
 
     `methods` maps a name to `f(motion, count) -> Keyframes`, or lists built-in names
     (`METHODS`).

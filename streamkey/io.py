@@ -144,15 +144,20 @@ def put_drop_oldest(queue: asyncio.Queue[Any], item: Any) -> int:
             dropped += 1
 
 
+QueueItem = tuple[Frame, int] | tuple[Frame, int, str] | tuple[None, int, str | None] | None
+"""An entry of a `FrameQueue`: (frame, arrival ns) or (frame, arrival ns, stream tag); (None, 0,
+stream tag) when a stream's skeleton is announced; None at the end of the stream."""
+
+
 class FrameQueue:
     """Bounded frame queue between a network callback and the engine: drop-oldest when full.
 
-    A real-time keyframer wants the newest frames, not a backlog (notes/ecosystem.md: big
-    buffers only make frames stale).
+    A real-time keyframer wants the newest frames, not a backlog: big buffers only make
+    frames stale.
     """
 
     def __init__(self, stats: SourceStats, maxsize: int = 256) -> None:
-        self.queue: asyncio.Queue[tuple[Frame, int] | None] = asyncio.Queue(maxsize)
+        self.queue: asyncio.Queue[QueueItem] = asyncio.Queue(maxsize)
         self.stats = stats
 
     def put(self, frame: Frame | None, arrival_ns: int | None = None,
@@ -170,7 +175,7 @@ class FrameQueue:
         before the stream's first frame)."""
         put_drop_oldest(self.queue, (None, 0, stream))
 
-    async def get(self) -> tuple[Frame, int] | None:
+    async def get(self) -> QueueItem:
         """Next frame and its arrival time (ns, monotonic), or None at end of stream."""
         return await self.queue.get()
 
@@ -296,7 +301,7 @@ class Source:
         """Open the transport; returns a description for the ready line."""
         raise NotImplementedError
 
-    async def get(self) -> tuple[Frame, int] | None:
+    async def get(self) -> QueueItem:
         """Next frame and its arrival time, or None when the stream ends."""
         return await self.frames.get()
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import types
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 __all__ = ["kernel", "warmer", "warm_up", "cache_is_cold", "prefetch"]
 
@@ -91,7 +91,7 @@ def cache_is_cold(kernels: list[Any] | None = None) -> bool:
     instead of loading (~0.3 s). False when the cache cannot be read (numba's index API is
     private)."""
     try:
-        return any(not k.compile()._cache._cache_file._load_index()
+        return any(not cast(Any, k.compile())._cache._cache_file._load_index()
                    for k in (_KERNELS if kernels is None else kernels))
     except Exception:  # another numba version: no notice rather than a wrong one
         return False
@@ -158,7 +158,7 @@ def _build_prefetch() -> Callable[..., Any]:
 
         return types.void(array, index), codegen
 
-    return prefetch  # type: ignore[no-any-return]
+    return prefetch
 
 
 prefetch = _Intrinsic(_build_prefetch)

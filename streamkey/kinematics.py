@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from typing import cast
 
 import numpy as np
 
@@ -85,7 +86,8 @@ class _Plan:
         fp: list[float] = []
         for q in order:
             names = skeleton.rotation_order[q]
-            cols = [skeleton.channel_index(q, c) for c in names]
+            # every name of rotation_order is one of the joint's channels
+            cols = cast(list[int], [skeleton.channel_index(q, c) for c in names])
             axes = [_AXIS[c] for c in names]
             pre = skeleton.pre_rotations[q]
             ip += [q, row.get(parents[q], -1), len(names), *(cols + [0] * (3 - len(cols))),
@@ -116,7 +118,8 @@ class _Plan:
 
 
 @kernel
-def _local_rotation(row: np.ndarray, ip: np.ndarray, fp: np.ndarray, k: int) -> tuple:
+def _local_rotation(row: np.ndarray, ip: np.ndarray, fp: np.ndarray,
+                    k: int) -> tuple[float, ...]:
     """Local rotation (row-major 9-tuple) of plan row `k` from one channel row: the Euler
     rotations composed left to right, column by column, then C·R·Cᵀ for a pre-rotation."""
     r = 6 + 10 * k
@@ -350,14 +353,16 @@ def _every_point(n: int, _cache: dict[int, np.ndarray] = {}) -> np.ndarray:  # n
 def to_pelvis(points: np.ndarray, pelvis: np.ndarray, root_rotation: np.ndarray) -> np.ndarray:
     """R^T (p - p_pelvis) of points (n, k, 3), pelvis positions (n, 3), rotations (n, 3, 3)
     (numpy; `pelvis_frame` is the compiled form the features use)."""
-    return (points - pelvis[:, None]) @ root_rotation
+    local: np.ndarray = (points - pelvis[:, None]) @ root_rotation
+    return local
 
 
 def root_relative_joints(positions: np.ndarray, n_joints: int) -> np.ndarray:
     """Joint positions (ROOT and JOINT, not End Sites) minus the root's, world orientation:
-    the points of thesis eq. 4.1, (n, n_joints, 3)."""
+    the points of Halit 2010 eq. 4.1, (n, n_joints, 3)."""
     joints = positions[:, :n_joints]
-    return joints - joints[:, :1]
+    relative: np.ndarray = joints - joints[:, :1]
+    return relative
 
 
 def body_height(skeleton: Skeleton) -> float:

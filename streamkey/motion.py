@@ -1,4 +1,4 @@
-"""The motion model: Skeleton, Motion and Frame (DESIGN §3).
+"""The motion model: Skeleton, Motion and Frame.
 
 A `Skeleton` is a joint tree with BVH-style offsets and per-joint rotation channels. ASF/AMC
 skeletons fit the same model through an optional constant pre-rotation per joint (the ASF
@@ -160,8 +160,10 @@ class Frame:
 
 
 def detect_reference_frame(skeleton: Skeleton, channels: np.ndarray) -> int:
-    """Index of the first captured frame: past a cgspeed T-pose reference frame (DESIGN §3)
-    and past any all-zero dropout frames right after it.
+    """Index of the first captured frame: past a cgspeed T-pose reference frame (the
+    first frame of the CMU BVH cgspeed MotionBuilder release: a T-pose with zero root
+    rotation, not part of the capture, so the papers' frame counts exclude it) and past any
+    all-zero dropout frames right after it.
 
     The reference frame has zero root rotation and at most ~10 non-zero joint channels, all
     integers, while the next frame differs; captured frames practically never look like that.

@@ -1,4 +1,4 @@
-"""Playable events (issue 12 §1): strength, `--min-interval` debounce, provisional events and
+"""Playable events: strength, `--min-interval` debounce, provisional events and
 the continuous signal. Sans-I/O: wrappers around any online keyframer, and the same rules as
 functions over offline `Keyframes`.
 

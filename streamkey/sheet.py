@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
@@ -101,7 +101,7 @@ def _bones(motion: Motion) -> list[tuple[int, int]]:
     return bones
 
 
-def _new_figure(width: float, height: float) -> Any:
+def _new_figure(width: float, height: float) -> Figure:
     """A matplotlib Figure outside pyplot (no global state, the backend left alone; the
     caller keeps or saves it)."""
     try:
@@ -119,6 +119,22 @@ def page_paths(path: str | os.PathLike[str], pages: int) -> list[Path]:
     if pages <= 1:
         return [out]
     return [out.with_name(f"{out.stem}-p{i}{out.suffix}") for i in range(1, pages + 1)]
+
+
+@overload
+def contact_sheet(motion: Motion, keys: Keyframes | list[int] | np.ndarray,
+                  path: None = None, columns: int = 10,
+                  view: str = "three-quarter", title: str | None = None,
+                  cell_inches: float = 1.3, dpi: int = 100,
+                  per_page: int | None = None) -> Figure: ...
+
+
+@overload
+def contact_sheet(motion: Motion, keys: Keyframes | list[int] | np.ndarray,
+                  path: str | os.PathLike[str], columns: int = 10,
+                  view: str = "three-quarter", title: str | None = None,
+                  cell_inches: float = 1.3, dpi: int = 100,
+                  per_page: int | None = None) -> SheetResult: ...
 
 
 def contact_sheet(motion: Motion, keys: Keyframes | list[int] | np.ndarray,
@@ -156,7 +172,7 @@ def contact_sheet(motion: Motion, keys: Keyframes | list[int] | np.ndarray,
 
 
 def _sheet_figure(motion: Motion, frames: np.ndarray, pts: np.ndarray, columns: int,
-                  title: str | None, cell_inches: float, frames_like: int | None = None) -> Any:
+                  title: str | None, cell_inches: float, frames_like: int | None = None) -> Figure:
     """One page: a grid of stick figures with a caption each and the title above them all.
     `frames_like`: the figure count the grid is sized for (every page of a sheet alike)."""
     from matplotlib.collections import LineCollection
@@ -214,6 +230,16 @@ def driving_signals(motion: Motion, features: Features | None = None,
             weight[np.asarray(cand, dtype=np.int64)] += float(w)
         out["saliency"] = weight
     return out
+
+
+@overload
+def plot_signals(motion: Motion, results: dict[str, Keyframes], path: None = None,
+                 signals: dict[str, np.ndarray] | None = None, dpi: int = 100) -> Figure: ...
+
+
+@overload
+def plot_signals(motion: Motion, results: dict[str, Keyframes], path: str | os.PathLike[str],
+                 signals: dict[str, np.ndarray] | None = None, dpi: int = 100) -> Path: ...
 
 
 def plot_signals(motion: Motion, results: dict[str, Keyframes],

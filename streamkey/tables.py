@@ -1,8 +1,8 @@
-"""`streamkey eval`: the thesis-style tables for every clip of a folder, against uniform.
+"""`streamkey eval`: the tables of Halit 2010, ch. 4, for every clip of a folder, vs uniform.
 
 Every registered offline method (`methods.OFFLINE_METHODS`) is picked up automatically:
 
-- Equal counts (thesis Table 4.1 shape): every method that takes a `count` is forced to the
+- Equal counts (Halit Table 4.1 shape): every method that takes a `count` is forced to the
   keyframe count of the saliency method's reconstruction on each clip (its keys plus the first
   and last captured frames, which every reconstruction has), and scored next to saliency.
 - Natural counts: every method that runs without a `count` (all but uniform and decimate), at
@@ -10,7 +10,7 @@ Every registered offline method (`methods.OFFLINE_METHODS`) is picked up automat
   Hermite curve fitting, whose count is keys per channel and whose error is that of its own
   per-channel reconstruction).
 
-Each row carries E (thesis eq. 4.1, over the skeleton's joints, not End Sites), E / body
+Each row carries E (Halit eq. 4.1, over the skeleton's joints, not End Sites), E / body
 height^2, PSNR (eq. 4.2) and E / E_uniform, uniform sampling at the same keyframe count
 (curve fitting has none: its keys are per channel). Each table ends with a summary per method:
 median and geometric mean of E / E_uniform and the number of clips where it beats uniform.

@@ -88,11 +88,12 @@ class ClusterRun:
                      configure_logging=False)
             self._started_ray = True
         self.logger.start()
+        actor_class: Any = ShardActor  # an ActorClass at run time; ray types it as the class
         self.actors = [
-            ShardActor.options(name=self.actor_name(i), namespace=NAMESPACE,
-                               max_restarts=-1, max_task_retries=-1,
-                               num_cpus=self.actor_cpus, scheduling_strategy="SPREAD"
-                               ).remote(self.cfg, i)
+            actor_class.options(name=self.actor_name(i), namespace=NAMESPACE,
+                                max_restarts=-1, max_task_retries=-1,
+                                num_cpus=self.actor_cpus, scheduling_strategy="SPREAD"
+                                ).remote(self.cfg, i)
             for i in range(self.cfg.shards)]
         try:
             ray.get([a.ready.remote() for a in self.actors], timeout=ready_timeout)

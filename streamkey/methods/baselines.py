@@ -1,5 +1,5 @@
-"""Offline baselines the seeds compare against (DESIGN §4.4): uniform sampling and frame
-decimation (Togawa & Okuda; Li, Okuda & Takahashi 2005, cited by the thesis, seed 000 ch. 4).
+"""Offline baselines the papers compare against: uniform sampling and frame decimation
+(Togawa & Okuda; Li, Okuda & Takahashi 2005, cited by Halit 2010, ch. 4).
 
 Both return exactly `count` keyframes, always including the first and the last captured frame,
 in the file's numbering (frames before `motion.first_frame` are skipped).

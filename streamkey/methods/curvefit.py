@@ -1,5 +1,5 @@
-"""Hermite curve fitting with dynamic programming — Önder et al. 2008 (seed 001, §3.1;
-DESIGN §4.4, an offline baseline).
+"""Hermite curve fitting with dynamic programming — Önder et al. 2008, "Keyframe reduction
+techniques for motion capture data", §3.1 (an offline baseline).
 
 Every channel (rotations unwrapped, degrees; root translation in file units: the curve of
 `simplify.curve`) is fitted on its own by cubic Hermite segments between its keyframes. What
@@ -85,8 +85,9 @@ def hermite(t: np.ndarray, pa: np.ndarray, pb: np.ndarray, ra: np.ndarray,
     """Önder's cubic Hermite segment at t in [0, 1] (tangents per unit t)."""
     t2 = t * t
     t3 = t2 * t
-    return ((2 * t3 - 3 * t2 + 1) * pa + (t3 - 2 * t2 + t) * ra + (-2 * t3 + 3 * t2) * pb
-            + (t3 - t2) * rb)
+    result: np.ndarray = ((2 * t3 - 3 * t2 + 1) * pa + (t3 - 2 * t2 + t) * ra
+                          + (-2 * t3 + 3 * t2) * pb + (t3 - t2) * rb)
+    return result
 
 
 def tangents(x: np.ndarray, smooth: float = 0.0) -> np.ndarray:
@@ -125,7 +126,7 @@ def initial_keys(x: np.ndarray, smooth: float) -> np.ndarray:
     """Önder step 1: mask (n x C) of the first/last frame and the derivative sign changes."""
     d1 = tangents(x, smooth)
     d2 = np.gradient(d1, axis=0) if len(x) > 1 else d1
-    mask = _sign_changes(d1) | _sign_changes(d2)
+    mask: np.ndarray = _sign_changes(d1) | _sign_changes(d2)
     mask[[0, -1]] = True
     return mask
 

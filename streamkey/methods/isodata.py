@@ -1,8 +1,8 @@
-"""ISODATA clustering keyframes with adaptive thresholds — Zhang et al. 2013 (seed 003;
-DESIGN §4.4, an offline baseline).
+"""ISODATA clustering keyframes with adaptive thresholds — Zhang et al. 2013, "An efficient
+method of key-frame extraction based on a cluster algorithm" (an offline baseline).
 
-Offline: `extract(motion)`. The seed's text lost most formulas; what survives (eq. 4-6: O_s, D_T,
-I) and the prose are followed, and this module settles the rest:
+Offline: `extract(motion)`. The paper's plain-text rendering lost most formulas; what
+survives (eq. 4-6: O_s, D_T, I) and the prose are followed, and this module settles the rest:
 
 - Pose vector (the paper's eq. 1 uses Euler angles): per joint, the local rotation of its
   rotation channels (BVH/AMC order, ASF axis included) as a unit quaternion, signs made
@@ -68,7 +68,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -136,7 +136,8 @@ def local_quaternions(skeleton: Skeleton, channels: np.ndarray,
                    if len(order) > k and order[k] == name]
             if not idx:
                 continue
-            cols = [skeleton.channel_index(j, name) for j in idx]
+            # `name` is one of joint j's channels (its rotation order)
+            cols = cast(list[int], [skeleton.channel_index(j, name) for j in idx])
             if rotations_only:
                 cols = [where[int(c)] for c in cols]
             half = np.radians(channels[:, cols].T)
@@ -280,7 +281,8 @@ class _Classes:
 
 def _centres(st: _Stats, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """Centres (weighted) of the runs [starts, ends) from the prefix sums."""
-    return (st.prefix(ends) - st.prefix(starts)) / (ends - starts)[:, None]
+    result: np.ndarray = (st.prefix(ends) - st.prefix(starts)) / (ends - starts)[:, None]
+    return result
 
 
 def _centre_gaps(st: _Stats, cl: _Classes) -> np.ndarray:
@@ -350,7 +352,8 @@ class _Stats:
 
     def y_rows(self, lo: int, hi: int) -> np.ndarray:
         """Weighted pose vectors of rows [lo, hi) (a new array)."""
-        return self.x[lo:hi] * self.scale
+        result: np.ndarray = self.x[lo:hi] * self.scale
+        return result
 
     def adjacent(self) -> np.ndarray:
         """Weighted distance of each frame to the next (n - 1,)."""
@@ -364,11 +367,13 @@ class _Stats:
     def sse(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Weighted squared deviations of rows [a, b) about their mean."""
         s = self.prefix(b) - self.prefix(a)
-        return self.cyy[b] - self.cyy[a] - np.einsum("ij,ij->i", s, s) / (b - a)
+        result: np.ndarray = self.cyy[b] - self.cyy[a] - np.einsum("ij,ij->i", s, s) / (b - a)
+        return result
 
     def x_mean(self, a: int, b: int) -> np.ndarray:
         """Mean of the plain pose vectors of rows [a, b)."""
-        return self.x[a:b].sum(axis=0) / (b - a)
+        result: np.ndarray = self.x[a:b].sum(axis=0) / (b - a)
+        return result
 
     def max_std(self, a: int, b: int) -> float:
         """Largest per-coordinate standard deviation of rows [a, b) (unweighted)."""
@@ -382,7 +387,8 @@ def _dispersion(st: _Stats, cl: _Classes) -> np.ndarray:
     """Mean distance of each class's frames to its centre."""
     lab = cl.labels()
     dist = _centre_distances(st, cl, lab)
-    return np.bincount(lab, dist) / cl.sizes()
+    result: np.ndarray = np.bincount(lab, dist) / cl.sizes()
+    return result
 
 
 def _centre_distances(st: _Stats, cl: _Classes, lab: np.ndarray) -> np.ndarray:
