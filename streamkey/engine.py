@@ -43,6 +43,7 @@ import numpy as np
 
 from . import jit
 from .errors import StreamkeyError
+from .framequeue import FrameArrived, QueueItem, SkeletonAnnounced, SourceEnded
 from .io import DEFAULT_MAX_STREAMS, SINK_FAILURE_LIMIT, Sink, Source, StreamSpec
 from .keyframes import Event, KeyframeEvent, StatusEvent
 from .motion import Frame
@@ -317,7 +318,7 @@ class Engine:
     def stop(self) -> None:
         """Ask the run to end: the source stops, keyframers flush, sinks drain."""
         self._stopping = True
-        self.source.frames.put(None)
+        self.source.frames.end()
 
     async def run(self) -> RunSummary:
         """Run until the source ends or `stop()`; returns the summary."""
@@ -509,7 +510,7 @@ class Engine:
     # ------------------------------------------------------------------ the loop
 
     async def _loop(self) -> None:
-        queue = self.source.frames.queue
+        queue = self.source.frames
         while True:
             if queue.empty():
                 if self._deferred:  # every due decision is out: one stream's re-analysis
@@ -527,11 +528,17 @@ class Engine:
                     continue
             else:
                 item = queue.get_nowait()
-            if item is None:
-                return
-            self._handle(item)
+            match item:
+                case FrameArrived(frame=frame, arrival_ns=arrival_ns, stream=tag):
+                    self._handle(frame, arrival_ns, tag)
+                case SkeletonAnnounced(stream=tag):  # build the pipeline before its frames
+                    name = self.stream if tag is None else tag
+                    if name not in self.streams:
+                        self._open(name, tag, frame=False)
+                case SourceEnded():
+                    return
 
-    async def _wait(self) -> Any:
+    async def _wait(self) -> QueueItem | object:
         """The next queue item, or `_TIMEOUT` when a stream may be due for retirement or
         the run for its idle exit."""
         waits = []
@@ -546,14 +553,8 @@ class Engine:
         except TimeoutError:
             return _TIMEOUT
 
-    def _handle(self, item: tuple[Any, ...]) -> None:
-        frame, arrival_ns = item[0], item[1]
-        tag = item[2] if len(item) > 2 else None
+    def _handle(self, frame: Frame, arrival_ns: int, tag: str | None) -> None:
         name = self.stream if tag is None else tag
-        if frame is None:  # a skeleton was announced: build the pipeline before its frames
-            if name not in self.streams:
-                self._open(name, tag, frame=False)
-            return
         self.summary.frames_in += 1
         now = self._last_frame = time.monotonic()
         state = self.streams.get(name) or self._open(name, tag)
@@ -683,8 +684,7 @@ class Engine:
             self.summary.guard = {k: guard.get(k, 0) for k in GuardCounters().as_dict()}
         self.summary.source = self.source.counters().as_dict()
         self.summary.source_error = None if self._stopping else self.source.fatal
-        self.summary.left_in_queue = sum(1 for item in self.source.frames.queue._queue
-                                         if item is not None and item[0] is not None)
+        self.summary.left_in_queue = self.source.frames.statistics().frames
         self.summary.waiting_at_stop = sum(len(q) for q in self._waiting.values())
         for sink in self.sinks:
             key = sink.name
