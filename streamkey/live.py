@@ -15,7 +15,7 @@ import numpy as np
 
 from .adapters import make_sink, parse_address
 from .adapters.base import Sink, Source
-from .engine import Engine, RunSummary
+from .engine import Engine
 from .errors import UsageError
 from .io import DEFAULT_MAX_STREAMS, StreamSpec, stream_id_problem, stream_tag
 from .motion import Frame, Motion
@@ -23,6 +23,7 @@ from .online import OnlineKeyframer
 from .replay.pacing import frame_stream, paced
 from .replay.source import MotionSource
 from .streaming import make_keyframers
+from .summary import RunSummary
 
 __all__ = ["run_live", "build_engine", "run_engine", "replay", "FRAME_TARGETS",
            "raise_priority", "REALTIME_PRIORITY"]

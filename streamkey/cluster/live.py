@@ -31,6 +31,7 @@ from typing import Any
 
 import zmq
 
+from ..adapters.codec import event_json
 from ..adapters.zmq import decode_frame_parts, decode_skeleton_parts, parse_topic, topic
 from ..io import stream_tag
 from ..jit import warm_up
@@ -210,7 +211,7 @@ class ShardWorker:
         self._thread.start()
 
     def _serve(self) -> None:
-        ctx = zmq.Context.instance()
+        ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
         sock = ctx.socket(zmq.SUB)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVHWM, 100_000)  # frames wait here while the log is replayed
@@ -439,7 +440,7 @@ class ShardWorker:
             return
         args: list[str] = []
         for e in events:
-            args += [e.id, json.dumps(e.to_dict())]
+            args += [e.id, event_json(e, compact=False)]
         added = int(self._emit(keys=[self.keys.events, self.keys.event_ids], args=args))
         self.counters["events"] += added
         self.counters["duplicates_dropped"] += len(events) - added
@@ -504,7 +505,7 @@ class FrameLogger:
         self._thread.join(10.0)
 
     def _serve(self) -> None:
-        sock = zmq.Context.instance().socket(zmq.SUB)
+        sock: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.SUB)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVHWM, 100_000)
         for prefix in subscriptions(self.cfg.streams):
