@@ -37,7 +37,7 @@ def clip_events() -> list[Event]:
             + holed.push_block(frames[:20]) + holed.flush())
 
 
-def test_typed_events_encode_as_their_json_records_do():
+def test_typed_events_encode_as_their_json_records_do() -> None:
     events = clip_events()
     kinds = {type(e).__name__ for e in events}
     assert {"KeyframeEvent", "ProvisionalEvent", "CancelEvent", "SignalEvent", "GapEvent",
@@ -55,7 +55,7 @@ def test_typed_events_encode_as_their_json_records_do():
             assert compact_message(event, "d") == encode_event(record, "d")
 
 
-def test_osc_carries_the_numbers_of_the_json_object():
+def test_osc_carries_the_numbers_of_the_json_object() -> None:
     """Times and strengths are rounded to 6 decimals as in the JSON, then sent as float32."""
     event = KeyframeEvent("s", "speed", 42, 1 / 3, 1.5, 162, 120, "p", strength=2 / 3)
     (message,) = osc_messages(event, "d")

@@ -10,7 +10,7 @@ from cmu import DATA, ROOT
 
 from streamkey.bvh import read_bvh
 from streamkey.io import StreamSpec
-from streamkey.keyframes import KeyframeEvent, StatusEvent
+from streamkey.keyframes import Event, KeyframeEvent, StatusEvent
 from streamkey.online import Pipeline
 from streamkey.streamtable import MAX_WAITING_FRAMES, StreamTable, keyframers_for
 
@@ -23,7 +23,7 @@ def pipeline(name: str = "a") -> Pipeline:
                     stream=name)
 
 
-def test_the_table_module_does_no_io():
+def test_the_table_module_does_no_io() -> None:
     tree = ast.parse((ROOT / "streamkey" / "streamtable.py").read_text())
     imported = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import)
                 for a in n.names}
@@ -32,7 +32,7 @@ def test_the_table_module_does_no_io():
     assert not imported & {"asyncio", "socket", "time", "zmq", "threading", "selectors"}
 
 
-def test_streams_open_wait_hold_are_refused_and_retire_by_the_time_passed_in():
+def test_streams_open_wait_hold_are_refused_and_retire_by_the_time_passed_in() -> None:
     table = StreamTable(max_streams=2, idle=1.0)
     a = table.open("a", "a", pipeline("a"), now=0.0)
     table.wait("b", now=0.0)
@@ -55,14 +55,14 @@ def test_streams_open_wait_hold_are_refused_and_retire_by_the_time_passed_in():
     assert "d" not in table.waiting
 
 
-def test_a_keyframer_fault_restarts_the_windows_and_is_reported_as_an_event():
+def test_a_keyframer_fault_restarts_the_windows_and_is_reported_as_an_event() -> None:
     table = StreamTable()
     state = table.open("a", None, pipeline(), now=0.0)
     frames = MOTION.frames()
     for frame in frames[:100]:
         table.step(state, frame.seq, state.pipeline.push, frame)
 
-    def broken(*_: object) -> list:
+    def broken(*_: object) -> list[Event]:
         raise ZeroDivisionError("injected")
 
     (event,) = table.step(state, 100, broken)
@@ -70,14 +70,14 @@ def test_a_keyframer_fault_restarts_the_windows_and_is_reported_as_an_event():
     assert event.detail == {"error": "ZeroDivisionError: injected", "seq": 100}
     assert table.faults.count == 1 and "injected (at seq 100)" in table.faults.messages[0]
     assert state.pipeline.guard.last is None  # windows restarted
-    events = []
+    events: list[Event] = []
     for frame in frames[100:]:  # the stream goes on
         events += table.step(state, frame.seq, state.pipeline.push, frame)
     events += table.step(state, None, state.pipeline.flush)
     assert any(isinstance(e, KeyframeEvent) and e.frame > 100 for e in events)
 
 
-def test_a_snapshot_restores_into_a_new_session():
+def test_a_snapshot_restores_into_a_new_session() -> None:
     table = StreamTable()
     state = table.open("a", None, pipeline(), now=0.0)
     for frame in MOTION.frames()[:50]:
