@@ -1,5 +1,6 @@
 """What every adapter shares: addresses, the loopback rule, limits; and, re-exported from the
-core (`streamkey.io`), the `Source` / `Sink` interfaces, their counters and the frame queue.
+core (`streamkey.io`), the `Source` / `Sink` interfaces, their counters and the frame queue
+(`streamkey.framequeue`).
 """
 
 from __future__ import annotations
@@ -17,13 +18,12 @@ from streamkey.io import (
     SourceStats,
     fps_problem,
     frame_numbers_problem,
-    put_drop_oldest,
     stream_id_problem,
     stream_tag,
 )
 
 __all__ = ["Address", "parse_address", "FrameQueue", "Source", "Sink", "SourceStats",
-           "SinkStats", "put_drop_oldest", "LOOPBACK", "bind_host", "MAX_CHANNELS",
+           "SinkStats", "LOOPBACK", "bind_host", "MAX_CHANNELS",
            "MAX_MESSAGE_BYTES", "frame_numbers_problem", "fps_problem", "is_loopback",
            "stream_id_problem", "stream_tag"]
 

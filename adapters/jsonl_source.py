@@ -29,6 +29,7 @@ from typing import IO, Any
 import numpy as np
 
 from streamkey.errors import BVHError, InputError
+from streamkey.framequeue import FrameArrived, SourceEnded
 from streamkey.motion import Frame, Skeleton
 
 from .base import (
@@ -140,9 +141,8 @@ class StdinSource(Source):
     name = "stdin"
 
     def __init__(self, skeleton: Skeleton, fps: float, stream: IO[bytes] | None = None) -> None:
-        super().__init__(skeleton, fps)
+        super().__init__(skeleton, fps)  # a pipe: `send` waits (backpressure, no drops)
         self.stream = stream if stream is not None else sys.stdin.buffer
-        self.frames.queue = asyncio.Queue(256)  # a pipe: backpressure instead of drops
         self.line = 0
         self.thread: threading.Thread | None = None
         self.closed = False
@@ -173,7 +173,7 @@ class StdinSource(Source):
                 loop.call_soon_threadsafe(self.die, f"stdin: {type(exc).__name__}: {exc}")
             return
         try:
-            asyncio.run_coroutine_threadsafe(self.frames.queue.put(None), loop).result()
+            asyncio.run_coroutine_threadsafe(self.frames.send(SourceEnded()), loop).result()
         except RuntimeError:
             pass
 
@@ -199,9 +199,7 @@ class StdinSource(Source):
                 self._stream_skeleton(item, stream)
             return
         self.stats.received += 1
-        entry = (item, time.monotonic_ns()) if stream is None else (
-            item, time.monotonic_ns(), stream)
-        await self.frames.queue.put(entry)
+        await self.frames.send(FrameArrived(item, time.monotonic_ns(), stream))
 
     def _stream_skeleton(self, info: dict[str, Any], stream: str) -> None:
         from streamkey.bvh import parse_bvh

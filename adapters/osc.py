@@ -75,6 +75,17 @@ from .base import (
     frame_numbers_problem,
     is_loopback,
 )
+from .codec import (
+    KEYFRAME_ADDRESS,
+    NUMERIC_LAYOUT,
+    compact_message,
+    encode_event,
+    encode_message,
+    event_messages,
+    osc_messages,
+    osc_name,
+    osc_string,
+)
 from .udp_listen import refresh_kernel_drops
 
 __all__ = ["FRAME_ADDRESS", "SKELETON_ADDRESS", "KEYFRAME_ADDRESS", "encode_frame",
@@ -86,7 +97,6 @@ __all__ = ["FRAME_ADDRESS", "SKELETON_ADDRESS", "KEYFRAME_ADDRESS", "encode_fram
 
 FRAME_ADDRESS = "/streamkey/frame"
 SKELETON_ADDRESS = "/streamkey/skeleton"
-KEYFRAME_ADDRESS = "/streamkey/keyframe"
 
 
 class OscDecodeError(InputError):
@@ -95,11 +105,6 @@ class OscDecodeError(InputError):
     def __init__(self, kind: str, message: str) -> None:
         super().__init__(message)
         self.kind = kind
-
-
-def _osc_string(text: str) -> bytes:
-    raw = text.encode() + b"\0"
-    return raw + b"\0" * (-len(raw) % 4)
 
 
 _FRAME_PREFIX: dict[tuple[str, int], bytes] = {}
@@ -119,8 +124,8 @@ def encode_frame(seq: int, time: float, channels: np.ndarray,
     if prefix is None:
         if len(_FRAME_PREFIX) > 256:
             _FRAME_PREFIX.clear()
-        prefix = _FRAME_PREFIX[(address, n)] = (_osc_string(address)
-                                                + _osc_string(",id" + "f" * n))
+        prefix = _FRAME_PREFIX[(address, n)] = (osc_string(address)
+                                                + osc_string(",id" + "f" * n))
     return prefix + struct.pack(">id", seq, time) + np.asarray(channels, ">f4").tobytes()
 
 
@@ -140,101 +145,9 @@ def encode_skeleton(skeleton: Skeleton, fps: float, address: str = SKELETON_ADDR
     return builder.build().dgram
 
 
-def encode_event(event: KeyframeEvent | dict[str, Any], time_type: str = "f") -> bytes:
-    """`/streamkey/keyframe s stream, s method, i frame, f time, f score, i latency_frames`."""
-    if isinstance(event, KeyframeEvent):
-        event = event.to_dict()
-    builder = OscMessageBuilder(KEYFRAME_ADDRESS)
-    builder.add_arg(str(event["stream"]), "s")
-    builder.add_arg(str(event["method"]), "s")
-    builder.add_arg(int(event["frame"]), "i")
-    builder.add_arg(float(event["time"]), time_type)
-    builder.add_arg(float(event["score"]), "f")
-    builder.add_arg(int(event["latency_frames"]), "i")
-    return builder.build().dgram
-
-
 OSC_LAYOUTS = ("numeric", "compact")
-NUMERIC_LAYOUT = {  # event type -> (address under /streamkey/<stream>/, OSC type tags)
-    "keyframe": ("<method>/keyframe", "ifif"),
-    "provisional": ("<method>/provisional", "iff"),
-    "cancel": ("<method>/cancel", "i"),
-    "gap": ("gap", "iii"),
-    "status": ("status/<status>", "i"),
-    "signal": ("signal/<name>", "f"),
-}
-NAME_LIMIT = 64
-_FLOAT32_MAX = float(np.finfo(np.float32).max)
-_NAME_OK = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-")
 _NTP_UNIX_OFFSET = 2_208_988_800  # seconds from 1900-01-01 (NTP era 0) to 1970-01-01
 _BUNDLE_ROOM = 8192  # bytes per bundle: well inside one datagram on any path
-
-
-def osc_name(name: object) -> str:
-    """One address part from a stream/method/status/signal name: characters outside
-    `A-Z a-z 0-9 _ -` become `_`, empty becomes `_`, at most 64 characters."""
-    text = str(name)[:NAME_LIMIT]
-    return "".join(c if c in _NAME_OK else "_" for c in text) or "_"
-
-
-def encode_message(address: str, tags: str, args: Sequence[float]) -> bytes:
-    """One OSC message with numeric arguments (`i`, `f`, `d`), fixed layout; a float
-    beyond float32 range is sent as an infinity of its sign."""
-    values = [math.copysign(math.inf, a) if t == "f" and abs(a) > _FLOAT32_MAX else a
-              for t, a in zip(tags, args, strict=True)]
-    return _osc_string(address) + _osc_string("," + tags) + struct.pack(">" + tags, *values)
-
-
-def _int32(value: Any, default: int = -1) -> int:
-    """An int for an `i` argument (out of range or not a number: `default`)."""
-    try:
-        number = int(value)
-    except (TypeError, ValueError, OverflowError):
-        return default
-    return number if -(2**31) <= number < 2**31 else default
-
-
-def _float(value: Any) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError, OverflowError):
-        return float("nan")
-
-
-def event_messages(event: Event | dict[str, Any], time_type: str = "f") -> list[bytes]:
-    """The `numeric` layout messages of one event (none for a type it has no message for).
-
-    Dispatch is on `to_dict()["type"]`, so every event type with a documented dict maps;
-    a keyframe without a `strength` (events before issue 12 §1) sends 1.0."""
-    d = event if isinstance(event, dict) else event.to_dict()
-    kind = d.get("type")
-    root = f"/streamkey/{osc_name(d.get('stream', 'default'))}"
-    method = f"{root}/{osc_name(d.get('method', '_'))}"
-    if kind == "keyframe":
-        strength = d.get("strength")
-        return [encode_message(f"{method}/keyframe", f"i{time_type}fi", (
-            _int32(d.get("frame")), _float(d.get("time")),
-            1.0 if strength is None else _float(strength), _int32(d.get("latency_frames"))))]
-    if kind == "provisional":
-        strength = d.get("strength")
-        return [encode_message(f"{method}/provisional", f"i{time_type}f", (
-            _int32(d.get("frame")), _float(d.get("time")),
-            1.0 if strength is None else _float(strength)))]
-    if kind == "cancel":
-        return [encode_message(f"{method}/cancel", "i", (_int32(d.get("frame")),))]
-    if kind == "gap":
-        return [encode_message(f"{root}/gap", "iii", (
-            _int32(d.get("first")), _int32(d.get("last")), int(bool(d.get("bridged")))))]
-    if kind == "status":
-        detail = d.get("detail") or {}
-        seq = detail.get("seq", -1) if isinstance(detail, dict) else -1
-        return [encode_message(f"{root}/status/{osc_name(d.get('status', '_'))}", "i",
-                               (_int32(seq),))]
-    if kind == "signal":
-        values = d.get("values") or {}
-        return [encode_message(f"{root}/signal/{osc_name(name)}", "f", (_float(value),))
-                for name, value in (values.items() if isinstance(values, dict) else ())]
-    return []
 
 
 def with_layout(targets: Sequence[str], layout: str | None) -> list[str]:
@@ -283,7 +196,7 @@ def decode_bundle(data: bytes) -> tuple[int, list[bytes]]:
 
 
 _ARG_FORMATS = {ord("i"): "i", ord("h"): "q", ord("f"): "f", ord("d"): "d"}
-_FRAME_HEAD = _osc_string(FRAME_ADDRESS)
+_FRAME_HEAD = osc_string(FRAME_ADDRESS)
 
 
 def _address_of(data: bytes) -> str:
@@ -313,7 +226,7 @@ def decode_frame(data: bytes, address: str = FRAME_ADDRESS) -> tuple[int, float,
     """Decode a `/streamkey/frame` packet (or one to `address`, a stream's frame address)
     exactly (every byte accounted for); raises `OscDecodeError` with a kind: parse,
     address, types, arity, oversize, truncated, trailing, nan, range."""
-    frame_head = _FRAME_HEAD if address == FRAME_ADDRESS else _osc_string(address)
+    frame_head = _FRAME_HEAD if address == FRAME_ADDRESS else osc_string(address)
     if not data.startswith(frame_head):
         raise OscDecodeError("address", f"unexpected OSC address {_address_of(data)!r}")
     head = len(frame_head)
@@ -490,7 +403,7 @@ class OscSource(Source):
                 for item in _bundle_elements(data, depth):
                     self.receive(item, arrival_ns, depth + 1)
                 return
-            if data.startswith(_osc_string(SKELETON_ADDRESS)):
+            if data.startswith(osc_string(SKELETON_ADDRESS)):
                 if not self.repeated_skeleton(data):
                     self.set_skeleton(*decode_skeleton(data), raw=data)
                 return
@@ -615,10 +528,11 @@ class OscEventSink(Sink):
 
     def offer(self, event: Event) -> None:
         if self.layout == "compact":
-            if isinstance(event, KeyframeEvent):
-                self.sender.send(encode_event(event, self.time_type))
+            match event:
+                case KeyframeEvent():
+                    self.sender.send(compact_message(event, self.time_type))
             return  # gaps, status and the rest have no compact message
-        messages = event_messages(event, self.time_type)
+        messages = osc_messages(event, self.time_type)
         size = sum(len(m) + 4 for m in messages)
         if self.pending and self.pending_bytes + size > _BUNDLE_ROOM:
             self._send_bundle(time.monotonic_ns())  # a huge frame: split, never truncate

@@ -13,32 +13,11 @@ from streamkey.errors import InputError
 from streamkey.keyframes import Event
 
 from .base import Address, Sink
+from .codec import event_id, event_json, record_json
 
 __all__ = ["JsonlSink", "StdoutSink", "event_id", "DEDUPE_TAIL"]
 
 DEDUPE_TAIL = 100_000  # ids of the last events of an existing log checked against on restart
-
-
-def event_id(event: Event | dict[str, Any]) -> str | None:
-    """The idempotent id of an event (schema v2 `id`): keyframes
-    `stream/method/frame/params-digest`, gaps `stream/gap/<first seq>`, status
-    `stream/status/<name>/<seq>`; None for an event without one (a status without a seq).
-    Uses the event's own `id` when it has one; computes the same string otherwise."""
-    own = getattr(event, "id", None)
-    if isinstance(own, str):
-        return own
-    record = event if isinstance(event, dict) else event.to_dict()
-    if isinstance(record.get("id"), str):
-        return str(record["id"])
-    kind, stream = record.get("type"), record.get("stream")
-    if kind == "keyframe":
-        return f"{stream}/{record.get('method')}/{record.get('frame')}/{record.get('params')}"
-    if kind == "gap":
-        return f"{stream}/gap/{record.get('first')}"
-    detail = record.get("detail")
-    if kind == "status" and isinstance(detail, dict) and detail.get("seq") is not None:
-        return f"{stream}/status/{record.get('status')}/{detail['seq']}"
-    return None
 
 
 def _ids_in(path: Path) -> set[str]:
@@ -87,15 +66,17 @@ class JsonlSink(Sink):
         return f"jsonl:{self.path}"
 
     def offer(self, event: Event) -> None:
-        record = event.to_dict()
-        if self.logged and event_id(record) in self.logged:
+        if self.logged and event.id in self.logged:
             self.stats.duplicates += 1
             return
-        self.write(record)
+        self._append(event_json(event))
 
     def write(self, record: dict[str, Any]) -> None:
-        """Append one JSON record (an event, or an operator annotation) and flush."""
-        self.file.write(json.dumps(record, separators=(",", ":")) + "\n")
+        """Append one JSON record (an operator annotation) and flush."""
+        self._append(record_json(record))
+
+    def _append(self, text: str) -> None:
+        self.file.write(text + "\n")
         self.file.flush()
         self.stats.sent += 1
 
@@ -120,7 +101,7 @@ class StdoutSink(Sink):
 
     def offer(self, event: Event) -> None:
         try:
-            sys.stdout.write(json.dumps(event.to_dict(), separators=(",", ":")) + "\n")
+            sys.stdout.write(event_json(event) + "\n")
             sys.stdout.flush()
             self.stats.sent += 1
         except BrokenPipeError:

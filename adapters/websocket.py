@@ -38,6 +38,7 @@ from streamkey.errors import InputError
 from streamkey.keyframes import Event
 
 from .base import MAX_MESSAGE_BYTES, Address, Sink, bind_host
+from .codec import event_json, record_json
 
 __all__ = ["WebSocketSink", "Client", "CLIENT_QUEUE", "LOOPBACK_NAMES", "RECENT_REFUSALS"]
 
@@ -225,12 +226,15 @@ class WebSocketSink(Sink):
             pass
 
     def offer(self, event: Event) -> None:
-        self.broadcast(event.to_dict())
+        self._broadcast_text(event_json(event))
 
     def broadcast(self, message: dict[str, Any]) -> None:
         """Serialise once and append to the shared ring: O(1) whatever the number of clients;
         the clients' senders are woken once, after the current loop turn."""
-        self.ring.append(json.dumps(message, separators=(",", ":")))
+        self._broadcast_text(record_json(message))
+
+    def _broadcast_text(self, text: str) -> None:
+        self.ring.append(text)
         self.ring_seq += 1
         self.stats.sent += 1
         self._notify()

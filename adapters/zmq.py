@@ -24,6 +24,7 @@ import json
 import threading
 import time
 from collections import deque
+from typing import Any
 
 import numpy as np
 import zmq
@@ -46,11 +47,12 @@ from .base import (
     fps_problem,
     frame_numbers_problem,
 )
+from .codec import event_json
 
 __all__ = ["ZmqSource", "ZmqEventSink", "ZmqFrameSender", "encode_frame_parts",
            "decode_frame_parts", "decode_skeleton_parts", "topic", "parse_topic"]
 
-_DTYPES = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
+_DTYPES: dict[str, np.dtype[Any]] = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
 
 
 def topic(kind: str, stream: str | None = None) -> bytes:
@@ -100,7 +102,8 @@ def decode_frame_parts(parts: list[bytes]) -> Frame:
         raise ValueError(f"frame header needs n (1..{MAX_CHANNELS}) and dtype <f4 or <f8")
     if len(parts[2]) != n * dtype.itemsize:
         raise ValueError(f"payload of {len(parts[2])} bytes, expected {n} x {dtype.itemsize}")
-    seq, time_s = header.get("seq"), header.get("time")
+    seq: Any = header.get("seq")
+    time_s: Any = header.get("time")
     problem = frame_numbers_problem(seq, time_s)
     if problem is not None:
         raise ValueError(f"frame header: {problem}")
@@ -159,7 +162,8 @@ class ZmqSource(Source):
         self._loop: asyncio.AbstractEventLoop | None = None
 
     async def start(self) -> str:
-        sock = zmq.Context.instance().socket(zmq.SUB if self.pattern == "sub" else zmq.PULL)
+        sock: zmq.Socket[bytes] = zmq.Context.instance().socket(
+            zmq.SUB if self.pattern == "sub" else zmq.PULL)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.MAXMSGSIZE, MAX_MESSAGE_BYTES)
         sock.setsockopt(zmq.RCVHWM, 256)
@@ -268,7 +272,7 @@ class ZmqSource(Source):
 def _pub_socket(address: Address, listen: str | None,
                 nodrop: bool = False) -> tuple[zmq.Socket[bytes], str]:
     host = bind_host(address, listen) if address.scheme == "zmq+tcp" else ""
-    sock = zmq.Context.instance().socket(zmq.XPUB)
+    sock: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.XPUB)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.SNDHWM, 1000)
     if nodrop:
@@ -319,7 +323,7 @@ class ZmqEventSink(Sink):
     def offer(self, event: Event) -> None:
         assert self.socket is not None
         try:
-            self.socket.send_multipart([b"event", json.dumps(event.to_dict()).encode()],
+            self.socket.send_multipart([b"event", event_json(event, compact=False).encode()],
                                        zmq.NOBLOCK)
             self.stats.sent += 1
         except zmq.Again:

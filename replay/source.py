@@ -6,6 +6,7 @@ import asyncio
 import itertools
 import time
 
+from streamkey.framequeue import FrameArrived, SourceEnded
 from streamkey.io import Source
 from streamkey.motion import Motion
 
@@ -22,13 +23,12 @@ class MotionSource(Source):
     def __init__(self, motion: Motion, rate: float | None = None, speed: float = 1.0,
                  loop: bool = False, start: int | None = None, end: int | None = None,
                  count: int | None = None) -> None:
-        super().__init__(motion.skeleton, motion.fps)
+        super().__init__(motion.skeleton, motion.fps, queue_size=8)
         self.motion = motion
         self.rate = motion.fps if rate is None else rate
         self.speed = speed
         self.frames_iter = itertools.islice(frame_stream(motion, start, end, loop), count)
         self.task: asyncio.Task[None] | None = None
-        self.frames.queue = asyncio.Queue(8)  # in-process: backpressure instead of drops
 
     async def start(self) -> str:
         self.task = self.spawn(self._produce())
@@ -38,6 +38,7 @@ class MotionSource(Source):
         interval = 1.0 / (self.rate * self.speed) if self.rate > 0 else 0.0
         async for frame, _ in apaced(self.frames_iter, interval):
             self.stats.received += 1
-            await self.frames.queue.put((frame, time.monotonic_ns()))
-        await self.frames.queue.put(None)
+            # in-process: backpressure instead of drops
+            await self.frames.send(FrameArrived(frame, time.monotonic_ns()))
+        await self.frames.send(SourceEnded())
 

@@ -48,12 +48,13 @@ from .adapters import make_sink, parse_address
 from .adapters.base import LOOPBACK, Address, Source
 from .adapters.sinks import JsonlSink
 from .adapters.websocket import WebSocketSink
-from .engine import Engine, RunSummary
+from .engine import Engine
 from .errors import InputError, RoleError, UsageError
 from .keyframes import SCHEMA_VERSION, Event, KeyframeEvent
 from .kinematics import body_height, forward_kinematics, pelvis_frame
 from .motion import Frame, Motion, Skeleton
 from .roles import resolve_roles
+from .summary import RunSummary
 
 __all__ = ["Annotator", "LiveView", "DashboardSink", "run_dashboard", "METHOD_COLORS",
            "MAX_TEXT", "ACTIONS", "check_port", "method_color", "bone_sides",
@@ -338,17 +339,18 @@ class DashboardSink(WebSocketSink):
         return f"http://{host}:{self.port}/{query}"
 
     def attach(self, engine: Engine) -> None:
-        """Read counters from this engine (frames, drops, gaps, latency, lookahead)."""
+        """Read counters from this engine (frames, drops, gaps, latency, lookahead) through
+        its read-only snapshots (`Engine.statistics`, `Engine.saliency_trace`)."""
         self.engine = engine
 
     def on_frame(self, frame: Frame) -> None:
         """Engine hook after each frame: remember it, send the pose every few frames."""
         if self.view is None:
-            source = self.engine.source if self.engine else None
-            if source is None or source.skeleton is None or source.fps is None:
+            stats = self.engine.statistics() if self.engine else None
+            if stats is None or stats.skeleton is None or stats.fps is None:
                 return
-            self.view = LiveView(source.skeleton, source.fps, self.rate)
-            self.annotator.fps = source.fps
+            self.view = LiveView(stats.skeleton, stats.fps, self.rate)
+            self.annotator.fps = stats.fps
         self.annotator.see_frame(frame.seq, frame.time)
         pose = self.view.push(frame)
         if pose is not None:
@@ -365,9 +367,7 @@ class DashboardSink(WebSocketSink):
     def _new_saliency(self) -> list[list[float]]:
         """Per-frame saliency the online saliency keyframer classified since the last call
         (it trails the stream by at most its lookahead)."""
-        pipeline = self.engine.pipeline if self.engine is not None else None
-        trace = next((getattr(kf, "trace", None) for kf in (pipeline.keyframers if pipeline
-                      else []) if kf.method == "saliency"), None)
+        trace = self.engine.saliency_trace() if self.engine is not None else ()
         if not trace:
             return []
         last = self.saliency[-1][0] if self.saliency else None
@@ -401,16 +401,16 @@ class DashboardSink(WebSocketSink):
         eng = self.engine
         if eng is None:
             return out
-        src = eng.source.counters()
-        out["frames"] = eng.summary.frames_in
-        out["drops"] = src.queue_drops + sum(src.malformed.values())
-        if eng.pipeline is not None:
-            g = eng.pipeline.guard.counters
-            out["drops"] += g.duplicates + g.out_of_order + g.invalid
-            out["gaps"] = g.gaps
-            out["lost"] = getattr(g, "lost", 0)  # seq holes: frames that never arrived
-            out["lookahead"] = {kf.method: kf.lookahead for kf in eng.pipeline.keyframers}
-        out["events"] = dict(eng.summary.events)
+        stats = eng.statistics()
+        out["frames"] = stats.frames_in
+        out["drops"] = stats.source_drops
+        if stats.guard:
+            g = stats.guard
+            out["drops"] += g["duplicates"] + g["out_of_order"] + g["invalid"]
+            out["gaps"] = g["gaps"]
+            out["lost"] = g["lost"]  # seq holes: frames that never arrived
+            out["lookahead"] = dict(stats.lookahead)
+        out["events"] = dict(stats.events)
         if self.latency:
             lat = np.array(self.latency)
             out["latency_ms"] = {"p50": round(float(np.percentile(lat, 50)), 3),

@@ -1,27 +1,28 @@
-"""The asyncio engine: one source -> a pipeline of N online keyframers per stream -> M sinks
-(DESIGN §2).
+"""The asyncio engine: one source -> a pipeline of N online keyframers per stream -> M sinks.
 
 The path is one-way, as between `websockets`' sans-I/O protocol and its connection:
 
 - Frames carry a stream tag; each stream gets its own `Pipeline`, built from its skeleton,
   up to `max_streams` (more are refused and counted), retired after `stream_idle` seconds
-  without a frame. Due decisions first: every queued frame's `push`, of every stream, runs
-  before any stream's deferred `idle`, so one stream's re-analysis burst does not delay
-  another stream's due event; a stream's own order (and so its events) is unchanged.
+  without a frame: the `StreamTable` (`streamkey.streamtable`, sans-I/O) keeps that state,
+  this module is the asyncio around it. Due decisions first: every queued frame's `push`,
+  of every stream, runs before any stream's deferred `idle`, so one stream's re-analysis
+  burst does not delay another stream's due event; a stream's own order (and so its events)
+  is unchanged.
 
 - Frames come from the source's bounded queue (network sources drop the oldest frame when
   the engine falls behind, and count it), each stamped with its arrival time (the kernel's
   receive time where the source can read it).
 - `Pipeline.push` returns the events due with a frame and `Pipeline.idle` the deferred ones
-  (a re-analysis); keyframer faults are caught around those two calls only, reported as a
-  status event and the windows restarted.
+  (a re-analysis); keyframer faults are caught around those calls only, reported as a
+  status event and the windows restarted (`StreamTable.step`, the one fault policy).
 - The engine stamps each `KeyframeEvent` with its wall latency (`dataclasses.replace`) and
-  hands the typed events to the sinks, log sinks first (an event is on disk before any
-  network peer sees it). A sink's fault is that sink's: counted in its stats, and the sink
-  disabled after `SINK_FAILURE_LIMIT` failures in a row; it never touches the keyframers.
+  hands the typed events to the sinks (`SinkFanout`: log sinks first, a sink's fault is that
+  sink's, it never touches the keyframers).
 - `stop()` (Ctrl-C / SIGTERM in the CLI), `idle_exit` seconds without a frame once frames
   have flowed, or the source dying ends the run; the keyframers are flushed, the sinks
-  drained and closed, and a `RunSummary` is returned (`source_error` says why a source died).
+  drained and closed, and a `RunSummary` (`streamkey.summary`) is returned (`source_error`
+  says why a source died).
 
 Memory stays flat over long runs: latencies go into fixed-bin histograms, keyframer errors
 into a bounded list.
@@ -32,231 +33,62 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import gc
-import math
 import time
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from . import jit
 from .errors import StreamkeyError
-from .io import DEFAULT_MAX_STREAMS, SINK_FAILURE_LIMIT, Sink, Source, StreamSpec
-from .keyframes import Event, KeyframeEvent, StatusEvent
-from .motion import Frame
+from .fanout import SinkFanout
+from .framequeue import FrameArrived, QueueItem, SkeletonAnnounced, SourceEnded
+from .io import DEFAULT_MAX_STREAMS, Sink, Source, StreamSpec
+from .keyframes import Event, KeyframeEvent
+from .motion import Frame, Skeleton
 from .online import GuardCounters, OnlineKeyframer, Pipeline
+from .streamtable import LiveStream, StreamTable
+from .summary import (
+    MAX_ERRORS_KEPT,
+    EngineStatistics,
+    LatencyHistogram,
+    RunSummary,
+    StreamStats,
+)
 
-__all__ = ["Engine", "RunSummary", "StreamStats", "LatencyHistogram", "MAX_ERRORS_KEPT"]
+__all__ = ["Engine", "EngineConfig", "RunSummary", "StreamStats", "LatencyHistogram",
+           "MAX_ERRORS_KEPT", "EngineStatistics", "KeyframerFactory"]
 
-MAX_ERRORS_KEPT = 20
+KeyframerFactory = Callable[[StreamSpec], list[OnlineKeyframer]]
+"""Builds a stream's keyframers from its `StreamSpec` (id, skeleton, rate)."""
 
-
-class LatencyHistogram:
-    """Streaming percentiles in fixed memory: log-spaced bins of ratio `1 + 2 * rel_error`
-    from `low` to `high` ms (plus an underflow and an overflow bin). A percentile is the
-    geometric centre of its bin, so it is within `rel_error` (0.5 %) of a value of that bin;
-    max and count are exact. 1,850 bins, 15 KB, whatever the run length."""
-
-    def __init__(self, low: float = 1e-3, high: float = 1e5, rel_error: float = 0.005) -> None:
-        self.low = low
-        self.step = math.log1p(2 * rel_error)
-        self.n_bins = int(math.ceil(math.log(high / low) / self.step)) + 2
-        self.counts = np.zeros(self.n_bins, dtype=np.int64)
-        self.count = 0
-        self.max = -math.inf
-
-    def add(self, value: float) -> None:
-        """Count one value (ms)."""
-        if value < self.low:
-            index = 0
-        else:
-            index = min(self.n_bins - 1, 1 + int(math.log(value / self.low) / self.step))
-        self.counts[index] += 1
-        self.count += 1
-        self.max = max(self.max, value)
-
-    def percentile(self, q: float) -> float | None:
-        """The q-th percentile (0..100) within the bin error; None when empty."""
-        if not self.count:
-            return None
-        rank = max(1, math.ceil(q / 100 * self.count))
-        index = int(np.searchsorted(np.cumsum(self.counts), rank))
-        if index == 0:
-            return min(self.low, self.max)
-        centre = self.low * math.exp((index - 0.5) * self.step)
-        return min(centre, self.max)
-
-    def summary(self) -> dict[str, float | None]:
-        """p50 / p99 / max (ms), None before the first value."""
-        return {"p50": self.percentile(50), "p99": self.percentile(99),
-                "max": self.max if self.count else None}
-
-
-@dataclass
-class RunSummary:
-    """What a run did: frames, drops, gaps, events per method and sink, wall latency."""
-
-    frames_in: int = 0
-    guard: dict[str, int] = field(default_factory=dict)
-    source: dict[str, Any] = field(default_factory=dict)
-    events: Counter[str] = field(default_factory=Counter)
-    sinks: dict[str, dict[str, Any]] = field(default_factory=dict)
-    latency: LatencyHistogram = field(default_factory=LatencyHistogram)
-    method_latency: dict[str, LatencyHistogram] = field(default_factory=dict)
-    seconds: float = 0.0
-    errors: list[str] = field(default_factory=list)
-    error_count: int = 0
-    source_error: str | None = None
-    left_in_queue: int = 0
-    streams: dict[str, StreamStats] = field(default_factory=dict)
-    max_streams: int = DEFAULT_MAX_STREAMS
-    refused_streams: int = 0
-    refused_frames: int = 0
-    waiting_at_stop: int = 0
-    due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
-    frame_wait: LatencyHistogram = field(default_factory=LatencyHistogram)
-    untimed_events: int = 0  # keyframes decided by a stream's end, not by a frame
-
-    def latency_percentiles(self) -> dict[str, float | None]:
-        """p50 / p99 / max of the wall latency (ms), None before the first event."""
-        return self.latency.summary()
-
-    def accounting(self) -> dict[str, Any]:
-        """Where every frame that reached the source went (and what is known of the rest)."""
-        g, s = self.guard, self.source
-        return {
-            "arrived": s.get("received", 0) + sum(s.get("malformed", {}).values()),
-            "malformed": dict(s.get("malformed", {})), "queue_drops": s.get("queue_drops", 0),
-            "left_in_queue": self.left_in_queue, "engine_in": self.frames_in,
-            "duplicates": g.get("duplicates", 0), "out_of_order": g.get("out_of_order", 0),
-            "invalid": g.get("invalid", 0), "processed": g.get("accepted", 0),
-            "never_arrived": g.get("lost", 0), "bridged": g.get("bridged_frames", 0),
-            "gaps": g.get("gaps", 0), "restarts": g.get("restarts", 0),
-            "kernel_drops": s.get("kernel_drops"), "refused_streams": self.refused_frames,
-            "waiting_for_skeleton": self.waiting_at_stop + sum(
-                st.waiting_drops for st in self.streams.values())}
-
-    def as_dict(self) -> dict[str, Any]:
-        """The summary as a JSON-ready dict."""
-        return {"frames_in": self.frames_in, "frames_lost": self.guard.get("lost", 0),
-                "seconds": round(self.seconds, 3),
-                "guard": self.guard, "source": self.source, "events": dict(self.events),
-                "sinks": self.sinks, "wall_latency_ms": self.latency_percentiles(),
-                "wall_latency_by_method": {m: h.summary()
-                                           for m, h in self.method_latency.items()},
-                "accounting": self.accounting(), "keyframer_errors": self.errors,
-                "keyframer_error_count": self.error_count, "source_error": self.source_error,
-                "due_latency_ms": self.due_latency.summary(),
-                "frame_wait_ms": self.frame_wait.summary(),
-                "keyframes_at_stream_end": self.untimed_events,
-                "streams": {n: st.as_dict() for n, st in self.streams.items()},
-                "max_streams": self.max_streams, "refused_streams": self.refused_streams,
-                "refused_frames": self.refused_frames, "waiting_at_stop": self.waiting_at_stop}
-
-    def text(self) -> str:
-        """A few human-readable lines for the end of a run."""
-        lat = self.latency_percentiles()
-        a = self.accounting()
-        malformed = ", ".join(f"{k} {v}" for k, v in sorted(a["malformed"].items()))
-        kernel = ("not counted (this source is not a UDP socket on Linux)"
-                  if a["kernel_drops"] is None else str(a["kernel_drops"]))
-        lines = [
-            f"frames in: {self.frames_in} in {self.seconds:.1f} s; "
-            f"lost: {a['never_arrived']} (seq holes in {a['gaps']} gaps); dropped: "
-            f"{a['duplicates']} duplicate, {a['out_of_order']} out of order, "
-            f"{a['invalid']} invalid, {a['queue_drops']} queue; "
-            f"malformed: {sum(a['malformed'].values())}" + (f" ({malformed})" if malformed
-                                                            else ""),
-            f"gaps: {a['gaps']} ({a['bridged']} frames bridged, {a['restarts']} restarts)",
-            f"accounting: {a['arrived']} frames or packets arrived = "
-            f"{sum(a['malformed'].values())} malformed + {a['queue_drops']} queue drops + "
-            f"{a['left_in_queue']} unread at stop + {a['duplicates']} duplicate + "
-            f"{a['out_of_order']} out of order + {a['invalid']} invalid + "
-            + (f"{a['refused_streams']} of refused streams + " if a["refused_streams"] else "")
-            + (f"{a['waiting_for_skeleton']} waiting for a skeleton + "
-               if a["waiting_for_skeleton"] else "")
-            + f"{a['processed']} processed; {a['never_arrived']} frames never arrived "
-            f"(seq holes); kernel receive drops: {kernel}",
-            "events: " + (", ".join(f"{k} {v}" for k, v in sorted(self.events.items()))
-                          or "none"),
-        ]
-        for name, st in self.sinks.items():
-            lines.append(f"sink {name}: sent {st['sent']}, dropped {st['dropped']}"
-                         + (f", errors {st['errors']}" if st.get("errors") else "")
-                         + (f", duplicates skipped {st['duplicates']}" if st.get("duplicates")
-                            else "")
-                         + (" (disabled)" if st.get("disabled") else "")
-                         + (f", last error: {st['last_error']}" if st.get("last_error") else "")
-                         + (f"; not counted: {st['unseen_drops']}" if st.get("unseen_drops")
-                            else ""))
-        if len(self.streams) > 1 or self.refused_streams:
-            lines.append(f"streams: {len(self.streams)} served, {self.refused_streams} refused "
-                         f"({self.refused_frames} frames; --max-streams {self.max_streams})")
-            for name, st in list(self.streams.items())[:16]:
-                lines.append(f"stream {name}: frames in {st.frames_in}, events "
-                             + (", ".join(f"{k} {v}" for k, v in sorted(st.events.items()))
-                                or "none")
-                             + f", gaps {st.guard.get('gaps', 0)}, sessions {st.sessions}"
-                             + (f", {st.waiting_drops} dropped waiting for its skeleton"
-                                if st.waiting_drops else ""))
-            if len(self.streams) > 16:
-                lines.append(f"... {len(self.streams) - 16} more streams (see --summary)")
-        for error in self.errors[:5]:
-            lines.append(f"keyframer error (window restarted): {error}")
-        if self.error_count > 5:
-            lines.append(f"... {self.error_count - 5} more keyframer errors")
-        if lat["p50"] is not None:
-            wait = self.frame_wait.summary()
-            lines.append(f"wall latency (from the deciding frame's arrival): "
-                         f"p50 {lat['p50']:.3f} ms, p99 {lat['p99']:.3f} ms, "
-                         f"max {lat['max']:.3f} ms; frames waited before their push: "
-                         f"p50 {wait['p50'] or 0:.3f} ms, p99 {wait['p99'] or 0:.3f} ms"
-                         + (f" ({self.untimed_events} keyframes decided by a stream's end "
-                            "not timed)" if self.untimed_events else ""))
-        if self.source_error:
-            lines.append(f"source died: {self.source_error}")
-        return "\n".join(lines)
-
-
-KeyframerFactory = Callable[[Any], list[OnlineKeyframer]]
-"""Builds a stream's keyframers from a `StreamSpec` (`.stream`, `.skeleton`, `.fps`)."""
-
-MAX_WAITING_FRAMES = 256     # frames a stream may hold while its skeleton has not come
-MAX_STREAM_STATS = 256       # streams named in the summary; the rest are summed in "(other)"
 MAX_REFUSALS_SAID = 20       # refused stream ids said on the ready channel (all are counted)
 
 
-@dataclass
-class StreamStats:
-    """Counters of one stream over the run (all its sessions: a retired stream may return)."""
+@dataclass(frozen=True)
+class EngineConfig:
+    """How an engine runs, besides its source, keyframer factory and sinks.
 
-    frames_in: int = 0
-    sessions: int = 0
-    retired: int = 0
-    waiting_drops: int = 0
-    events: Counter[str] = field(default_factory=Counter)
-    guard: Counter[str] = field(default_factory=Counter)
-    due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
+    `stream` names the unnamed stream; `on_ready` gets the human-readable status lines
+    (ready, refused, retired, disabled sink); `on_event` every event's dict; `on_frame` each
+    frame after its events (the dashboard's pose view). `idle_exit`: end the run after that
+    many seconds without a frame once frames have flowed. `reset_on_gap`: a gap too long to
+    bridge forgets the methods' running statistics too. `due_first`: the deferred
+    re-analysis of every stream waits until no frame is queued. `freeze_gc`: freeze the heap
+    loaded at start-up out of the garbage collector for the run (the CLI's `run`)."""
 
-    def as_dict(self) -> dict[str, Any]:
-        """Counters as a plain dict (latency: the due events' p50 / p99 / max, ms)."""
-        return {"frames_in": self.frames_in, "sessions": self.sessions,
-                "retired": self.retired, "waiting_drops": self.waiting_drops,
-                "events": dict(self.events), "guard": dict(self.guard),
-                "due_latency_ms": self.due_latency.summary()}
-
-
-class _Stream:
-    """A live stream: its pipeline and where its frames and deferred work stand."""
-
-    def __init__(self, name: str, tag: str | None, pipeline: Pipeline,
-                 stats: StreamStats) -> None:
-        self.name, self.tag, self.pipeline, self.stats = name, tag, pipeline, stats
-        self.last_frame = time.monotonic()
-        self.last_arrival_ns = 0
-        self.seq: int | None = None
+    stream: str = "default"
+    on_ready: Callable[[str], None] | None = None
+    on_event: Callable[[dict[str, Any]], None] | None = None
+    idle_exit: float | None = None
+    on_frame: Callable[[Frame], None] | None = None
+    reset_on_gap: bool = False
+    max_streams: int = DEFAULT_MAX_STREAMS
+    stream_idle: float | None = None
+    due_first: bool = True
+    freeze_gc: bool = False
 
 
 class Engine:
@@ -265,177 +97,159 @@ class Engine:
     One engine serves any number of streams (up to `max_streams`): frames carry a stream tag
     from the source (None: the unnamed stream, called `stream`); a stream's pipeline is built
     from its skeleton (or the shared one) and retired after `stream_idle` seconds without a
-    frame. With `due_first` the deferred re-analysis (`Pipeline.idle`) of every stream waits
-    until no frame is queued, so one stream's burst never delays another stream's due event.
-    With `freeze_gc` (the CLI's `run`) the heap loaded at start-up is frozen out of the
-    garbage collector for the run (`_freeze_heap`).
+    frame. Options: an `EngineConfig`, or its fields as keywords.
     """
 
     def __init__(self, source: Source, make_keyframers: KeyframerFactory, sinks: list[Sink],
-                 stream: str = "default",
-                 on_ready: Callable[[str], None] | None = None,
-                 on_event: Callable[[dict[str, Any]], None] | None = None,
-                 idle_exit: float | None = None,
-                 on_frame: Callable[[Frame], None] | None = None,
-                 reset_on_gap: bool = False, max_streams: int = DEFAULT_MAX_STREAMS,
-                 stream_idle: float | None = None, due_first: bool = True,
-                 freeze_gc: bool = False) -> None:
+                 config: EngineConfig | None = None, **options: Any) -> None:
+        self.config = cfg = dataclasses.replace(config or EngineConfig(), **options)
         self.source = source
-        self.reset_on_gap = reset_on_gap  # a long gap forgets running statistics too
-        self.idle_exit = idle_exit
         self.make_keyframers = make_keyframers
-        # The log sinks come first: an event is on disk before any network peer sees it.
-        self.sinks = sorted(sinks, key=lambda s: s.live)
-        self.stream = stream
-        self.on_ready = on_ready or (lambda line: None)
-        self.on_event = on_event
-        self.on_frame = on_frame  # called after each frame's events (the dashboard's pose view)
-        self.max_streams = max_streams
-        self.stream_idle = stream_idle
-        self.due_first = due_first
-        self.freeze_gc = freeze_gc
-        source.max_streams = max_streams
-        self.summary = RunSummary(max_streams=max_streams)
-        self.streams: dict[str, _Stream] = {}
-        self._waiting: dict[str, deque[tuple[Frame, int]]] = {}  # streams without skeleton
-        self._waiting_seen: dict[str, float] = {}
-        self._deferred: dict[str, _Stream] = {}  # streams whose re-analysis is pending
-        self._said_refused: set[str] = set()
+        self._say: Callable[[str], None] = cfg.on_ready or (lambda line: None)
+        self.sinks = SinkFanout(sinks, self._say)
+        source.max_streams = cfg.max_streams
+        self.summary = RunSummary(max_streams=cfg.max_streams)
+        self.table = StreamTable(self.summary.streams, cfg.max_streams, cfg.stream_idle)
+        self._deferred: dict[str, LiveStream] = {}  # streams whose re-analysis is pending
         self._warm = False
-        self._prebuilt: tuple[tuple[Any, float], Pipeline] | None = None  # (skeleton, fps)
+        self._prebuilt: tuple[tuple[Skeleton, float], Pipeline] | None = None
         self._last_frame = time.monotonic()
         self._next_retire = 0.0
-        self._sink_failures: dict[int, int] = {}
         self._stopping = False
+
+    @property
+    def streams(self) -> dict[str, LiveStream]:
+        """The live streams by name."""
+        return self.table.live
 
     @property
     def pipeline(self) -> Pipeline | None:
         """The pipeline of the unnamed stream (else the first live one); None before any."""
-        state = self.streams.get(self.stream) or next(iter(self.streams.values()), None)
+        state = self.streams.get(self.config.stream) or next(iter(self.streams.values()), None)
         return None if state is None else state.pipeline
+
+    def statistics(self) -> EngineStatistics:
+        """A read-only snapshot of the run's counters (for live views)."""
+        src = self.source.counters()
+        pipeline = self.pipeline
+        return EngineStatistics(
+            frames_in=self.summary.frames_in, events=dict(self.summary.events),
+            source_drops=src.queue_drops + sum(src.malformed.values()),
+            guard={} if pipeline is None else pipeline.guard.counters.as_dict(),
+            lookahead={} if pipeline is None else {kf.method: kf.lookahead
+                                                   for kf in pipeline.keyframers},
+            skeleton=self.source.skeleton, fps=self.source.fps)
+
+    def saliency_trace(self) -> tuple[tuple[int, float], ...]:
+        """The per-frame saliency (seq, level) the main stream's online saliency keyframer
+        keeps for live views (its last 20 s); empty without one."""
+        pipeline = self.pipeline
+        trace = next((getattr(kf, "trace", None) for kf in (pipeline.keyframers if pipeline
+                      else []) if kf.method == "saliency"), None)
+        return tuple(trace) if trace else ()
 
     def stop(self) -> None:
         """Ask the run to end: the source stops, keyframers flush, sinks drain."""
         self._stopping = True
-        self.source.frames.put(None)
+        self.source.frames.end()
 
     async def run(self) -> RunSummary:
         """Run until the source ends or `stop()`; returns the summary."""
         started = time.monotonic()
-        for sink in self.sinks:
-            self.on_ready(f"sending to {await sink.start()}")
+        await self.sinks.start()
         try:
-            known = self.source.skeleton_for(None)
-            if known is not None:  # known skeleton: ready (and warm) before frames flow
-                self._warm_up(StreamSpec(self.stream, *known))
-                if not self.source.shared_skeleton:
-                    self._open(self.stream, None)
-                else:  # it may serve tagged streams only: built now, opened by a frame
-                    self._prebuilt = (known, self._build(StreamSpec(self.stream, *known)))
-            if not self._warm:  # the skeleton comes from the wire: warm up on a built-in
-                self._warm_up_without_skeleton()  # rig, not while its first frames wait
-            self.on_ready(f"listening on {await self.source.start()}")
+            self._prepare()
+            self._say(f"listening on {await self.source.start()}")
             if not self._stopping:
                 await self._loop()
         finally:
-            if self.freeze_gc:
+            if self.config.freeze_gc:
                 gc.unfreeze()
             await self.source.close()
             for state in list(self.streams.values()):
                 self._retire(state)
-            for sink in self.sinks:
-                try:
-                    await sink.close()
-                except Exception as exc:  # a sink's fault is that sink's
-                    self._sink_failed(sink, exc)
+            await self.sinks.close()
             self._finish_summary(started)
         return self.summary
 
+    def _prepare(self) -> None:
+        """Warm up before listening; with a known skeleton, the unnamed stream's pipeline
+        is ready before frames flow."""
+        stream = self.config.stream
+        known = self.source.skeleton_for(None)
+        if known is not None:  # known skeleton: ready (and warm) before frames flow
+            self._warm_up(StreamSpec(stream, *known))
+            if not self.source.shared_skeleton:
+                self._open(stream, None)
+            else:  # it may serve tagged streams only: built now, opened by a frame
+                self._prebuilt = (known, self._build(StreamSpec(stream, *known)))
+        if not self._warm:  # the skeleton comes from the wire: warm up on a built-in
+            self._warm_up_without_skeleton()  # rig, not while its first frames wait
+
     # ------------------------------------------------------------------ streams
 
-    def _stats(self, name: str) -> StreamStats:
-        stats = self.summary.streams.get(name)
-        if stats is None:
-            if len(self.summary.streams) >= MAX_STREAM_STATS:
-                name = "(other)"
-            stats = self.summary.streams.setdefault(name, StreamStats())
-        return stats
-
-    def _open(self, name: str, tag: str | None, frame: bool = True) -> _Stream | None:
+    def _open(self, name: str, tag: str | None, frame: bool = True) -> LiveStream | None:
         """The live stream `name`, built now if its skeleton is known; None if it waits for
         its skeleton or is refused (counted either way; `frame`: a frame asked for it)."""
-        state = self.streams.get(name)
+        table = self.table
+        state = table.live.get(name)
         if state is not None:
             return state
-        if len(self.streams) + len(self._waiting) - (name in self._waiting) >= self.max_streams:
-            self._refuse(name, frame)
+        if not table.admits(name):
+            if table.refuse(name, frame, MAX_REFUSALS_SAID):
+                self._say(f"stream {name!r} refused: this run already serves "
+                          f"{self.config.max_streams} streams (--max-streams); its frames "
+                          "are dropped and counted")
             self.source.forget_stream(tag)
             return None
         known = self.source.skeleton_for(tag)
         if known is None:
-            self._waiting.setdefault(name, deque())
-            self._waiting_seen.setdefault(name, time.monotonic())
+            table.wait(name, time.monotonic())
             return None
-        spec = StreamSpec(name, *known)
+        pipeline = self._pipeline_for(StreamSpec(name, *known), tag)
+        if pipeline is None:
+            return None
+        state = table.open(name, tag, pipeline, time.monotonic())
+        for held, arrival_ns in table.take_held(name):
+            self._push(state, held, arrival_ns)
+        return state
+
+    def _pipeline_for(self, spec: StreamSpec, tag: str | None) -> Pipeline | None:
+        """A stream's pipeline (the prebuilt one if it fits); None if the keyframers refuse
+        a skeleton from the wire (counted by the source; the stream waits for another)."""
         prebuilt, self._prebuilt = self._prebuilt, None
         try:
             if not self._warm:
                 self._warm_up(spec)
-            if prebuilt is not None and tag is None and prebuilt[0][0] is known[0] and (
-                    prebuilt[0][1] == known[1]):
-                pipeline = prebuilt[1]
-            else:
-                pipeline = self._build(spec)
+            if prebuilt is not None and tag is None and prebuilt[0][0] is spec.skeleton and (
+                    prebuilt[0][1] == spec.fps):
+                return prebuilt[1]
+            return self._build(spec)
         except Exception as exc:
             if self.source.shared_skeleton or not isinstance(
                     exc, (StreamkeyError, ArithmeticError, ValueError, IndexError)):
                 raise
             self.source.refuse_skeleton(f"{type(exc).__name__}: {exc}", tag)
-            self._waiting.setdefault(name, deque())
-            self._waiting_seen.setdefault(name, time.monotonic())
+            self.table.wait(spec.stream, time.monotonic())
             return None
-        state = self.streams[name] = _Stream(name, tag, pipeline, self._stats(name))
-        state.stats.sessions += 1
-        self._waiting_seen.pop(name, None)
-        for frame, arrival_ns in self._waiting.pop(name, ()):
-            self._push(state, frame, arrival_ns)
-        return state
 
-    def _refuse(self, name: str, frame: bool) -> None:
-        self.summary.refused_frames += frame
-        if name in self._said_refused:
-            return
-        self.summary.refused_streams += 1
-        if len(self._said_refused) < MAX_REFUSALS_SAID:
-            self._said_refused.add(name)
-            self.on_ready(f"stream {name!r} refused: this run already serves "
-                          f"{self.max_streams} streams (--max-streams); its frames are "
-                          "dropped and counted")
-
-    def _retire(self, state: _Stream) -> None:
+    def _retire(self, state: LiveStream) -> None:
         """End a stream: flush its pipeline, keep its counters, free its place."""
         self._deferred.pop(state.name, None)
-        self._deliver(self._step(state, None, state.pipeline.flush), time.monotonic_ns(),
+        self._deliver(self.table.step(state, None, state.pipeline.flush), time.monotonic_ns(),
                       state, due=False, timed=False)
-        for key, value in state.pipeline.guard.counters.as_dict().items():
-            state.stats.guard[key] += value
-        state.stats.retired += 1
-        del self.streams[state.name]
+        self.table.close(state)
         self.source.forget_stream(state.tag)
 
     def _retire_idle(self, now: float) -> None:
-        if self.stream_idle is None or now < self._next_retire:
+        idle = self.config.stream_idle
+        if idle is None or now < self._next_retire:
             return
-        self._next_retire = now + min(0.25, self.stream_idle / 4)
-        for state in [s for s in self.streams.values()
-                      if now - s.last_frame > self.stream_idle]:
+        self._next_retire = now + min(0.25, idle / 4)
+        for state in self.table.expired(now):
             self._retire(state)
-            self.on_ready(f"stream {state.name!r} retired after {self.stream_idle:g} s "
-                          "without a frame")
-        for name in [n for n, seen in self._waiting_seen.items()
-                     if now - seen > self.stream_idle]:
-            self._stats(name).waiting_drops += len(self._waiting.pop(name, ()))
-            del self._waiting_seen[name]
+            self._say(f"stream {state.name!r} retired after {idle:g} s without a frame")
+        self.table.forget_stale(now)
 
     def _warm_up(self, spec: StreamSpec) -> None:
         """Compile (or load) the numba kernels of the modules the keyframers imported and
@@ -454,7 +268,7 @@ class Engine:
 
     def _build(self, spec: StreamSpec) -> Pipeline:
         return Pipeline(self.make_keyframers(spec), stream=spec.stream,
-                        reset_on_gap=self.reset_on_gap)
+                        reset_on_gap=self.config.reset_on_gap)
 
     def _warm_up_without_skeleton(self) -> None:
         """Warm up before listening when the skeleton will come from the wire: on the
@@ -464,7 +278,7 @@ class Engine:
         from .rigs import humanoid_skeleton
 
         try:
-            self._warm_up(StreamSpec(self.stream, humanoid_skeleton(), 120.0))
+            self._warm_up(StreamSpec(self.config.stream, humanoid_skeleton(), 120.0))
         except (StreamkeyError, ValueError, KeyError, IndexError):
             self._load_kernels()
             self._freeze_heap()
@@ -473,7 +287,7 @@ class Engine:
         """Compile or load every numba kernel imported so far (`jit.warm_up()`), saying so
         when they compile for a new machine (once, tens of seconds) instead of pausing."""
         if jit.cache_is_cold():
-            self.on_ready("compiling the numba kernels for this machine (once, up to a "
+            self._say("compiling the numba kernels for this machine (once, up to a "
                           "minute; later runs load them from the cache)")
         jit.warm_up()
 
@@ -482,63 +296,65 @@ class Engine:
         compiled kernels, the pipelines) out of the collector's reach, so a full collection
         during the stream scans only what the stream allocated (it took 12-14 ms with all
         methods loaded; `gc.unfreeze()` at the end of the run)."""
-        if self.freeze_gc:
+        if self.config.freeze_gc:
             gc.collect()
             gc.freeze()
 
     def snapshot_stream(self, name: str) -> bytes:
         """Snapshot of live stream `name`'s pipeline (`snapshot.py`); KeyError if not live."""
-        return self.streams[name].pipeline.snapshot()
+        return self.table.snapshot(name)
 
     def restore_stream(self, name: str, data: bytes, params: str | None = None) -> None:
         """Serve stream `name` from a snapshot from now on (a worker taking over a stream);
         a live pipeline of that name is replaced unflushed. `SnapshotError` if it does not
         fit (`params`: the digest it must carry)."""
-        pipeline = Pipeline.restore(data, params)
         self._deferred.pop(name, None)
-        self._waiting.pop(name, None)
-        self._waiting_seen.pop(name, None)
-        tag = None if name == self.stream else name
-        state = self.streams[name] = _Stream(name, tag, pipeline, self._stats(name))
-        state.stats.sessions += 1
-        if pipeline.guard.last is not None:
-            state.seq = pipeline.guard.last.seq
-        if pipeline._idle_due:  # the re-analysis of its last frame had not run yet
+        tag = None if name == self.config.stream else name
+        state = self.table.restore(name, tag, data, time.monotonic(), params)
+        if state.pipeline._idle_due:  # the re-analysis of its last frame had not run yet
             self._deferred[name] = state
 
     # ------------------------------------------------------------------ the loop
 
     async def _loop(self) -> None:
-        queue = self.source.frames.queue
+        queue = self.source.frames
         while True:
             if queue.empty():
                 if self._deferred:  # every due decision is out: one stream's re-analysis
                     state = self._deferred.pop(next(iter(self._deferred)))
-                    self._deliver(self._step(state, state.seq, state.pipeline.idle),
+                    self._deliver(self.table.step(state, state.seq, state.pipeline.idle),
                                   state.last_arrival_ns, state, due=False)
                     await asyncio.sleep(0)  # let the sources queue what came meanwhile
                     continue
                 item = await self._wait()
                 if item is _TIMEOUT:
-                    if self.idle_exit is not None and self.summary.frames_in and (
-                            time.monotonic() - self._last_frame >= self.idle_exit):
+                    idle_exit = self.config.idle_exit
+                    if idle_exit is not None and self.summary.frames_in and (
+                            time.monotonic() - self._last_frame >= idle_exit):
                         return
                     self._retire_idle(time.monotonic())
                     continue
             else:
                 item = queue.get_nowait()
-            if item is None:
-                return
-            self._handle(item)
+            match item:
+                case FrameArrived(frame=frame, arrival_ns=arrival_ns, stream=tag):
+                    self._handle(frame, arrival_ns, tag)
+                case SkeletonAnnounced(stream=tag):  # build the pipeline before its frames
+                    name = self.config.stream if tag is None else tag
+                    if name not in self.streams:
+                        self._open(name, tag, frame=False)
+                case SourceEnded():
+                    return
 
-    async def _wait(self) -> Any:
+    async def _wait(self) -> QueueItem | object:
         """The next queue item, or `_TIMEOUT` when a stream may be due for retirement or
         the run for its idle exit."""
         waits = []
-        if self.idle_exit is not None and self.summary.frames_in:
-            waits.append(self._last_frame + self.idle_exit - time.monotonic())
-        if self.stream_idle is not None and (self.streams or self._waiting):
-            waits.append(min(0.25, self.stream_idle / 4))
+        idle_exit, stream_idle = self.config.idle_exit, self.config.stream_idle
+        if idle_exit is not None and self.summary.frames_in:
+            waits.append(self._last_frame + idle_exit - time.monotonic())
+        if stream_idle is not None and (self.streams or self.table.waiting):
+            waits.append(min(0.25, stream_idle / 4))
         if not waits:
             return await self.source.get()
         try:
@@ -546,73 +362,40 @@ class Engine:
         except TimeoutError:
             return _TIMEOUT
 
-    def _handle(self, item: tuple[Any, ...]) -> None:
-        frame, arrival_ns = item[0], item[1]
-        tag = item[2] if len(item) > 2 else None
-        name = self.stream if tag is None else tag
-        if frame is None:  # a skeleton was announced: build the pipeline before its frames
-            if name not in self.streams:
-                self._open(name, tag, frame=False)
-            return
+    def _handle(self, frame: Frame, arrival_ns: int, tag: str | None) -> None:
+        name = self.config.stream if tag is None else tag
         self.summary.frames_in += 1
         now = self._last_frame = time.monotonic()
         state = self.streams.get(name) or self._open(name, tag)
-        if state is None:
-            waiting = self._waiting.get(name)
-            if waiting is not None:
-                self._waiting_seen[name] = now
-                if len(waiting) >= MAX_WAITING_FRAMES:
-                    waiting.popleft()
-                    self._stats(name).waiting_drops += 1
-                waiting.append((frame, arrival_ns))
+        if state is None:  # waiting for its skeleton (held) or refused (counted)
+            self.table.hold(name, frame, arrival_ns, now)
             self._retire_idle(now)
             return
-        state.last_frame = now
+        self.table.touch(state, now)
         self._push(state, frame, arrival_ns)
-        if self.on_frame is not None:
-            self.on_frame(frame)
+        if self.config.on_frame is not None:
+            self.config.on_frame(frame)
         self._retire_idle(now)
 
-    def _push(self, state: _Stream, frame: Frame, arrival_ns: int) -> None:
+    def _push(self, state: LiveStream, frame: Frame, arrival_ns: int) -> None:
         """One frame of a stream: the pending re-analysis of its previous frame first (the
         stream's own order), then the due decisions; this frame's re-analysis is deferred."""
+        step = self.table.step
         if self._deferred.pop(state.name, None) is not None:
-            self._deliver(self._step(state, state.seq, state.pipeline.idle),
+            self._deliver(step(state, state.seq, state.pipeline.idle),
                           state.last_arrival_ns, state, due=False)
         state.stats.frames_in += 1
         state.seq, state.last_arrival_ns = frame.seq, arrival_ns
         self.summary.frame_wait.add((time.monotonic_ns() - arrival_ns) / 1e6)
-        self._deliver(self._step(state, frame.seq, state.pipeline.push, frame), arrival_ns,
+        self._deliver(step(state, frame.seq, state.pipeline.push, frame), arrival_ns,
                       state, due=True)
-        if self.due_first:
+        if self.config.due_first:
             self._deferred[state.name] = state
         else:
-            self._deliver(self._step(state, frame.seq, state.pipeline.idle), arrival_ns,
+            self._deliver(step(state, frame.seq, state.pipeline.idle), arrival_ns,
                           state, due=False)
 
-    def _step(self, state: _Stream, seq: int | None, call: Callable[..., list[Event]],
-              *args: Any) -> list[Event]:
-        """One keyframer call; a fault is reported and the stream's windows restarted."""
-        try:
-            return call(*args)
-        except Exception as exc:  # a keyframer bug must not end the session or lose the log
-            return self._contain(state, exc, seq)
-
-    def _contain(self, state: _Stream, exc: Exception, seq: int | None) -> list[Event]:
-        """Report a keyframer failure as a status event and restart the stream's window."""
-        self.summary.error_count += 1
-        if len(self.summary.errors) < MAX_ERRORS_KEPT:
-            where = "" if len(self.summary.streams) < 2 else f" in stream {state.name!r}"
-            self.summary.errors.append(f"{type(exc).__name__}: {exc} (at seq {seq}){where}")
-        pipeline = state.pipeline
-        for kf in pipeline.keyframers:
-            kf.reset()
-        pipeline.guard.reset()
-        pipeline.features.reset()
-        return [StatusEvent(state.name, "*", "error",
-                            {"error": f"{type(exc).__name__}: {exc}", "seq": seq})]
-
-    def _deliver(self, events: list[Event], arrival_ns: int, state: _Stream | None = None,
+    def _deliver(self, events: list[Event], arrival_ns: int, state: LiveStream | None = None,
                  due: bool = False, timed: bool = True) -> None:
         """Stamp wall latency on keyframe events and hand every event to every sink. Events
         of a stream's end (`timed` False: no frame decided them, the flush did) are stamped
@@ -630,16 +413,13 @@ class Engine:
                     self.summary.untimed_events += 1
             else:  # status, gap, provisional, cancel, signal
                 self.summary.events[type(event).__name__.removesuffix("Event").lower()] += 1
-            self._offer(event)
+            self.sinks.offer(event)
+            if self.config.on_event is not None:
+                self.config.on_event(event.to_dict())
         if events:
-            for sink in self.sinks:
-                if not sink.stats.disabled:
-                    try:
-                        sink.end_batch(arrival_ns)
-                    except Exception as exc:  # a sink's fault is that sink's
-                        self._sink_failed(sink, exc)
+            self.sinks.end_batch(arrival_ns)
 
-    def _time(self, method: str, latency: float, state: _Stream | None, due: bool) -> None:
+    def _time(self, method: str, latency: float, state: LiveStream | None, due: bool) -> None:
         self.summary.latency.add(latency)
         per_method = self.summary.method_latency.get(method)
         if per_method is None:
@@ -650,30 +430,6 @@ class Engine:
         if state is not None:
             state.stats.due_latency.add(latency)
 
-    def _offer(self, event: Event) -> None:
-        for sink in self.sinks:
-            if sink.stats.disabled:
-                sink.stats.dropped += 1
-                continue
-            try:
-                sink.offer(event)
-                self._sink_failures[id(sink)] = 0
-            except Exception as exc:  # a sink's fault is that sink's
-                self._sink_failed(sink, exc)
-        if self.on_event is not None:
-            self.on_event(event.to_dict())
-
-    def _sink_failed(self, sink: Sink, exc: Exception) -> None:
-        stats = sink.stats
-        stats.errors += 1
-        stats.dropped += 1
-        stats.last_error = f"{type(exc).__name__}: {exc}"
-        failures = self._sink_failures[id(sink)] = self._sink_failures.get(id(sink), 0) + 1
-        if failures >= SINK_FAILURE_LIMIT and not stats.disabled:
-            stats.disabled = True
-            self.on_ready(f"sink {sink.name} disabled after {failures} failures in a row: "
-                          f"{stats.last_error}")
-
     def _finish_summary(self, started: float) -> None:
         self.summary.seconds = time.monotonic() - started
         guard: Counter[str] = Counter()
@@ -683,15 +439,13 @@ class Engine:
             self.summary.guard = {k: guard.get(k, 0) for k in GuardCounters().as_dict()}
         self.summary.source = self.source.counters().as_dict()
         self.summary.source_error = None if self._stopping else self.source.fatal
-        self.summary.left_in_queue = sum(1 for item in self.source.frames.queue._queue
-                                         if item is not None and item[0] is not None)
-        self.summary.waiting_at_stop = sum(len(q) for q in self._waiting.values())
-        for sink in self.sinks:
-            key = sink.name
-            n = 2
-            while key in self.summary.sinks:
-                key, n = f"{sink.name}#{n}", n + 1
-            self.summary.sinks[key] = sink.stats.as_dict()
+        self.summary.left_in_queue = self.source.frames.statistics().frames
+        self.summary.waiting_at_stop = self.table.held_frames()
+        self.summary.refused_streams = self.table.refused_streams
+        self.summary.refused_frames = self.table.refused_frames
+        self.summary.errors = list(self.table.faults.messages)
+        self.summary.error_count = self.table.faults.count
+        self.summary.sinks.update(self.sinks.stats())
 
 
 _TIMEOUT = object()

@@ -1,12 +1,12 @@
 """The engine's edges: the `Source` and `Sink` interfaces, their counters and the frame queue.
 
-A source delivers `(Frame, arrival_ns)` pairs, or `(Frame, arrival_ns, stream)` for a
-named stream, from `get()` (None at end of stream) and may learn skeletons from the wire
-(`skeleton_ready` for the unnamed stream, `named` for the others, each announced to the
-engine through the queue). Stream ids follow `stream_id_problem`; `stream_tag` maps the
-name `default` to the unnamed stream. Every task a source runs goes through
-`spawn`: an exception inside it is counted and, if the task ends, the source `die`s, which
-ends the stream with a reason (`fatal`) instead of leaving the engine waiting forever.
+A source delivers `FrameArrived` items (a frame, its arrival time, its stream tag) through
+its `FrameQueue` (`streamkey.framequeue`), then `SourceEnded`, and may learn skeletons from
+the wire (`skeleton_ready` for the unnamed stream, `named` for the others, each announced to
+the engine through the queue as `SkeletonAnnounced`). Stream ids follow `stream_id_problem`;
+`stream_tag` maps the name `default` to the unnamed stream. Every task a source runs goes
+through `spawn`: an exception inside it is counted and, if the task ends, the source `die`s,
+which ends the stream with a reason (`fatal`) instead of leaving the engine waiting forever.
 
 A sink takes typed events (`KeyframeEvent`, `GapEvent`, `StatusEvent`) with `offer()`,
 which never blocks: live sinks drop the oldest pending message when they fall behind and
@@ -20,16 +20,16 @@ from __future__ import annotations
 import asyncio
 import math
 import re
-import time
 from collections import Counter
 from collections.abc import Coroutine
 from dataclasses import dataclass, field
 from typing import Any
 
+from .framequeue import DEFAULT_QUEUE_SIZE, FrameQueue, QueueItem
 from .keyframes import Event
-from .motion import Frame, Skeleton
+from .motion import Skeleton
 
-__all__ = ["Source", "Sink", "SourceStats", "SinkStats", "FrameQueue", "put_drop_oldest",
+__all__ = ["Source", "Sink", "SourceStats", "SinkStats", "FrameQueue",
            "frame_numbers_problem", "fps_problem", "MAX_SEQ", "MAX_TIME", "MIN_FPS", "MAX_FPS",
            "SINK_FAILURE_LIMIT", "stream_id_problem", "stream_tag", "StreamSpec",
            "DEFAULT_MAX_STREAMS", "MAX_STREAM_ID"]
@@ -131,63 +131,15 @@ class SinkStats:
         return dict(self.__dict__)
 
 
-def put_drop_oldest(queue: asyncio.Queue[Any], item: Any) -> int:
-    """Put `item` without waiting, dropping the oldest entries to make room; returns how
-    many were dropped (live consumers want the newest data, not a backlog)."""
-    dropped = 0
-    while True:
-        try:
-            queue.put_nowait(item)
-            return dropped
-        except asyncio.QueueFull:
-            queue.get_nowait()
-            dropped += 1
-
-
-QueueItem = tuple[Frame, int] | tuple[Frame, int, str] | tuple[None, int, str | None] | None
-"""An entry of a `FrameQueue`: (frame, arrival ns) or (frame, arrival ns, stream tag); (None, 0,
-stream tag) when a stream's skeleton is announced; None at the end of the stream."""
-
-
-class FrameQueue:
-    """Bounded frame queue between a network callback and the engine: drop-oldest when full.
-
-    A real-time keyframer wants the newest frames, not a backlog: big buffers only make
-    frames stale.
-    """
-
-    def __init__(self, stats: SourceStats, maxsize: int = 256) -> None:
-        self.queue: asyncio.Queue[QueueItem] = asyncio.Queue(maxsize)
-        self.stats = stats
-
-    def put(self, frame: Frame | None, arrival_ns: int | None = None,
-            stream: str | None = None) -> None:
-        """Enqueue a frame stamped with its arrival (monotonic ns; now if not given) and its
-        stream tag (None: the unnamed stream), or the end-of-stream marker."""
-        item: Any = None
-        if frame is not None:
-            arrival = time.monotonic_ns() if arrival_ns is None else arrival_ns
-            item = (frame, arrival) if stream is None else (frame, arrival, stream)
-        self.stats.queue_drops += put_drop_oldest(self.queue, item)
-
-    def announce(self, stream: str | None) -> None:
-        """Tell the engine that stream `stream` now has a skeleton (it builds the pipeline
-        before the stream's first frame)."""
-        put_drop_oldest(self.queue, (None, 0, stream))
-
-    async def get(self) -> QueueItem:
-        """Next frame and its arrival time (ns, monotonic), or None at end of stream."""
-        return await self.queue.get()
-
-
 class Source:
     """Base of frame sources: a queue, counters, and the skeleton (given or from the wire)."""
 
     name = "source"
 
-    def __init__(self, skeleton: Skeleton | None = None, fps: float | None = None) -> None:
+    def __init__(self, skeleton: Skeleton | None = None, fps: float | None = None,
+                 queue_size: int = DEFAULT_QUEUE_SIZE) -> None:
         self.stats = SourceStats()
-        self.frames = FrameQueue(self.stats)
+        self.frames = FrameQueue(self.stats, queue_size)
         self.skeleton = skeleton
         self.fps = fps
         self.skeleton_ready = asyncio.Event()
@@ -295,14 +247,14 @@ class Source:
         if self.fatal is None:
             self.fatal = why
         self.dead.set()
-        self.frames.put(None)
+        self.frames.end(why)
 
     async def start(self) -> str:
         """Open the transport; returns a description for the ready line."""
         raise NotImplementedError
 
     async def get(self) -> QueueItem:
-        """Next frame and its arrival time, or None when the stream ends."""
+        """The next item of the queue (a frame, a skeleton announced, the end)."""
         return await self.frames.get()
 
     async def close(self) -> None:

@@ -1,9 +1,9 @@
 """Results and events: offline `Keyframes`, online `KeyframeEvent`, `GapEvent`, `StatusEvent`,
 and the playable extras (`ProvisionalEvent`, `CancelEvent`, `SignalEvent`; `streamkey.playable`).
 
-Events are final once emitted (DESIGN §3) and serialise to the versioned JSON schema
-documented in the README (`to_dict()`, `"v": 2`). Every event has an idempotent `id`: a
-consumer that sees the same id twice (a resent packet, a replayed log) may drop the second.
+Events are final once emitted and serialise to the versioned JSON schema documented in the
+README (`to_dict()`, `"v": 2`); every event is an `Event`. Every event has an idempotent `id`:
+a consumer that sees the same id twice (a resent packet, a replayed log) may drop the second.
 A provisional event is the one event that is not a decision: it announces a likely key early
 and is followed by exactly one final `KeyframeEvent` (`confirms` = its `pid`) or `CancelEvent`.
 """
@@ -108,13 +108,33 @@ def params_digest(params: dict[str, Any]) -> str:
 
 
 @dataclass(frozen=True, slots=True)
-class KeyframeEvent:
+class Event:
+    """What the online keyframers and the engine emit, every kind of it about stream `stream`.
+
+    Subclasses are frozen: an event is final once emitted. Each has an idempotent `id` and
+    its documented JSON object (`to_dict()`); sinks dispatch on the subclass (`match`), and
+    `streamkey.adapters.codec` encodes any of them to JSON text and OSC messages.
+    """
+
+    stream: str
+
+    @property
+    def id(self) -> str:
+        """Idempotent id (a consumer that sees it twice may drop the second)."""
+        raise NotImplementedError
+
+    def to_dict(self) -> dict[str, Any]:
+        """The event as the documented JSON object."""
+        raise NotImplementedError
+
+
+@dataclass(frozen=True, slots=True)
+class KeyframeEvent(Event):
     """A final keyframe decision: frame `frame` decided when frame `decided_at` arrived.
 
     `strength` in [0, 1] ranks the score among the method's recent keys (comparable across
     methods); `confirms` is the `pid` of the provisional event it confirms (None: none)."""
 
-    stream: str
     method: str
     frame: int
     time: float
@@ -147,11 +167,10 @@ class KeyframeEvent:
 
 
 @dataclass(frozen=True, slots=True)
-class ProvisionalEvent:
+class ProvisionalEvent(Event):
     """A likely key at `frame`, announced when frame `seen_at` arrived, before the final
     decision; exactly one `KeyframeEvent` (confirms=pid) or `CancelEvent` (pid) follows."""
 
-    stream: str
     method: str
     frame: int
     time: float
@@ -173,10 +192,9 @@ class ProvisionalEvent:
 
 
 @dataclass(frozen=True, slots=True)
-class CancelEvent:
+class CancelEvent(Event):
     """The provisional `pid` (at `frame`) did not become a key; decided at `decided_at`."""
 
-    stream: str
     method: str
     frame: int
     pid: int
@@ -195,11 +213,10 @@ class CancelEvent:
 
 
 @dataclass(frozen=True, slots=True)
-class SignalEvent:
+class SignalEvent(Event):
     """Continuous per-stream values at frame `seq` (opt-in): body speed, each method's
     running keyness (`streamkey.playable`)."""
 
-    stream: str
     seq: int
     time: float
     values: dict[str, float] = field(default_factory=dict)
@@ -217,10 +234,9 @@ class SignalEvent:
 
 
 @dataclass(frozen=True, slots=True)
-class GapEvent:
+class GapEvent(Event):
     """Frames `first`..`last` (inclusive) never arrived; `bridged` if interpolated over."""
 
-    stream: str
     method: str
     first: int
     last: int
@@ -240,10 +256,9 @@ class GapEvent:
 
 
 @dataclass(frozen=True, slots=True)
-class StatusEvent:
+class StatusEvent(Event):
     """Free-form status (warm-up done, restart, counters) for logs and dashboards."""
 
-    stream: str
     method: str
     status: str
     detail: dict[str, Any] = field(default_factory=dict)
@@ -260,6 +275,3 @@ class StatusEvent:
         return {"v": SCHEMA_VERSION, "type": "status", "id": self.id, "stream": self.stream,
                 "method": self.method, "status": self.status, "detail": _jsonable(self.detail)}
 
-
-Event = (KeyframeEvent | GapEvent | StatusEvent | ProvisionalEvent | CancelEvent
-         | SignalEvent)

@@ -11,18 +11,17 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
 from .adapters import make_sink, parse_address
 from .adapters.base import Sink, Source
-from .engine import Engine, RunSummary
+from .engine import Engine, EngineConfig
 from .errors import UsageError
 from .io import DEFAULT_MAX_STREAMS, StreamSpec, stream_id_problem, stream_tag
 from .motion import Frame, Motion
 from .online import OnlineKeyframer
 from .replay.pacing import frame_stream, paced
 from .replay.source import MotionSource
-from .streaming import make_keyframers
+from .streamtable import keyframers_for
+from .summary import RunSummary
 
 __all__ = ["run_live", "build_engine", "run_engine", "replay", "FRAME_TARGETS",
            "raise_priority", "REALTIME_PRIORITY"]
@@ -69,12 +68,12 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
         source = MotionSource(source, rate=rate, loop=loop)
 
     def keyframers(spec: StreamSpec) -> list[OnlineKeyframer]:
-        motion = Motion(spec.skeleton, np.zeros((0, spec.skeleton.n_channels)), spec.fps)
-        return make_keyframers(motion, methods, params, lookahead, spec.stream)
+        return keyframers_for(spec, methods, params, lookahead)
 
-    return Engine(source, keyframers, sinks, stream, on_ready, on_event, idle_exit,
-                  on_frame=on_frame, reset_on_gap=reset_on_gap, max_streams=max_streams,
-                  stream_idle=stream_idle, due_first=due_first, freeze_gc=freeze_gc)
+    return Engine(source, keyframers, sinks, EngineConfig(
+        stream=stream, on_ready=on_ready, on_event=on_event, idle_exit=idle_exit,
+        on_frame=on_frame, reset_on_gap=reset_on_gap, max_streams=max_streams,
+        stream_idle=stream_idle, due_first=due_first, freeze_gc=freeze_gc))
 
 
 async def run_engine(engine: Engine) -> RunSummary:

@@ -147,6 +147,7 @@ def test_udp_datagrams_with_the_built_in_axis_skeleton():
             sock.sendto(data[: len(data) // 2], ("127.0.0.1", port))  # a cut datagram
         sock.close()
         got = [await asyncio.wait_for(source.get(), 10 * MS) for _ in values]
+        got = [(item.frame, item.arrival_ns) for item in got]
         await source.close()
         return got, source.stats
 

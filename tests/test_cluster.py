@@ -147,3 +147,37 @@ def test_malformed_messages_are_counted_never_raised(redis_server, publisher):
     assert worker.status()["streams"][clip.stream]["frames"] == 200
     with pytest.raises(ValueError):
         split_topic([b"only-a-topic"])
+
+
+def test_a_keyframer_fault_in_a_shard_is_reported_and_the_windows_restart(redis_server,
+                                                                          publisher):
+    """The stream table's one fault policy, as in the engine: a keyframer that raises leaves
+    a status "error" event in the event log, its windows restart, the stream goes on."""
+    # no periodic snapshot: a pipeline with a patched method cannot be pickled
+    cfg = _config(publisher, redis_server, "fault", shards=1, snapshot_every=100_000)
+    clip = Clip(CLIPS[1], "faulty", publisher)
+    worker = ShardWorker(cfg, 0)  # not started: messages are handed over by hand
+    worker.handle(stream_topic(clip.stream, clip.skeleton))
+    pipeline = worker.streams[clip.stream].pipeline
+    real_push = pipeline.push
+    failing_seq = None
+
+    def push(frame):  # type: ignore[no-untyped-def]
+        nonlocal failing_seq
+        if failing_seq is None and pipeline.guard.last is not None and frame.seq >= 100:
+            failing_seq = frame.seq
+            raise RuntimeError("injected keyframer fault")
+        return real_push(frame)
+
+    pipeline.push = push  # type: ignore[method-assign]
+    for parts in clip.frames:
+        worker.handle(stream_topic(clip.stream, parts))
+    worker.retire(clip.stream)
+    events = list(redis_events(redis_server.client(), "fault"))
+    errors = [e for e in events if e["type"] == "status" and e["status"] == "error"]
+    assert len(errors) == 1 and errors[0]["detail"]["seq"] == failing_seq
+    assert "injected keyframer fault" in errors[0]["detail"]["error"]
+    assert any(e["type"] == "keyframe" and e["frame"] > failing_seq + 60 for e in events)
+    status = worker.status()
+    assert status["keyframer_errors"] == 1 and "injected" in status["keyframer_faults"][0]
+    assert worker.rejects == {}  # a fault is not a rejected message

@@ -20,6 +20,7 @@ from streamkey.adapters.zmq import ZmqFrameSender, ZmqSource
 from streamkey.bvh import read_bvh
 from streamkey.engine import Engine
 from streamkey.errors import InputError
+from streamkey.framequeue import FrameQueue
 from streamkey.motion import Motion
 from streamkey.streaming import make_keyframers
 
@@ -429,7 +430,7 @@ async def test_kernel_receive_drops_are_read_and_every_datagram_is_accounted_for
         out.sendto(encode_frame(i, i / 120, MOTION.channels[i % MOTION.n_frames]),
                    source.sock.getsockname())
     out.close()
-    source.frames.queue = asyncio.Queue()  # keep every frame that gets through, for counting
+    source.frames = FrameQueue(source.stats, maxsize=0)  # keep every frame that gets through
     loop.add_reader(source.sock.fileno(), source._readable)
     await until(lambda: source.counters().received + (source.stats.kernel_drops or 0) == sent)
     await source.close()

@@ -20,6 +20,7 @@ from streamkey.adapters import zmq as zmq_adapter
 from streamkey.adapters.osc import OscSource, encode_frame, encode_skeleton, skeleton_header
 from streamkey.adapters.zmq import ZmqSource
 from streamkey.bvh import parse_bvh, read_bvh
+from streamkey.framequeue import SkeletonAnnounced
 from streamkey.live import build_engine
 from streamkey.replay.source import MotionSource
 
@@ -47,8 +48,8 @@ def renamed_skeleton():
 
 def drain(source):
     items = []
-    while not source.frames.queue.empty():
-        items.append(source.frames.queue.get_nowait())
+    while len(source.frames):
+        items.append(source.frames.get_nowait())
     return items
 
 
@@ -59,7 +60,7 @@ def test_a_repeated_osc_skeleton_is_parsed_once_until_it_is_refused(monkeypatch)
     for _ in range(5):  # the replay re-sends it every second
         source.receive(wire)
     assert len(calls) == 1 and source.skeleton is not None
-    assert drain(source) == [(None, 0, None)]  # announced once
+    assert drain(source) == [SkeletonAnnounced(None)]  # announced once
     source.refuse_skeleton("the engine cannot use it")
     source.receive(wire)  # after a refusal the same bytes are looked at again
     assert len(calls) == 2 and source.skeleton is not None
@@ -82,7 +83,7 @@ def test_a_named_streams_skeleton_is_parsed_again_after_the_stream_retired(monke
     assert source.skeleton_for("dancer") is None
     source.receive(wire)
     assert len(calls) == 2 and source.skeleton_for("dancer") is not None
-    assert [item[2] for item in drain(source)] == ["dancer", "dancer"]
+    assert [item.stream for item in drain(source)] == ["dancer", "dancer"]
 
 
 def test_a_given_skeleton_repeated_on_the_wire_is_parsed_once(monkeypatch):

@@ -16,6 +16,7 @@ from live_helpers import MS, read_jsonl
 from streamkey.adapters.jsonl_source import MAX_LINE_BYTES, StdinSource, read_skeleton_line
 from streamkey.bvh import read_bvh
 from streamkey.errors import InputError
+from streamkey.framequeue import FrameArrived
 from streamkey.methods import ONLINE_METHODS
 
 CLIP = DATA / "07_01.bvh"
@@ -77,8 +78,8 @@ def _collect(source: StdinSource) -> list:
     async def main() -> list:
         await source.start()
         out = []
-        while (item := await asyncio.wait_for(source.get(), 10 * MS)) is not None:
-            out.append(item[0])
+        while isinstance(item := await asyncio.wait_for(source.get(), 10 * MS), FrameArrived):
+            out.append(item.frame)
         await source.close()
         return out
 

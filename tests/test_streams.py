@@ -25,6 +25,7 @@ from streamkey.adapters.osc import OscSource, encode_frame, encode_skeleton, str
 from streamkey.adapters.zmq import ZmqSource, encode_frame_parts, topic
 from streamkey.bvh import read_bvh
 from streamkey.engine import Engine
+from streamkey.framequeue import FrameQueue
 from streamkey.keyframes import KeyframeEvent
 from streamkey.live import build_engine
 from streamkey.methods import ONLINE_METHODS
@@ -256,7 +257,7 @@ async def test_due_decisions_of_every_stream_go_before_any_re_analysis():
                 return super().idle()
 
         source = MotionSource(m, rate=0.0)
-        source.frames.queue = asyncio.Queue()
+        source.frames = FrameQueue(source.stats, maxsize=0)
         for f in frames:
             for name in ("a", "b"):
                 source.frames.put(f, None, name)
@@ -287,7 +288,7 @@ async def test_an_engine_takes_over_a_stream_from_another_engines_snapshot():
 
     def preloaded(part):
         source = MotionSource(m, rate=0.0)
-        source.frames.queue = asyncio.Queue()
+        source.frames = FrameQueue(source.stats, maxsize=0)
         for f in part:
             source.frames.put(f, None, "take")
         source.start = lambda: asyncio.sleep(0, "preloaded")  # type: ignore[method-assign]

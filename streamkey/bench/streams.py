@@ -79,7 +79,7 @@ class _Stage(Source):
                 self.stats.received += 1
                 self.frames.put(next(frames), deadline, name)
             await asyncio.sleep(0)
-        self.frames.put(None)
+        self.frames.end()
 
 
 def _clips(data: Path | None, n: int) -> list[Motion]:

@@ -26,18 +26,18 @@ import time
 import zlib
 from collections import Counter
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Any
 
 import zmq
 
+from ..adapters.codec import event_json
 from ..adapters.zmq import decode_frame_parts, decode_skeleton_parts, parse_topic, topic
-from ..io import stream_tag
+from ..io import StreamSpec, stream_tag
 from ..jit import warm_up
 from ..keyframes import Event
 from ..motion import Frame, Skeleton
 from ..online import Pipeline
-from ..streaming import make_keyframers
+from ..streamtable import LiveStream, StreamTable, keyframers_for
 
 __all__ = ["ClusterConfig", "ShardWorker", "FrameLogger", "shard_of", "split_topic",
            "stream_topic", "snapshot_pipeline", "restore_pipeline", "RedisKeys"]
@@ -170,16 +170,27 @@ def parse_skeleton_message(body: list[bytes]) -> tuple[Skeleton, float, str]:
 
 @dataclass
 class _Stream:
-    pipeline: Pipeline
-    last_live: float
+    """A stream of this shard: its entry in the stream table, and its log and snapshot
+    bookkeeping."""
+
+    live: LiveStream
     since_snapshot: int = 0
-    frames: int = 0
+    frames: int = 0                 # frames pushed in this session (live and replayed)
     replayed_to: int | None = None  # live frames up to this seq came from the log already
+
+    @property
+    def pipeline(self) -> Pipeline:
+        """The stream's pipeline."""
+        return self.live.pipeline
 
 
 class ShardWorker:
     """One shard: the streams whose id hashes to `shard`, one `Pipeline` each, fed from the
     ZeroMQ publisher directly, snapshotted to Redis, events to the Redis sink.
+
+    Its streams live in a `StreamTable` (idle streams retired after `stream_idle`), under the
+    table's fault policy: a keyframer that raises restarts the stream's windows and leaves a
+    status event "error" in the event log.
 
     `handle(parts)` takes one ZeroMQ message and never raises (every message that does not
     become a frame is counted by kind); `start()` runs the receive loop on a thread."""
@@ -191,6 +202,7 @@ class ShardWorker:
         self.redis = _redis(config.redis_url)
         self._emit = self.redis.register_script(_EMIT)
         self.starts = int(self.redis.incr(self.keys.starts(shard)))
+        self.table = StreamTable(idle=config.stream_idle)
         self.streams: dict[str, _Stream] = {}
         self.counters: Counter[str] = Counter()
         self.rejects: Counter[str] = Counter()
@@ -210,7 +222,7 @@ class ShardWorker:
         self._thread.start()
 
     def _serve(self) -> None:
-        ctx = zmq.Context.instance()
+        ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
         sock = ctx.socket(zmq.SUB)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVHWM, 100_000)  # frames wait here while the log is replayed
@@ -259,7 +271,9 @@ class ShardWorker:
                        for s, st in self.streams.items()}
             return {"shard": self.shard, "starts": self.starts, "streams": streams,
                     "retired": list(self.retired), "counters": dict(self.counters),
-                    "rejects": dict(self.rejects), "errors": list(self.errors)}
+                    "rejects": dict(self.rejects), "errors": list(self.errors),
+                    "keyframer_errors": self.table.faults.count,
+                    "keyframer_faults": list(self.table.faults.messages)}
 
     # -- messages --------------------------------------------------------------------------
     def handle(self, parts: list[bytes]) -> None:
@@ -298,7 +312,7 @@ class ShardWorker:
         if last is not None and last + 1 < frame.seq:
             self.counters["holes"] += 1
             self.catch_up(stream, frame.seq)
-        st.last_live = time.monotonic()
+        self.table.touch(st.live, time.monotonic())
         self._push(stream, st, frame)
 
     def _reject(self, kind: str, exc: BaseException) -> None:
@@ -307,20 +321,24 @@ class ShardWorker:
             self.errors.append(f"{kind}: {type(exc).__name__}: {str(exc)[:200]}")
 
     # -- streams ---------------------------------------------------------------------------
-    def _new_pipeline(self, stream: str, skeleton: Skeleton, fps: float) -> Pipeline:
-        source = SimpleNamespace(skeleton=skeleton, fps=fps)
-        keyframers = make_keyframers(source, self.cfg.methods, self.cfg.params,  # type: ignore[arg-type]
-                                     self.cfg.lookahead, stream=stream)
-        return Pipeline(keyframers, stream=stream)
+    def _new_pipeline(self, spec: StreamSpec) -> Pipeline:
+        keyframers = keyframers_for(spec, self.cfg.methods, self.cfg.params,
+                                    self.cfg.lookahead)
+        return Pipeline(keyframers, stream=spec.stream)
+
+    def _open(self, stream: str, pipeline: Pipeline) -> _Stream:
+        st = self.streams[stream] = _Stream(
+            self.table.open(stream, stream, pipeline, time.monotonic()))
+        return st
 
     def _create(self, stream: str, skeleton: Skeleton, fps: float) -> _Stream | None:
         """A new stream: its pipeline, a first snapshot, and every frame logged before it."""
         try:
-            pipeline = self._new_pipeline(stream, skeleton, fps)
+            pipeline = self._new_pipeline(StreamSpec(stream, skeleton, fps))
         except Exception as exc:  # a skeleton the keyframers cannot use: counted, ignored
             self._reject("skeleton", exc)
             return None
-        st = self.streams[stream] = _Stream(pipeline, time.monotonic())
+        st = self._open(stream, pipeline)
         self.redis.sadd(self.keys.shard(self.shard), stream)
         self._snapshot(stream, st)
         self.catch_up(stream, None)
@@ -364,11 +382,11 @@ class ShardWorker:
                     found = self._skeleton(stream)
                     if found is None:
                         continue
-                    pipeline = self._new_pipeline(stream, *found)
+                    pipeline = self._new_pipeline(StreamSpec(stream, *found))
             except Exception as exc:  # a snapshot this version cannot read: start over
                 self._reject("snapshot", exc)
                 continue
-            self.streams[stream] = _Stream(pipeline, time.monotonic())
+            self._open(stream, pipeline)
             self.counters["restored"] += 1
             self.catch_up(stream, None)
 
@@ -411,12 +429,8 @@ class ShardWorker:
         return out
 
     def _push(self, stream: str, st: _Stream, frame: Frame) -> None:
-        try:
-            events = st.pipeline.push(frame)
-            events.extend(st.pipeline.idle())
-        except Exception as exc:  # a keyframer bug: counted, the stream goes on
-            self._reject("keyframer", exc)
-            return
+        events = self.table.step(st.live, frame.seq, st.pipeline.push, frame)
+        events.extend(self.table.step(st.live, frame.seq, st.pipeline.idle))
         st.frames += 1
         self.counters["frames"] += 1
         self.emit(events)
@@ -439,26 +453,25 @@ class ShardWorker:
             return
         args: list[str] = []
         for e in events:
-            args += [e.id, json.dumps(e.to_dict())]
+            args += [e.id, event_json(e, compact=False)]
         added = int(self._emit(keys=[self.keys.events, self.keys.event_ids], args=args))
         self.counters["events"] += added
         self.counters["duplicates_dropped"] += len(events) - added
 
     def retire_idle(self) -> None:
         """Flush and forget the streams that sent nothing for `stream_idle` seconds."""
-        now = time.monotonic()
-        for stream, st in list(self.streams.items()):
-            if now - st.last_live >= self.cfg.stream_idle:
-                self.retire(stream)
+        for live in self.table.expired(time.monotonic()):
+            self.retire(live.name)
 
     def retire(self, stream: str) -> None:
         """End of a stream: the logged frames it missed, its final events, its Redis keys."""
         st = self.streams[stream]
         self.catch_up(stream, None)
-        self.emit(st.pipeline.flush())
+        self.emit(self.table.step(st.live, None, st.pipeline.flush))
         self.redis.delete(self.keys.snapshot(stream), self.keys.log(stream),
                           self.keys.skeleton(stream))
         self.redis.srem(self.keys.shard(self.shard), stream)
+        self.table.close(st.live)
         del self.streams[stream]
         self.retired.append(stream)
 
@@ -504,7 +517,7 @@ class FrameLogger:
         self._thread.join(10.0)
 
     def _serve(self) -> None:
-        sock = zmq.Context.instance().socket(zmq.SUB)
+        sock: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.SUB)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVHWM, 100_000)
         for prefix in subscriptions(self.cfg.streams):
