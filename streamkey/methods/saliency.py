@@ -198,13 +198,15 @@ def auto_frames(fps: float) -> int:
 def step_speeds(p: np.ndarray) -> np.ndarray:
     """Per frame step and body part, the distance moved (body heights) between consecutive
     rows of Miura-role positions `p` (n, parts, 3): (n - 1, parts)."""
-    return np.linalg.norm(np.diff(p, axis=0), axis=2)
+    steps: np.ndarray = np.linalg.norm(np.diff(p, axis=0), axis=2)
+    return steps
 
 
 def moving(steps: np.ndarray, fps: float) -> np.ndarray:
     """Which steps of `step_speeds` move: mean part speed above `STILL_SPEED` (a calibration
     hold or a frozen source does not; captured motion, even standing, does)."""
-    return steps.mean(axis=1) * fps > STILL_SPEED
+    moves: np.ndarray = steps.mean(axis=1) * fps > STILL_SPEED
+    return moves
 
 
 def auto_preset(steps: np.ndarray, fps: float) -> tuple[str, float]:
@@ -936,7 +938,8 @@ class Online(OnlineKeyframer):
         assert basis is not None
         foot = curve_weights(basis, self.contact)[1]
         kk = len(foot)
-        return (np.arange(kk)[:, None] * 8 + np.arange(4) + 4 * foot[:, None]).ravel()
+        flat: np.ndarray = (np.arange(kk)[:, None] * 8 + np.arange(4) + 4 * foot[:, None]).ravel()
+        return flat
 
     def _incremental(self, t: int) -> None:
         """One new frame between basis updates: its curve row, one curvature, one map row."""

@@ -117,7 +117,8 @@ def position_rows(positions: np.ndarray, n_joints: int, height: float) -> np.nda
     flattened, divided by body height x sqrt(joints) (a row distance is an RMS joint distance
     in body heights). Shared by `curve` and the online keyframer (identical arithmetic)."""
     rel = root_relative_joints(positions, n_joints)
-    return rel.reshape(len(rel), -1) / (height * np.sqrt(n_joints))
+    flat: np.ndarray = rel.reshape(len(rel), -1) / (height * np.sqrt(n_joints))
+    return flat
 
 
 @kernel

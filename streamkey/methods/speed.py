@@ -81,7 +81,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, SupportsIndex, cast
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
@@ -135,7 +135,8 @@ def scale_frequencies(f_max: float = 8.0, f_min: float = 0.2, r: float = 0.95) -
 def speed_signal(positions: np.ndarray, frame_time: float, f_c: float = 10.0) -> np.ndarray:
     """Miura eq. 2-3: HP low-pass of (n, 48) positions at f_c, then the norm of the step / dt."""
     pf = hp_filter(positions, hp_lambda(f_c, frame_time))
-    return np.linalg.norm(np.diff(pf, axis=0), axis=1) / frame_time
+    speed: np.ndarray = np.linalg.norm(np.diff(pf, axis=0), axis=1) / frame_time
+    return speed
 
 
 _PACKED: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # lambdas -> tables
@@ -197,7 +198,8 @@ def speed_tail(positions: np.ndarray, frame_time: float, f_c: float, k: int) -> 
         if len(_TAILS) >= 64:
             _TAILS.clear()
         _TAILS[key] = op
-    return np.linalg.norm(op @ positions, axis=1) / frame_time
+    speed: np.ndarray = np.linalg.norm(op @ positions, axis=1) / frame_time
+    return speed
 
 
 class HPBank:
@@ -270,7 +272,8 @@ REST_SPEED = 0.02
 def candidates_of(v: np.ndarray) -> np.ndarray:
     """Keypose candidates: local minima of the speed `v`, rest (`REST_SPEED`) left out."""
     m = local_minima(v)
-    return m[v[m] >= REST_SPEED]
+    kept: np.ndarray = m[v[m] >= REST_SPEED]
+    return kept
 
 
 def settle_frames(lams: np.ndarray) -> np.ndarray:
@@ -329,7 +332,8 @@ def _match_indices(long_: np.ndarray, short: np.ndarray) -> np.ndarray:
         if idx is not None and _max_cover(long_[idx], short) <= half - 1:
             return idx
         half *= 4
-    return np.arange(len(short)) + _band_dp(long_, short)
+    matched: np.ndarray = np.arange(len(short)) + _band_dp(long_, short)
+    return matched
 
 
 def _max_cover(x: np.ndarray, y: np.ndarray) -> int:
@@ -382,8 +386,9 @@ def _band_dp(long_: np.ndarray, short: np.ndarray) -> np.ndarray:
     (integer costs, exact); ties keep the smaller offset (earlier partner). Compiled
     (`speed_kernels.band_offsets`), shared with the online chains.
     """
-    return band_offsets(np.ascontiguousarray(long_, dtype=np.int64),
-                        np.ascontiguousarray(short, dtype=np.int64))
+    offsets: np.ndarray = band_offsets(np.ascontiguousarray(long_, dtype=np.int64),
+                                       np.ascontiguousarray(short, dtype=np.int64))
+    return offsets
 
 
 def intensities(candidates: np.ndarray, per_scale: list[tuple[np.ndarray, np.ndarray]]
@@ -950,7 +955,7 @@ def _frames(name: str, value: object, fps: float, low: int) -> int:
                              f"({frames} frames at {fps:g} fps)")
         return frames
     _check_count(name, value, low)
-    return int(value)  # type: ignore[call-overload]
+    return int(cast(SupportsIndex, value))
 
 
 def _two_cluster_threshold(u: np.ndarray) -> float:
