@@ -187,8 +187,9 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
         return Pipeline([online_class(m)(motion.skeleton, motion.fps) for m in ONLINE_METHODS])
 
     table.append({"method": "all (one pipeline)", **_push_costs(pipeline, frames)})
-    table.append({"method": "feature stage only (guard + unwrap; FK only when a keyframer reads it)",
-                 **_push_costs(lambda: _FeaturesOnly(motion.skeleton, motion.fps), frames)})
+    table.append({"method": "feature stage only (guard + unwrap; FK only when a keyframer "
+                            "reads it)",
+                  **_push_costs(lambda: _FeaturesOnly(motion.skeleton, motion.fps), frames)})
     long, _ = long_motion(frames_long, data)
     long_frames = long.frames()
     for name, make in (("optimal", lambda: online_class("optimal")(long.skeleton, long.fps)),
@@ -288,7 +289,8 @@ def _bench_agreement(data: Path | None, output: Path) -> list[Path]:
     motions = [read_motion(p) for p in sorted(data.iterdir()) if p.suffix in (".bvh", ".amc")]
     # Saliency at the thesis' low-dynamic preset on both sides, so the table measures the
     # lookahead alone (the `auto` preset adds its own 2 s decision).
-    rows = lookahead_table(motions, cast(dict[str, Sequence[int]], LOOKAHEADS), {"saliency": {"sigma": 10.0, "k": 7}},
+    lookaheads = cast(dict[str, Sequence[int]], LOOKAHEADS)  # read only: tuples will do
+    rows = lookahead_table(motions, lookaheads, {"saliency": {"sigma": 10.0, "k": 7}},
                            progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     md, js = output / "agreement_lookahead.md", output / "agreement_lookahead.json"
     write_lookahead_table(rows, md)

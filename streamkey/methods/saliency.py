@@ -107,7 +107,7 @@ from __future__ import annotations
 import copy
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -897,6 +897,7 @@ class Online(OnlineKeyframer):
             n = len(sp.ft)
             h = n // 2
             rows = slice(0, h) if k == 5 else slice(h, n)
+            assert sp.basis is not None
             d = curves_of(sp.basis, sp.xs[sp.lo - sp.w0 :][rows], sp.ft[rows], self.contact)
             if k == 5:
                 sp.d = np.empty((n, d.shape[1]))
@@ -1069,7 +1070,7 @@ class Online(OnlineKeyframer):
                 h = st.top.max(axis=1, keepdims=True)
                 self._h3 = hmax, h3 = h.reshape(-1), (h**3).reshape(-1)
                 a, thr, safe, ok = itti_factors(st.top, hmax, h3, *args)
-            self._norm = (a, thr, safe)
+            self._norm = cast(tuple[np.ndarray, np.ndarray, np.ndarray], (a, thr, safe))
         return self._norm
 
     def _candidates(self, early: np.ndarray) -> list[tuple[int, float, float]]:
@@ -1088,6 +1089,7 @@ class Online(OnlineKeyframer):
         """Maps of the rows start.. that have no final maps yet, each computed once, 2 sigma
         frames after its frame, from windows cut there (the clip-end rule); for provisional
         candidates only, never for decisions or statistics."""
+        cache: dict[int, np.ndarray]
         basis, cache = getattr(self, "_early", (None, {}))
         if basis is not self.basis:  # a new basis moves every curve
             cache = {}
@@ -1097,8 +1099,8 @@ class Online(OnlineKeyframer):
             cache[g] = truncated_maps(cs, self._bank2, np.array([g - lo]), self.footmask)[0]
         for row in [r for r in cache if r < start]:
             del cache[row]
-        self._early = (self.basis, cache)
-        out = []
+        self._early: tuple[Basis | None, dict[int, np.ndarray]] = (self.basis, cache)
+        out: list[np.ndarray] = []
         while start + len(out) in cache:
             out.append(cache[start + len(out)])
         return np.array(out).reshape(len(out), len(self.weights), 4)

@@ -214,7 +214,8 @@ def end_curvature(d3: np.ndarray, step: float = 1.0) -> np.ndarray:
     """Curvature of the last of three rows `d3` (3, k) when it ends the clip (eq. 3.4): D'
     one-sided, D'' copied from its neighbour, as `curvature` does at a clip's end."""
     d1 = (d3[2] - d3[1]) / step
-    kappa: np.ndarray = np.abs((d3[2] - 2.0 * d3[1] + d3[0]) / (step * step)) / (1.0 + d1 * d1) ** 1.5
+    kappa: np.ndarray = (np.abs((d3[2] - 2.0 * d3[1] + d3[0]) / (step * step))
+                         / (1.0 + d1 * d1) ** 1.5)
     return kappa
 
 
@@ -296,7 +297,8 @@ def normalisation(st: MapStats) -> tuple[np.ndarray, np.ndarray]:
 
 def combine(s: np.ndarray, a: np.ndarray) -> np.ndarray:
     """S = sum_i a_i S_i over the last axis, in a fixed order (identical bits for any batch)."""
-    total: np.ndarray = ((s[..., 0] * a[:, 0] + s[..., 1] * a[:, 1]) + s[..., 2] * a[:, 2]) + s[..., 3] * a[:, 3]
+    total: np.ndarray = (((s[..., 0] * a[:, 0] + s[..., 1] * a[:, 1]) + s[..., 2] * a[:, 2])
+                         + s[..., 3] * a[:, 3])
     return total
 
 
