@@ -119,7 +119,8 @@ def bench_offline(frames: int, data: Path | None, rows: list[dict[str, Any]] | N
         seconds, peak, keys = _measure(partial(fn, motion, features=feats, **kwargs))
         table.append({"method": label, "seconds": seconds, "peak_mb": peak, "keyframes": len(keys),
                      "solver": keys.info.get("solver", "")})
-    # The two extra seed methods are slower by nature: timed on the first 10,000 frames.
+    # ISODATA (Zhang et al. 2013) and Hermite curve fitting (Önder et al. 2008) are slower by
+    # nature: timed on the first 10,000 frames.
     short = Motion(motion.skeleton, motion.channels[:10_000], motion.fps, 0, "bench-10k")
     short_feats = compute_features(short)
     for name in ("isodata", "curvefit"):
@@ -369,7 +370,7 @@ def _write_result(output: Path, kind: str, result: dict[str, Any]) -> list[Path]
     return paths
 
 
-# --- bench --perf: the issue-13 targets (CPU time, long stream, growth exponents) ----------
+# --- bench --perf: per-frame and per-clip targets (CPU time, long stream, growth exponents) -
 
 PERF_ONLINE_GOALS = {"feature stage": (40.0, 1000.0), "saliency": (80.0, 1000.0),
                      "speed": (80.0, 1000.0), "simplify": (80.0, 1000.0),

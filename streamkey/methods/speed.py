@@ -1,4 +1,5 @@
-"""Adaptive speed-minima keyposes — Miura et al. 2014 (seed 002, §3; DESIGN §4.2, §5).
+"""Adaptive speed-minima keyposes — Miura et al. 2014, "Adaptive keypose extraction from
+motion capture data" (§3), offline and online.
 
 Offline: `extract(motion)`. Definitions this module settles (the paper leaves them open):
 
@@ -33,7 +34,7 @@ Offline: `extract(motion)`. Definitions this module settles (the paper leaves th
 
 Online (`Online`): every `hop` frames an analysis of the window (the last `history +
 lookahead + hop` frames) starts; it runs in four steps over the next `delay` frames (two
-thirds of the hop; no burst; issue 13) and decides the candidates whose deadline (frame +
+thirds of the hop; no burst) and decides the candidates whose deadline (frame +
 lookahead) falls after it is done and before the next one is; a decision is sent when its
 deadline frame arrives (latency_frames == lookahead), and `flush()` redoes whatever was not
 sent yet. Windowed replacements of the offline global steps:
@@ -46,7 +47,7 @@ sent yet. Windowed replacements of the offline global steps:
   leaving the window included); an analysis adds the fresh speeds and the factor's bottom
   corner and back-substitutes over the newest `lookahead + 2 hop` frames plus 2 s (the region),
   all 144 lambdas side by side in one compiled kernel (`speed_kernels.hp_tail`, ~40 µs).
-  Minima outside the region are ignored. Until issue 13 each scale was solved on the region
+  Minima outside the region are ignored. Earlier, each scale was solved on the region
   plus 20 lambda^(1/4) frames of the window (the 0.1 Hz half-scale saw 20 s): the trends now
   see the whole stream, like the offline ones; on the shared clips looped to 30,000 frames
   the same keys, intensities within 5.4e-5 relative, and the same agreement table.
@@ -523,7 +524,7 @@ def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10
     return Keyframes(METHOD, cand[keep] + off, u[keep], params, motion.n_frames, info)
 
 
-# --- online (DESIGN §5) ----------------------------------------------------------------------
+# --- online (bounded lookahead: a key at frame f is sent by frame f + lookahead) -------------
 
 class _Ring:
     """Rows of the last `capacity` frames (positions and times), amortised O(1) append."""
