@@ -377,7 +377,7 @@ PERF_ONLINE_GOALS = {"feature stage": (40.0, 1000.0), "saliency": (80.0, 1000.0)
                      "optimal": (80.0, 1000.0),
                      "saliency + speed + simplify (one pipeline)": (150.0, 1000.0),
                      "all four (one pipeline)": (150.0, 1000.0)}
-PIPELINE_OF_THREE = ("saliency", "speed", "simplify")  # the three Halit-style online methods
+PIPELINE_OF_THREE = ("saliency", "speed", "simplify")  # the pipeline of three (no optimal)
 PERF_OFFLINE_GOALS = {"features": 0.5, "saliency": 0.5, "speed": 1.0, "simplify": 0.5,
                       "decimate": 2.0, "isodata": 1.0, "curvefit": 10.0}
 
@@ -501,7 +501,7 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
 
 def bench_perf(frames: int, data: Path | None, rows: list[dict[str, Any]] | None = None,
                say: Say = _quiet) -> dict[str, Any]:
-    """The issue-13 targets: online per-frame CPU time, offline growth from frames/10."""
+    """The performance targets: online per-frame CPU time, offline growth from frames/10."""
     rows = [] if rows is None else rows
     online = bench_perf_online(frames, data, rows=rows, say=say)
     memory = bench_perf_memory(data, frames=min(36_000, frames), rows=rows, say=say)
