@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -67,6 +68,12 @@ class Keyframes:
     n_frames: int
     info: dict[str, Any] = field(default_factory=dict)
     strength: np.ndarray | None = None
+
+    if TYPE_CHECKING:  # the generated __init__ also takes sequences: __post_init__ converts
+        def __init__(self, method: str, frames: Sequence[int] | np.ndarray,
+                     scores: Sequence[float] | np.ndarray, params: dict[str, Any], n_frames: int,
+                     info: dict[str, Any] = ..., strength: Sequence[float] | np.ndarray | None
+                     = None) -> None: ...
 
     def __post_init__(self) -> None:
         self.frames = np.asarray(self.frames, dtype=np.int64)

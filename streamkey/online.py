@@ -470,9 +470,10 @@ class OnlineKeyframer:
 def forget_scores(kf: OnlineKeyframer) -> None:
     """A new stream: the strength ranks start afresh (wrapped keyframers too). A restart
     inside a stream (a long gap) keeps them."""
-    while kf is not None:
-        kf.recent_scores.clear()
-        kf = getattr(kf, "inner", None)
+    cur: OnlineKeyframer | None = kf
+    while cur is not None:
+        cur.recent_scores.clear()
+        cur = getattr(cur, "inner", None)
 
 
 def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],

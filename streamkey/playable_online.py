@@ -280,7 +280,7 @@ class Playable(OnlineKeyframer):
     def idle(self) -> list[Event]:  # type: ignore[override]
         """The inner deferred work of the last frame, tracked; new candidates are announced
         here, once a frame (after the deferred work, which may change them)."""
-        events = list(self.inner.idle())
+        events: list[Event] = list(self.inner.idle())
         return self._track(events, self.t, self.t - self.lookahead) if self.t >= 0 else events
 
     def finish(self) -> list[Event]:  # type: ignore[override]

@@ -22,7 +22,8 @@ def hp_lambda(cutoff_hz: float, frame_time: float) -> float:
     """Hodrick–Prescott lambda whose gain is 50 % at `cutoff_hz` (Miura eq. 3)."""
     if cutoff_hz <= 0 or frame_time <= 0:
         raise UsageError("cutoff and frame time must be positive")
-    return 1.0 / (4.0 * (1.0 - np.cos(2.0 * np.pi * cutoff_hz * frame_time)) ** 2)
+    lam: float = 1.0 / (4.0 * (1.0 - np.cos(2.0 * np.pi * cutoff_hz * frame_time)) ** 2)
+    return lam
 
 
 def hp_banded(n: int, lam: float) -> np.ndarray:
@@ -50,7 +51,8 @@ def hp_filter(y: np.ndarray, lam: float) -> np.ndarray:
     n = y.shape[0]
     if n < 3:
         return y.copy()
-    return solveh_banded(hp_banded(n, lam), y, check_finite=False)
+    trend: np.ndarray = solveh_banded(hp_banded(n, lam), y, check_finite=False)
+    return trend
 
 
 HP_SETTLE = 20.0  # time constants an HP filter needs to forget a boundary (e^(-20/sqrt 2) ~ 7e-7)
@@ -77,7 +79,8 @@ def hp_prefix(lam: float) -> np.ndarray:
         _PREFIXES.move_to_end(lam)
         return got
     k = int(hp_settle(lam))
-    got = cholesky_banded(hp_banded(k + 2, lam), check_finite=False)[:, :k].copy()
+    factor: np.ndarray = cholesky_banded(hp_banded(k + 2, lam), check_finite=False)
+    got = factor[:, :k].copy()
     got.setflags(write=False)
     _PREFIXES[lam] = got
     if len(_PREFIXES) > _PREFIX_LIMIT:
@@ -97,7 +100,8 @@ def hp_factor(n: int, lam: float) -> np.ndarray:
     """
     lam = float(lam)
     if n < 5:
-        return cholesky_banded(hp_banded(n, lam), check_finite=False)
+        factor: np.ndarray = cholesky_banded(hp_banded(n, lam), check_finite=False)
+        return factor
     pre = hp_prefix(lam)
     k = min(n, pre.shape[1])
     c = np.empty((3, n), order="F")  # LAPACK's layout: no copy per solve

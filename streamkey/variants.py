@@ -65,7 +65,7 @@ def _interpolate(x: np.ndarray, motion: Motion, at: np.ndarray) -> np.ndarray:
     a = np.clip(np.floor(at).astype(np.int64), 0, len(x) - 1)
     b = np.minimum(a + 1, len(x) - 1)
     t = at - a
-    out = x[a] + t[:, None] * (x[b] - x[a])
+    out: np.ndarray = x[a] + t[:, None] * (x[b] - x[a])
     for seq, cols in _rotation_groups(motion.skeleton).items():
         q0 = Rotation.from_euler(seq, x[a][:, cols].reshape(-1, 3), degrees=True).as_quat()
         q1 = Rotation.from_euler(seq, x[b][:, cols].reshape(-1, 3), degrees=True).as_quat()

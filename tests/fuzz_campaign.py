@@ -1,4 +1,4 @@
-"""The file fuzz campaign (issue 9 §10), not run by CI: many mutated files through six commands.
+"""The file fuzz campaign, not run by CI: many mutated files through six commands.
 
     .venv/bin/python tests/fuzz_campaign.py --files 500 -o results/fuzz_campaign.json
 

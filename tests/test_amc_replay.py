@@ -1,4 +1,4 @@
-"""Issue 9 §3: ASF/AMC clips replay as their BVH equivalent (axis pre-rotations baked in).
+"""ASF/AMC clips replay as their BVH equivalent (axis pre-rotations baked in).
 
 `bvh_equivalent` is checked by FK equality against the AMC reader on every shared AMC clip;
 `replay` of an AMC file is checked end to end over OSC and ZeroMQ on loopback: the frames a

@@ -50,7 +50,7 @@ def test_ctrl_c_writes_the_rows_measured_so_far_and_exits_130(tmp_path):
 
 
 def test_perf_rows_carry_goals_streams_per_core_and_load(tmp_path):
-    """`bench --perf`'s online part on a short stream: every issue-13 target is a row with
+    """`bench --perf`'s online part on a short stream: every performance target is a row with
     its goal, met flag, streams per core and the load average it was measured under (the
     numbers themselves are the bench's business, not this test's)."""
     from streamkey.bench import PERF_ONLINE_GOALS, bench_perf_offline, bench_perf_online

@@ -1,4 +1,4 @@
-"""The scheduling model of `bench --streams` follows the engine's order (issue 14 §2)."""
+"""The scheduling model of `bench --streams` follows the engine's order."""
 
 from __future__ import annotations
 

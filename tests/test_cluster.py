@@ -1,4 +1,4 @@
-"""Cluster mode (issue 14 §5, §7): shard workers fed by ZeroMQ topics, the Redis frame log
+"""Cluster mode: shard workers fed by ZeroMQ topics, the Redis frame log
 and snapshots, de-duplicated events; restarts by Ray (worker SIGKILL, node loss)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`extract --engine ray|dask` (issue 14 §6): byte-identical to the local run on the shared
+"""`extract --engine ray|dask`: byte-identical to the local run on the shared
 clips, progress from the engine's futures, bad files reported the same way; BLAS/OpenMP
 threads default to one per process."""
 

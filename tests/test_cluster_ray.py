@@ -1,4 +1,4 @@
-"""Cluster mode on Ray (issue 14 §5, §7 acceptance): a loopback `ray.cluster_utils.Cluster`
+"""Cluster mode on Ray (acceptance): a loopback `ray.cluster_utils.Cluster`
 (a head without CPUs and three one-CPU raylets), a real redis-server, a ZeroMQ publisher of
 two streams. Worker SIGKILL and node loss mid-stream: the de-duplicated events equal an
 uninterrupted run's, for every stream. The CLI runs as its own process against the same

@@ -1,4 +1,5 @@
-"""Hermite curve fitting with dynamic programming (Önder et al. 2008, seed 001, §3.1)."""
+"""Hermite curve fitting with dynamic programming (Önder et al. 2008, "Keyframe reduction
+techniques for motion capture data", §3.1)."""
 
 from __future__ import annotations
 

@@ -509,7 +509,7 @@ def test_run_with_a_dashboard_serves_the_page_and_logs_to_the_jsonl_sink(
     assert methods == set(LIVE) and "annotations: 0" in err
 
 
-# ------------------------------------------------------------- hostile clients (issue 9 §7)
+# -------------------------------------------------------------------------- hostile clients
 
 def test_annotator_memory_is_bounded_and_deep_json_is_refused() -> None:
     from streamkey.dashboard import MAX_KEYS
@@ -609,7 +609,7 @@ async def test_the_websocket_event_sink_applies_the_dashboards_origin_host_and_t
         await wide.close()
 
 
-# ------------------------------------------------------------- issue 12 §5: operator's view
+# -------------------------------------------------------------------------- operator's view
 
 @pytest.mark.parametrize("command", [
     ["demo", "--seconds", "4"],

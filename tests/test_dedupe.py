@@ -1,4 +1,4 @@
-"""Sinks that can de-duplicate do (issue 14 §4): the JSON Lines log on restart, and the
+"""Sinks that can de-duplicate do: the JSON Lines log on restart, and the
 ZeroMQ consumer example, by the events' idempotent ids."""
 
 from __future__ import annotations

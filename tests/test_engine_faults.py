@@ -244,7 +244,7 @@ def test_a_busy_port_is_a_clear_input_error_not_a_traceback(tmp_path):
             assert result.stderr.strip().splitlines()[-1].startswith(f"error: {target}: cannot")
 
 
-# ---------------------------------------------------------------- hostile packets (issue 9 §4)
+# ----------------------------------------------------------------------------- hostile packets
 
 FRAME = encode_frame(7, 7 / 120, MOTION.channels[7])
 
@@ -373,7 +373,7 @@ def test_run_from_a_file_without_frames_says_the_source_died_and_exits_2(tmp_pat
     assert result.stderr.strip().splitlines()[-1].startswith(f"error: {empty}: ")
 
 
-# ---------------------------------------------------------------- sinks' faults (§6), exposure (§9)
+# -------------------------------------------------------------------------- sinks' faults, exposure
 
 async def test_a_failing_log_sink_is_that_sinks_fault_not_a_keyframer_restart(tmp_path):
     from streamkey.keyframes import KeyframeEvent

@@ -49,7 +49,8 @@ def joint_sequences(m: Motion) -> list[tuple[str, list[int]]]:
 
 def reference_reconstruction(m: Motion, keys: np.ndarray, mode: str) -> np.ndarray:
     """Per-frame reconstruction: scipy Rotation slerp via rotation vectors, one frame at a time;
-    the first and last captured frames are keys whatever `keys` holds (DESIGN §6)."""
+    the first and last captured frames are keys whatever `keys` holds (so that E compares
+    with other tools and with users' own reconstructions)."""
     raw = m.channels[m.first_frame :]
     keys = np.array(sorted({0, len(raw) - 1, *keys.tolist()}))
     rot = m.skeleton.rotation_columns()

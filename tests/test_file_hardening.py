@@ -1,4 +1,4 @@
-"""Issue 9, files: every class of hostile or odd file gives one named error and exit code 2.
+"""Hostile files: every class of hostile or odd file gives one named error and exit code 2.
 
 Each test reproduces one class found by the hostile review (a traceback, a hang or a lost
 batch on the code before the fix) on a mutated copy of a real CMU clip.

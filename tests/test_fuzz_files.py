@@ -1,4 +1,4 @@
-"""Fuzz suite for the file boundary (issue 9 §10): mutated BVH/ASF/AMC through the CLI.
+"""Fuzz suite for the file boundary: mutated BVH/ASF/AMC through the CLI.
 
 Every run must end with exit code 0 or 2, no traceback, no internal error, within a time
 bound, and every error line must name the file. Hypothesis draws the mutations (see

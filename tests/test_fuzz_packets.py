@@ -1,4 +1,4 @@
-"""Packet fuzzing during a live run on loopback (issue 9 §10): hostile OSC datagrams and
+"""Packet fuzzing during a live run on loopback: hostile OSC datagrams and
 ZeroMQ messages interleaved with a real take. The run must raise nothing, produce exactly
 the events of a clean run over the valid frames, and count every hostile packet by kind.
 

@@ -1,4 +1,4 @@
-"""Fuzzing the stream-id input paths (issue 14 §1): hostile stream ids in OSC addresses,
+"""Fuzzing the stream-id input paths: hostile stream ids in OSC addresses,
 ZeroMQ topics and JSON Lines, and more streams than the cap, interleaved with a real take.
 The run raises nothing, the unnamed stream gives a clean run's events, and every hostile
 frame is counted: malformed (by kind), refused (over the cap) or taken by its own stream."""

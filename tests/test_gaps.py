@@ -1,4 +1,4 @@
-"""Gaps without amnesia (issue 12 §4): a gap too long to bridge restarts the windows but keeps
+"""Gaps without amnesia: a gap too long to bridge restarts the windows but keeps
 each method's running statistics, unless `reset_on_gap`; frames lost are counted apart from
 drops. Real clip (01_01, 2752 frames) with a real hole cut out of it."""
 

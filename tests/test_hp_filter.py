@@ -1,4 +1,4 @@
-"""The Hodrick–Prescott filter against statsmodels' `hpfilter` (the oracle DESIGN §1 names).
+"""The Hodrick–Prescott filter against statsmodels' `hpfilter` (an independent oracle).
 
 Accuracy note: the HP system I + lambda D'D has a condition number of about 16 lambda. From
 10 Hz down to 1 Hz at 120 fps (lambda <= 1.4e5) both solvers agree to 1e-8 relative. At Miura's

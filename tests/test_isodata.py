@@ -1,4 +1,4 @@
-"""ISODATA clustering keyframes with adaptive thresholds (Zhang et al. 2013, seed 003)."""
+"""ISODATA clustering keyframes with adaptive thresholds (Zhang et al. 2013)."""
 
 from __future__ import annotations
 

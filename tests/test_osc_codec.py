@@ -122,7 +122,7 @@ def test_keyframe_event_layout_is_the_documented_one():
     assert OscMessage(encode_event(event, "d")).params[3] == 0.35
 
 
-# ------------------------------------------------------------------ numeric layout (issue 12 §2)
+# -------------------------------------------------------------------------------- numeric layout
 
 def type_tags(message: bytes) -> str:
     start = (message.index(b"\0") + 4) & ~3
@@ -150,7 +150,7 @@ def test_numeric_layout_addresses_and_type_tags_are_the_documented_ones():
 
 
 def test_new_event_types_map_by_their_dict_type():
-    """Provisional, cancel and signal events (issue 12 §1) map by `to_dict()["type"]`."""
+    """Provisional, cancel and signal events map by `to_dict()["type"]`."""
     base = {"v": 2, "stream": "s", "method": "saliency", "frame": 7, "time": 0.5}
     (prov,) = event_messages({**base, "type": "provisional", "strength": 0.25, "pid": 3})
     (cancel,) = event_messages({**base, "type": "cancel", "pid": 3})

@@ -1,4 +1,4 @@
-"""Playable events (issue 12 §1): strength, --min-interval, provisional events, the signal."""
+"""Playable events: strength, --min-interval, provisional events, the signal."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Online saliency: the work no decision reads waits for `idle()` (issue 13, latency).
+"""Online saliency: the work no decision reads waits for `idle()` (latency).
 
 A basis update (the first one, the stream-start ones, the periodic ones) and the incremental
 rows of a frame run after that frame's decisions, so a deciding push computes only its own

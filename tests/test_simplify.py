@@ -194,7 +194,7 @@ def test_bad_parameters_raise_usage_error():
         simplify.extract(m, tolerance=-1.0)
 
 
-# --- online (issue 3) ------------------------------------------------------------------------
+# --- online ----------------------------------------------------------------------------------
 
 MIN_MEAN_F1, MIN_CLIP_F1, MAX_COUNT_RATIO = 0.92, 0.80, 1.2
 LOOKAHEAD_120 = whole_frames(simplify.DEFAULT_LOOKAHEAD, 120.0)  # the shared clips' rate
@@ -228,7 +228,7 @@ def agreement(name: str) -> tuple[int, int, float, float, float]:
 
     offline = simplify.extract(load(name)).frames
     online, _ = online_keys(name)
-    tol = float(np.median(np.diff(offline))) / 4.0  # DESIGN §5: 1/4 of the key interval
+    tol = float(np.median(np.diff(offline))) / 4.0  # 1/4 of the key interval (Miura et al. 2014)
     _, p, r, f1 = match_one_to_one(online, offline, tol)
     return len(offline), len(online), p, r, f1
 
@@ -254,8 +254,8 @@ def test_online_keeps_the_guarantee_latency_and_count_bounds_on_every_clip():
             f"{simplify.DEFAULT_TOLERANCE[simplify.DEFAULT_SPACE]} ({simplify.DEFAULT_SPACE} "
             "space), lookahead "
             f"{LOOKAHEAD_120} frames. One-to-one matching within 1/4 of the median "
-            "offline key interval (DESIGN §5). Every online frame is within the tolerance of "
-            "its chord (checked).", "",
+            "offline key interval (Miura et al. 2014). Every online frame is within the "
+            "tolerance of its chord (checked).", "",
             "| clip | offline | online | ratio | P | R | F1 | max latency |",
             "|---|---|---|---|---|---|---|---|", *rows, "",
             f"Mean F1 {np.mean(f1s):.3f}, lowest {min(f1s):.3f} ({CLIPS[int(np.argmin(f1s))]})."]
@@ -266,7 +266,7 @@ def test_online_keeps_the_guarantee_latency_and_count_bounds_on_every_clip():
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="measured mean F1 0.746, lowest 0.43 (05_06) at "
-                   "lookahead 60 in position space, the default since issue 10 (channel space "
+                   "lookahead 60 in position space, the default (channel space "
                    "was 0.877 / 0.622 on 06_06): the offline splits depend on segment ends "
                    "beyond the lookahead")
 def test_online_agrees_with_offline_at_default_lookahead():
@@ -349,7 +349,7 @@ def test_online_bad_parameters_raise_usage_error():
             simplify.Online(m.skeleton, m.fps, **kwargs)
 
 
-# --- position space against Euler flips (issue 10) -------------------------------------------
+# --- position space against Euler flips ------------------------------------------------------
 
 def test_position_space_error_falls_with_k_where_channel_space_chases_euler_flips():
     from streamkey.evaluate import error_curve

@@ -1,4 +1,4 @@
-"""Snapshots (issue 14 §3): versioned, refused when they do not fit, small, and a tested
+"""Snapshots: versioned, refused when they do not fit, small, and a tested
 determinism contract: the same frames give the same events after any snapshot/restore point."""
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def test_snapshots_that_do_not_fit_are_refused_with_a_clear_error():
     other = online_class("simplify")(MOTION.skeleton, MOTION.fps, tolerance=0.5)
     with pytest.raises(SnapshotError, match="parameters"):
         OnlineKeyframer.restore(data, params=other.params_digest)
-    for version in (1, 9):  # 1: before issue 13 reshaped the keyframers' state
+    for version in (1, 9):  # 1: before deferred work reshaped the keyframers' state
         with pytest.raises(SnapshotError, match=f"version {version}, this streamkey reads"):
             OnlineKeyframer.restore(data[:6] + struct.pack(">B", version) + data[7:])
     with pytest.raises(SnapshotError, match="checksum"):

@@ -1,4 +1,4 @@
-"""Many streams in one run (issue 14 §1-2): stream ids on every input, per-stream pipelines
+"""Many streams in one run: stream ids on every input, per-stream pipelines
 equal to single-stream runs, the stream cap, idle retirement, due-first re-analysis."""
 
 from __future__ import annotations

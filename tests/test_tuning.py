@@ -1,4 +1,4 @@
-"""Tuning in the open (issue 12 §3): every method parameter on the command line, grouped per
+"""Tuning in the open: every method parameter on the command line, grouped per
 method; per-method lookahead; `--count` online refused; identical defaults offline and online;
 gap bridging from the command line."""
 

@@ -14,9 +14,10 @@ import os
 import platform
 import time
 import tracemalloc
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
+from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -97,9 +98,9 @@ def bench_offline(frames: int, data: Path | None, rows: list[dict[str, Any]] | N
     from ..methods import offline_method
 
     motion, source = long_motion(frames, data)
-    rows = _Rows(rows, say, "offline", "seconds")
+    table = _Rows(rows, say, "offline", "seconds")
     seconds, peak, feats = _measure(lambda: compute_features(motion))
-    rows.append({"method": "features (FK, once)", "seconds": seconds, "peak_mb": peak})
+    table.append({"method": "features (FK, once)", "seconds": seconds, "peak_mb": peak})
     count = None
     for name in ("saliency", "speed", "simplify", "uniform", "decimate"):
         fn = offline_method(name)
@@ -107,27 +108,27 @@ def bench_offline(frames: int, data: Path | None, rows: list[dict[str, Any]] | N
                                   else {"features": feats})
         if name == "decimate":
             kwargs["features"] = feats  # positions space: the shared FK, as the others
-        seconds, peak, keys = _measure(lambda fn=fn, kwargs=kwargs: fn(motion, **kwargs))
+        seconds, peak, keys = _measure(partial(fn, motion, **kwargs))
         if name == "saliency":
             count = len(keys)
-        rows.append({"method": name, "seconds": seconds, "peak_mb": peak, "keyframes": len(keys)})
+        table.append({"method": name, "seconds": seconds, "peak_mb": peak, "keyframes": len(keys)})
     for label, kwargs in (("optimal --rate 6 (one lambda)", {"rate": 6.0}),
                           ("optimal --tolerance 1e-4 (one pass)", {"tolerance": 1e-4}),
                           ("optimal --count 5 %", {"count": frames // 20})):
         fn = offline_method("optimal")
-        seconds, peak, keys = _measure(lambda fn=fn, kwargs=kwargs: fn(motion, features=feats,
-                                                                         **kwargs))
-        rows.append({"method": label, "seconds": seconds, "peak_mb": peak, "keyframes": len(keys),
+        seconds, peak, keys = _measure(partial(fn, motion, features=feats, **kwargs))
+        table.append({"method": label, "seconds": seconds, "peak_mb": peak, "keyframes": len(keys),
                      "solver": keys.info.get("solver", "")})
-    # The two extra seed methods are slower by nature: timed on the first 10,000 frames.
+    # ISODATA (Zhang et al. 2013) and Hermite curve fitting (Önder et al. 2008) are slower by
+    # nature: timed on the first 10,000 frames.
     short = Motion(motion.skeleton, motion.channels[:10_000], motion.fps, 0, "bench-10k")
     short_feats = compute_features(short)
     for name in ("isodata", "curvefit"):
         fn = offline_method(name)
-        seconds, peak, keys = _measure(lambda fn=fn: fn(short, features=short_feats))
-        rows.append({"method": f"{name} (10,000 frames)", "seconds": seconds, "peak_mb": peak,
+        seconds, peak, keys = _measure(partial(fn, short, features=short_feats))
+        table.append({"method": f"{name} (10,000 frames)", "seconds": seconds, "peak_mb": peak,
                      "keyframes": len(keys)})
-    return {"frames": motion.n_frames, "source": source, "rows": rows.rows}
+    return {"frames": motion.n_frames, "source": source, "rows": table.rows}
 
 
 class _Rows:
@@ -177,32 +178,33 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
 
         motion, source = demo_motion(), "embedded demo motion"
     frames = motion.frames()
-    rows = _Rows(rows, say, "online", "mean_us")
+    table = _Rows(rows, say, "online", "mean_us")
     for name in ONLINE_METHODS:
         cls = online_class(name)
-        row = _push_costs(lambda cls=cls: cls(motion.skeleton, motion.fps), frames)
-        rows.append({"method": name, **row})
+        row = _push_costs(partial(cls, motion.skeleton, motion.fps), frames)
+        table.append({"method": name, **row})
 
     def pipeline() -> Pipeline:
         return Pipeline([online_class(m)(motion.skeleton, motion.fps) for m in ONLINE_METHODS])
 
-    rows.append({"method": "all (one pipeline)", **_push_costs(pipeline, frames)})
-    rows.append({"method": "feature stage only (guard + unwrap; FK only when a keyframer reads it)",
-                 **_push_costs(lambda: _FeaturesOnly(motion.skeleton, motion.fps), frames)})
+    table.append({"method": "all (one pipeline)", **_push_costs(pipeline, frames)})
+    table.append({"method": "feature stage only (guard + unwrap; FK only when a keyframer "
+                            "reads it)",
+                  **_push_costs(lambda: _FeaturesOnly(motion.skeleton, motion.fps), frames)})
     long, _ = long_motion(frames_long, data)
     long_frames = long.frames()
     for name, make in (("optimal", lambda: online_class("optimal")(long.skeleton, long.fps)),
                        ("feature stage only", lambda: _FeaturesOnly(long.skeleton, long.fps)),
                        ("feature stage + FK positions (what optimal reads)",
                         lambda: _FeaturesOnly(long.skeleton, long.fps, positions=True))):
-        rows.append({"method": f"{name} ({len(long_frames):,} frames)",
+        table.append({"method": f"{name} ({len(long_frames):,} frames)",
                      **_push_costs(make, long_frames)})
     say(f"bench online: memory over a {stream_frames:,}-frame looped stream ...")
     memory = _stream_memory(pipeline, motion, stream_frames)
     say(f"bench online: growth after warm-up {memory['growth_after_warmup_mb']:.3g} MB; "
         "engine latency at 120 Hz ...")
     seconds = 60.0 if stream_frames >= 100_000 else 15.0
-    return {"clip": source, "frames": len(frames), "rows": rows.rows, "memory": memory,
+    return {"clip": source, "frames": len(frames), "rows": table.rows, "memory": memory,
             "engine_live": _engine_latency(motion, seconds)}
 
 
@@ -288,7 +290,8 @@ def _bench_agreement(data: Path | None, output: Path) -> list[Path]:
     motions = [read_motion(p) for p in sorted(data.iterdir()) if p.suffix in (".bvh", ".amc")]
     # Saliency at the thesis' low-dynamic preset on both sides, so the table measures the
     # lookahead alone (the `auto` preset adds its own 2 s decision).
-    rows = lookahead_table(motions, LOOKAHEADS, {"saliency": {"sigma": 10.0, "k": 7}},
+    lookaheads = cast(dict[str, Sequence[int]], LOOKAHEADS)  # read only: tuples will do
+    rows = lookahead_table(motions, lookaheads, {"saliency": {"sigma": 10.0, "k": 7}},
                            progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     md, js = output / "agreement_lookahead.md", output / "agreement_lookahead.json"
     write_lookahead_table(rows, md)
@@ -367,14 +370,14 @@ def _write_result(output: Path, kind: str, result: dict[str, Any]) -> list[Path]
     return paths
 
 
-# --- bench --perf: the issue-13 targets (CPU time, long stream, growth exponents) ----------
+# --- bench --perf: per-frame and per-clip targets (CPU time, long stream, growth exponents) -
 
 PERF_ONLINE_GOALS = {"feature stage": (40.0, 1000.0), "saliency": (80.0, 1000.0),
                      "speed": (80.0, 1000.0), "simplify": (80.0, 1000.0),
                      "optimal": (80.0, 1000.0),
                      "saliency + speed + simplify (one pipeline)": (150.0, 1000.0),
                      "all four (one pipeline)": (150.0, 1000.0)}
-PIPELINE_OF_THREE = ("saliency", "speed", "simplify")  # the issue's "pipeline of all three"
+PIPELINE_OF_THREE = ("saliency", "speed", "simplify")  # the pipeline of three (no optimal)
 PERF_OFFLINE_GOALS = {"features": 0.5, "saliency": 0.5, "speed": 1.0, "simplify": 0.5,
                       "decimate": 2.0, "isodata": 1.0, "curvefit": 10.0}
 
@@ -423,16 +426,17 @@ def bench_perf_online(frames: int, data: Path | None, methods: list[str] | None 
                     "met": costs["mean_us"] <= mean_goal and costs["p99_us"] <= p99_goal,
                     "load_average": round(os.getloadavg()[0], 2)})
 
+    def pipeline_of(group: Iterable[str]) -> Pipeline:
+        return Pipeline([online_class(m)(motion.skeleton, motion.fps) for m in group])
+
     add("feature stage", _cpu_push_costs(stage, stream, "__call__"))
     for name in names:
         cls = online_class(name)
-        add(name, _cpu_push_costs(lambda cls=cls: cls(motion.skeleton, motion.fps), stream))
+        add(name, _cpu_push_costs(partial(cls, motion.skeleton, motion.fps), stream))
     if methods is None:
         for target, group in (("saliency + speed + simplify (one pipeline)", PIPELINE_OF_THREE),
                               ("all four (one pipeline)", ONLINE_METHODS)):
-            add(target, _cpu_push_costs(
-                lambda group=group: Pipeline([online_class(m)(motion.skeleton, motion.fps)
-                                              for m in group]), stream))
+            add(target, _cpu_push_costs(partial(pipeline_of, group), stream))
     return {"frames": len(stream), "source": source, "rows": out.rows}
 
 
@@ -475,14 +479,14 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
 
     for n in sizes:
         part = Motion(motion.skeleton, motion.channels[:n], motion.fps, 0, f"bench-{n}")
-        timed("features", n, lambda part=part: compute_features(part))
+        timed("features", n, partial(compute_features, part))
         feats = compute_features(part)
         count = len(offline_method("saliency")(part, features=feats))
         for name in names:
             fn = offline_method(name)
             kwargs: dict[str, Any] = {"count": count} if name == "decimate" else {
                 "features": feats}
-            timed(name, n, lambda fn=fn, kwargs=kwargs, part=part: fn(part, **kwargs))
+            timed(name, n, partial(fn, part, **kwargs))
         del feats
     rows = [] if rows is None else rows
     for name, secs in times.items():
@@ -497,7 +501,7 @@ def bench_perf_offline(sizes: list[int], data: Path | None,
 
 def bench_perf(frames: int, data: Path | None, rows: list[dict[str, Any]] | None = None,
                say: Say = _quiet) -> dict[str, Any]:
-    """The issue-13 targets: online per-frame CPU time, offline growth from frames/10."""
+    """The performance targets: online per-frame CPU time, offline growth from frames/10."""
     rows = [] if rows is None else rows
     online = bench_perf_online(frames, data, rows=rows, say=say)
     memory = bench_perf_memory(data, frames=min(36_000, frames), rows=rows, say=say)

@@ -279,7 +279,7 @@ def _latency_one(transport: str, clip: Path, frames: int, realtime: bool = False
     timed = [(d, (t - receiver.frames[d]) / 1e6, method) for d, t, method in receiver.events
              if d in receiver.frames and t < sent_until]
     lat = np.array([ms for _, ms, _ in timed])
-    per_method: dict[str, dict[str, float]] = {}
+    per_method: dict[str, float] = {}
     for name in sorted({method for _, _, method in timed}):
         own_lat = np.array([ms for _, ms, method in timed if method == name])
         per_method[f"{name}_p50_ms"] = round(float(np.percentile(own_lat, 50)), 3)

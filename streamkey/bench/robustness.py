@@ -183,10 +183,10 @@ def main(data_dir: str | None, clips: str | None, variants: str | None,
         rows, motions = run(paths, cases, say)
     except KeyboardInterrupt as stop:
         rows, motions, partial = getattr(stop, "rows", []), [], True
-    clips = sorted({str(r["clip"]) for r in rows})
+    clip_names = sorted({str(r["clip"]) for r in rows})
     meta: dict[str, Any] = {
         "date": time.strftime("%Y-%m-%d %H:%M:%S"), "data": str(data or ""),
-        "clips": len(clips), "clip_names": clips,
+        "clips": len(clip_names), "clip_names": clip_names,
         "frames": sum(m.n_frames - m.first_frame for m in motions),
         "variants": list(cases), "seconds": time.perf_counter() - t0, "partial": partial}
     if not rows:

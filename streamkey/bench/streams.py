@@ -1,5 +1,5 @@
 """`streamkey bench --streams`: due-event latency against the number of streams one process
-serves, with and without due-first scheduling (issue 14 §2).
+serves, with and without due-first scheduling.
 
 A stage: one capture system, N performers, every stream ticking at 120 Hz on the same clock
 (frame i of every stream arrives at t0 + i / 120 s). Each stream replays its own shared

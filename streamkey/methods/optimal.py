@@ -396,7 +396,8 @@ def motion_weights(costs: np.ndarray, span: int, ticks: float) -> np.ndarray:
 def _segment_errors(f: np.ndarray, keys: np.ndarray, lam: float) -> np.ndarray:
     """Costs of the segments between consecutive keys from the DP's F (F(b) = F(a) +
     cost(a, b) + λ along a chain; λ = 0 in tolerance mode)."""
-    return np.maximum(np.diff(f[keys]) - lam, 0.0)
+    errors: np.ndarray = np.maximum(np.diff(f[keys]) - lam, 0.0)
+    return errors
 
 
 def _solve_all(x: np.ndarray, max_len: int, ticks: float,
@@ -533,7 +534,8 @@ def _penalised_counts(band: np.ndarray, lams: np.ndarray) -> np.ndarray:
         i = np.argmin(vals, axis=0)
         f[b] = vals[i, cols] + lams
         keys[b] = keys[lo + i, cols] + 1
-    return keys[n - 1]
+    counts: np.ndarray = keys[n - 1]
+    return counts
 
 
 def extract(motion: Motion, *, count: int | None = None, rate: float | None = None,
@@ -576,8 +578,9 @@ def key_scores(x: np.ndarray, rows: np.ndarray, ticks: float = 1.0) -> np.ndarra
     """A key's score: the cost of the segment it ends (the first key: 0), in ticks x body
     heights² (`ticks` per frame), each segment summed alone (`optimal_math.chain_costs`), so
     offline and online (which knows it once the key is decided) agree bit for bit."""
-    return om.chain_costs(np.ascontiguousarray(x, dtype=np.float64),
-                          np.asarray(rows, dtype=np.int64)) * ticks
+    scores: np.ndarray = om.chain_costs(np.ascontiguousarray(x, dtype=np.float64),
+                                        np.asarray(rows, dtype=np.int64)) * ticks
+    return scores
 
 
 class Online(OnlineKeyframer):

@@ -48,7 +48,8 @@ def body_rows(positions: np.ndarray, scale: np.ndarray,
     rel = root_relative_joints(positions, n_joints)
     if root_translation:
         rel = np.concatenate([rel, positions[:, :1]], axis=1)
-    return (rel * scale).reshape(len(rel), -1)
+    flat: np.ndarray = (rel * scale).reshape(len(rel), -1)
+    return flat
 
 
 def _prefix(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -248,7 +249,8 @@ def pair_costs(x: np.ndarray, starts: np.ndarray | Sequence[int],
     t = (a1 - ua[:, None] * a0) / m[:, None]
 
     def dot(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-        return np.einsum("ij,ij->i", p, q)
+        dots: np.ndarray = np.einsum("ij,ij->i", p, q)
+        return dots
 
     s1 = (m - 1.0) / 2.0
     s2 = (m - 1.0) * (2.0 * m - 1.0) / (6.0 * m)

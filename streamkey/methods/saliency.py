@@ -107,7 +107,7 @@ from __future__ import annotations
 import copy
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -198,13 +198,15 @@ def auto_frames(fps: float) -> int:
 def step_speeds(p: np.ndarray) -> np.ndarray:
     """Per frame step and body part, the distance moved (body heights) between consecutive
     rows of Miura-role positions `p` (n, parts, 3): (n - 1, parts)."""
-    return np.linalg.norm(np.diff(p, axis=0), axis=2)
+    steps: np.ndarray = np.linalg.norm(np.diff(p, axis=0), axis=2)
+    return steps
 
 
 def moving(steps: np.ndarray, fps: float) -> np.ndarray:
     """Which steps of `step_speeds` move: mean part speed above `STILL_SPEED` (a calibration
     hold or a frozen source does not; captured motion, even standing, does)."""
-    return steps.mean(axis=1) * fps > STILL_SPEED
+    moves: np.ndarray = steps.mean(axis=1) * fps > STILL_SPEED
+    return moves
 
 
 def auto_preset(steps: np.ndarray, fps: float) -> tuple[str, float]:
@@ -895,6 +897,7 @@ class Online(OnlineKeyframer):
             n = len(sp.ft)
             h = n // 2
             rows = slice(0, h) if k == 5 else slice(h, n)
+            assert sp.basis is not None
             d = curves_of(sp.basis, sp.xs[sp.lo - sp.w0 :][rows], sp.ft[rows], self.contact)
             if k == 5:
                 sp.d = np.empty((n, d.shape[1]))
@@ -936,7 +939,8 @@ class Online(OnlineKeyframer):
         assert basis is not None
         foot = curve_weights(basis, self.contact)[1]
         kk = len(foot)
-        return (np.arange(kk)[:, None] * 8 + np.arange(4) + 4 * foot[:, None]).ravel()
+        flat: np.ndarray = (np.arange(kk)[:, None] * 8 + np.arange(4) + 4 * foot[:, None]).ravel()
+        return flat
 
     def _incremental(self, t: int) -> None:
         """One new frame between basis updates: its curve row, one curvature, one map row."""
@@ -1066,7 +1070,7 @@ class Online(OnlineKeyframer):
                 h = st.top.max(axis=1, keepdims=True)
                 self._h3 = hmax, h3 = h.reshape(-1), (h**3).reshape(-1)
                 a, thr, safe, ok = itti_factors(st.top, hmax, h3, *args)
-            self._norm = (a, thr, safe)
+            self._norm = cast(tuple[np.ndarray, np.ndarray, np.ndarray], (a, thr, safe))
         return self._norm
 
     def _candidates(self, early: np.ndarray) -> list[tuple[int, float, float]]:
@@ -1085,6 +1089,7 @@ class Online(OnlineKeyframer):
         """Maps of the rows start.. that have no final maps yet, each computed once, 2 sigma
         frames after its frame, from windows cut there (the clip-end rule); for provisional
         candidates only, never for decisions or statistics."""
+        cache: dict[int, np.ndarray]
         basis, cache = getattr(self, "_early", (None, {}))
         if basis is not self.basis:  # a new basis moves every curve
             cache = {}
@@ -1094,8 +1099,8 @@ class Online(OnlineKeyframer):
             cache[g] = truncated_maps(cs, self._bank2, np.array([g - lo]), self.footmask)[0]
         for row in [r for r in cache if r < start]:
             del cache[row]
-        self._early = (self.basis, cache)
-        out = []
+        self._early: tuple[Basis | None, dict[int, np.ndarray]] = (self.basis, cache)
+        out: list[np.ndarray] = []
         while start + len(out) in cache:
             out.append(cache[start + len(out)])
         return np.array(out).reshape(len(out), len(self.weights), 4)

@@ -24,7 +24,7 @@ A restart forgets the decision (a new stream decides again); `params` keep the l
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -151,7 +151,9 @@ class AutoOnline(OnlineKeyframer):
         if decided:
             out += self._decide(int(head.seq[-1]))
             if len(head) < len(block):
-                out += self._pass(self.active.process(block.slice(end, len(block))))  # type: ignore[union-attr]
+                # `_decide` has just set `active` (mypy keeps the narrowing to None from above)
+                active = cast(Online, self.active)
+                out += self._pass(active.process(block.slice(end, len(block))))
         return out
 
     def idle(self) -> list[Any]:

@@ -116,7 +116,8 @@ class Basis:
     def project(self, xs: np.ndarray) -> np.ndarray:
         """Curves D of shifted rows `xs` (n, m) -> (n, k)."""
         z = (xs[..., self.keep] - self.mean[self.keep]) / self.sd[self.keep]
-        return z @ self.vectors
+        curves: np.ndarray = z @ self.vectors
+        return curves
 
 
 def pca_basis(mo: Moments, k: int, variance_rule: bool) -> Basis:
@@ -174,7 +175,8 @@ def curvature(d: np.ndarray, step: float = 1.0) -> np.ndarray:
     d2[1:-1] = (d[2:] - 2.0 * d[1:-1] + d[:-2]) / (step * step)
     d2[0] = d2[1]
     d2[-1] = d2[-2]
-    return np.abs(d2) / (1.0 + d1 * d1) ** 1.5
+    kappa: np.ndarray = np.abs(d2) / (1.0 + d1 * d1) ** 1.5
+    return kappa
 
 
 def kernel(s: float) -> np.ndarray:
@@ -204,14 +206,17 @@ def gaussian_means(c: np.ndarray, sigma: float) -> np.ndarray:
 
 def scale_maps(g: np.ndarray) -> np.ndarray:
     """S_i = |G(f, s_i) - G(f, 2 s_i)| (Halit eq. 3.6): (..., 8) -> (..., 4)."""
-    return np.abs(g[..., :4] - g[..., 4:])
+    maps: np.ndarray = np.abs(g[..., :4] - g[..., 4:])
+    return maps
 
 
 def end_curvature(d3: np.ndarray, step: float = 1.0) -> np.ndarray:
     """Curvature of the last of three rows `d3` (3, k) when it ends the clip (eq. 3.4): D'
     one-sided, D'' copied from its neighbour, as `curvature` does at a clip's end."""
     d1 = (d3[2] - d3[1]) / step
-    return np.abs((d3[2] - 2.0 * d3[1] + d3[0]) / (step * step)) / (1.0 + d1 * d1) ** 1.5
+    kappa: np.ndarray = (np.abs((d3[2] - 2.0 * d3[1] + d3[0]) / (step * step))
+                         / (1.0 + d1 * d1) ** 1.5)
+    return kappa
 
 
 def truncated_maps(cs: np.ndarray, bank: np.ndarray, offsets: np.ndarray, foot: np.ndarray
@@ -292,7 +297,9 @@ def normalisation(st: MapStats) -> tuple[np.ndarray, np.ndarray]:
 
 def combine(s: np.ndarray, a: np.ndarray) -> np.ndarray:
     """S = sum_i a_i S_i over the last axis, in a fixed order (identical bits for any batch)."""
-    return ((s[..., 0] * a[:, 0] + s[..., 1] * a[:, 1]) + s[..., 2] * a[:, 2]) + s[..., 3] * a[:, 3]
+    total: np.ndarray = (((s[..., 0] * a[:, 0] + s[..., 1] * a[:, 1]) + s[..., 2] * a[:, 2])
+                         + s[..., 3] * a[:, 3])
+    return total
 
 
 # --------------------------------------------------------------------------- clusters
@@ -513,8 +520,10 @@ def _pick(rows: np.ndarray, wrow: np.ndarray, foot: np.ndarray, n: int) -> int:
             best = min(best, abs(rows[i] - mean))
     for i in range(n):
         if (foot[i] or not any_foot) and abs(rows[i] - mean) <= best + _TIE:
-            return rows[i]
-    return rows[0]
+            key: int = rows[i]
+            return key
+    first: int = rows[0]
+    return first
 
 
 @compiled
@@ -611,7 +620,8 @@ def remap(arr: np.ndarray, perm: np.ndarray) -> np.ndarray:
 
 def remap_stats(st: MapStats, perm: np.ndarray) -> MapStats:
     def col(a: np.ndarray) -> np.ndarray:
-        return remap(a[None], perm)[0]
+        moved: np.ndarray = remap(a[None], perm)[0]
+        return moved
 
     return MapStats(st.n, col(st.total), col(st.top), col(st.lm_n), col(st.lm_sum),
                     col(st.lm_top))

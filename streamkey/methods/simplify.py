@@ -1,5 +1,6 @@
-"""Curve simplification keyframes — Lowe's recursive split as used by Lim & Thalmann and
-Önder et al. (seed 001, §3.2; DESIGN §4.3); the thesis comparison (seed 000, ch. 4).
+"""Curve simplification keyframes — Lowe's recursive split (1987) as used by Lim & Thalmann
+(2001) and Önder et al. 2008, "Keyframe reduction techniques for motion capture data" (§3.2);
+compared with saliency in Halit & Capin's thesis (2010, ch. 4).
 
 The motion is a curve X (one row per captured frame) in R^d:
 
@@ -36,10 +37,11 @@ Definitions this module settles:
   positions given), so the guarantee holds up to floating-point rounding (tests allow 1e-9
   relative).
 
-Online (`Online`, DESIGN §5). The offline method has no running statistic; its one global
-quantity is the recursion over the whole clip, whose splits depend on segment ends far in the
-future. Online it becomes a recursion over a window, and frame d = t - lookahead is decided
-when frame t arrives (c is the last committed keyframe, t the newest frame):
+Online (`Online`: a key at frame f is sent by frame f + lookahead). The offline method has
+no running statistic; its one global quantity is the recursion over the whole clip, whose
+splits depend on segment ends far in the future. Online it becomes a recursion over a
+window, and frame d = t - lookahead is decided when frame t arrives (c is the last committed
+keyframe, t the newest frame):
 
 - Windowed recursion: every `hop` frames (default 1/15 s: 8 at 120 Hz), P = the keys of
   the recursion on [a, t], anchored at the oldest committed keyframe a at most `history`
@@ -117,7 +119,8 @@ def position_rows(positions: np.ndarray, n_joints: int, height: float) -> np.nda
     flattened, divided by body height x sqrt(joints) (a row distance is an RMS joint distance
     in body heights). Shared by `curve` and the online keyframer (identical arithmetic)."""
     rel = root_relative_joints(positions, n_joints)
-    return rel.reshape(len(rel), -1) / (height * np.sqrt(n_joints))
+    flat: np.ndarray = rel.reshape(len(rel), -1) / (height * np.sqrt(n_joints))
+    return flat
 
 
 @kernel

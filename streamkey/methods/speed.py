@@ -1,4 +1,5 @@
-"""Adaptive speed-minima keyposes — Miura et al. 2014 (seed 002, §3; DESIGN §4.2, §5).
+"""Adaptive speed-minima keyposes — Miura et al. 2014, "Adaptive keypose extraction from
+motion capture data" (§3), offline and online.
 
 Offline: `extract(motion)`. Definitions this module settles (the paper leaves them open):
 
@@ -33,7 +34,7 @@ Offline: `extract(motion)`. Definitions this module settles (the paper leaves th
 
 Online (`Online`): every `hop` frames an analysis of the window (the last `history +
 lookahead + hop` frames) starts; it runs in four steps over the next `delay` frames (two
-thirds of the hop; no burst; issue 13) and decides the candidates whose deadline (frame +
+thirds of the hop; no burst) and decides the candidates whose deadline (frame +
 lookahead) falls after it is done and before the next one is; a decision is sent when its
 deadline frame arrives (latency_frames == lookahead), and `flush()` redoes whatever was not
 sent yet. Windowed replacements of the offline global steps:
@@ -46,7 +47,7 @@ sent yet. Windowed replacements of the offline global steps:
   leaving the window included); an analysis adds the fresh speeds and the factor's bottom
   corner and back-substitutes over the newest `lookahead + 2 hop` frames plus 2 s (the region),
   all 144 lambdas side by side in one compiled kernel (`speed_kernels.hp_tail`, ~40 µs).
-  Minima outside the region are ignored. Until issue 13 each scale was solved on the region
+  Minima outside the region are ignored. Earlier, each scale was solved on the region
   plus 20 lambda^(1/4) frames of the window (the 0.1 Hz half-scale saw 20 s): the trends now
   see the whole stream, like the offline ones; on the shared clips looped to 30,000 frames
   the same keys, intensities within 5.4e-5 relative, and the same agreement table.
@@ -81,7 +82,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, SupportsIndex, cast
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
@@ -135,7 +136,8 @@ def scale_frequencies(f_max: float = 8.0, f_min: float = 0.2, r: float = 0.95) -
 def speed_signal(positions: np.ndarray, frame_time: float, f_c: float = 10.0) -> np.ndarray:
     """Miura eq. 2-3: HP low-pass of (n, 48) positions at f_c, then the norm of the step / dt."""
     pf = hp_filter(positions, hp_lambda(f_c, frame_time))
-    return np.linalg.norm(np.diff(pf, axis=0), axis=1) / frame_time
+    speed: np.ndarray = np.linalg.norm(np.diff(pf, axis=0), axis=1) / frame_time
+    return speed
 
 
 _PACKED: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # lambdas -> tables
@@ -197,7 +199,8 @@ def speed_tail(positions: np.ndarray, frame_time: float, f_c: float, k: int) -> 
         if len(_TAILS) >= 64:
             _TAILS.clear()
         _TAILS[key] = op
-    return np.linalg.norm(op @ positions, axis=1) / frame_time
+    speed: np.ndarray = np.linalg.norm(op @ positions, axis=1) / frame_time
+    return speed
 
 
 class HPBank:
@@ -270,7 +273,8 @@ REST_SPEED = 0.02
 def candidates_of(v: np.ndarray) -> np.ndarray:
     """Keypose candidates: local minima of the speed `v`, rest (`REST_SPEED`) left out."""
     m = local_minima(v)
-    return m[v[m] >= REST_SPEED]
+    kept: np.ndarray = m[v[m] >= REST_SPEED]
+    return kept
 
 
 def settle_frames(lams: np.ndarray) -> np.ndarray:
@@ -329,7 +333,8 @@ def _match_indices(long_: np.ndarray, short: np.ndarray) -> np.ndarray:
         if idx is not None and _max_cover(long_[idx], short) <= half - 1:
             return idx
         half *= 4
-    return np.arange(len(short)) + _band_dp(long_, short)
+    matched: np.ndarray = np.arange(len(short)) + _band_dp(long_, short)
+    return matched
 
 
 def _max_cover(x: np.ndarray, y: np.ndarray) -> int:
@@ -382,8 +387,9 @@ def _band_dp(long_: np.ndarray, short: np.ndarray) -> np.ndarray:
     (integer costs, exact); ties keep the smaller offset (earlier partner). Compiled
     (`speed_kernels.band_offsets`), shared with the online chains.
     """
-    return band_offsets(np.ascontiguousarray(long_, dtype=np.int64),
-                        np.ascontiguousarray(short, dtype=np.int64))
+    offsets: np.ndarray = band_offsets(np.ascontiguousarray(long_, dtype=np.int64),
+                                       np.ascontiguousarray(short, dtype=np.int64))
+    return offsets
 
 
 def intensities(candidates: np.ndarray, per_scale: list[tuple[np.ndarray, np.ndarray]]
@@ -518,7 +524,7 @@ def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10
     return Keyframes(METHOD, cand[keep] + off, u[keep], params, motion.n_frames, info)
 
 
-# --- online (DESIGN §5) ----------------------------------------------------------------------
+# --- online (bounded lookahead: a key at frame f is sent by frame f + lookahead) -------------
 
 class _Ring:
     """Rows of the last `capacity` frames (positions and times), amortised O(1) append."""
@@ -950,7 +956,7 @@ def _frames(name: str, value: object, fps: float, low: int) -> int:
                              f"({frames} frames at {fps:g} fps)")
         return frames
     _check_count(name, value, low)
-    return int(value)  # type: ignore[call-overload]
+    return int(cast(SupportsIndex, value))
 
 
 def _two_cluster_threshold(u: np.ndarray) -> float:
