@@ -32,7 +32,7 @@ MAX_CHANNELS = 1024          # more channels than any skeleton we know of (CMU: 
 MAX_MESSAGE_BYTES = 65_000   # one UDP datagram; also the ZeroMQ frame and WebSocket limit
 
 _SCHEMES = {"osc", "zmq+tcp", "zmq+ipc", "ws", "jsonl", "-"}
-_SCHEMES |= {"axis+tcp", "axis+udp", "vmc"}  # capture-system sources (issue 11)
+_SCHEMES |= {"axis+tcp", "axis+udp", "vmc"}  # capture-system sources
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ events out.
 Streams: `/streamkey/<stream>/frame` and `/streamkey/<stream>/skeleton` carry stream
 <stream> (same arguments); `/streamkey/frame` is the unnamed stream (`default`).
 
-Layouts in (DESIGN §7; friendly to Pd, SuperCollider, Max):
+Layouts in (friendly to Pd, SuperCollider, Max):
 
     /streamkey/frame     i seq, d time, f... channels      (seq may be i/h/f, time d/f,
                                                            channels any mix of f/d/i)
@@ -22,8 +22,8 @@ wall-clock arrival of the frame that decided them (`NUMERIC_LAYOUT` lists the me
     /streamkey/<stream>/status/<status>       i seq
     /streamkey/<stream>/signal/<name>         f value
 
-`compact` layout (`osc://host:port?layout=compact`, `run --osc-layout compact`; the layout
-before issue 12, one message per keyframe, no bundle, other events not sent):
+`compact` layout (`osc://host:port?layout=compact`, `run --osc-layout compact`; the earlier
+layout, one message per keyframe, no bundle, other events not sent):
 
     /streamkey/keyframe  s stream, s method, i frame, f time, f score, i latency_frames
 
@@ -32,7 +32,7 @@ character outside `A-Z a-z 0-9 _ -` (the OSC-reserved ` #*,/?[]{}`, dots, non-AS
 becomes `_`, an empty name `_`, and names are cut to 64 characters; so no name can add an
 address level or a pattern character, and TouchDesigner keeps the channel name as sent.
 
-The event time is `f` (float32), not DESIGN's `d`: Pd's `oscparse` (0.53) rejects `d` and
+The event time is `f` (float32), not `d` (double): Pd's `oscparse` (0.53) rejects `d` and
 garbles the rest of the message; `i frame` carries the exact frame. Receivers that want
 float64 ask for it with `osc://host:port?time=d`.
 

@@ -6,7 +6,7 @@ frame's work, one fan-out task wakes the senders `FANOUT_CHUNK` at a time, one c
 loop turn, so a frame arriving meanwhile waits for a chunk of sends, not for all of them.
 A client that falls more than the ring's length behind loses its oldest messages
 (counted), never slowing the engine or other clients (websockets' `broadcast()` has no
-backpressure, notes/ecosystem.md). Compression is off.
+backpressure). Compression is off.
 
 Who may connect (the same rules as the dashboard): the server binds to loopback unless
 `listen` says otherwise; on loopback only the host names 127.0.0.1, localhost and [::1] are

@@ -2,7 +2,7 @@
 
 Frames are multipart `[b"frame", JSON header, payload]`; the header is
 `{"seq": int, "time": float, "n": channels, "dtype": "<f4" | "<f8"}` and the payload the
-channel values (float32 by default, as DESIGN §7; "<f8" keeps BVH values bit-exact).
+channel values (float32 by default; "<f8" keeps BVH values bit-exact).
 The skeleton is `[b"skeleton", JSON {"bvh": header text, "fps": float}]`, re-sent every
 second by the replay so late subscribers get it. Events are `[b"event", JSON event]`.
 

@@ -1,8 +1,8 @@
 """The live dashboard: a local web page that shows the stream and takes the operator's notes.
 
-One port serves everything (notes/ecosystem.md §2f): plain HTTP for the page (`/`) and its
-static files (`/static/...`, shipped in the package: no build step, no CDN, works offline),
-and a WebSocket on `/ws` that pushes, as JSON text:
+One port serves everything (one origin: no CORS, one firewall rule): plain HTTP for the
+page (`/`) and its static files (`/static/...`, shipped in the package: no build step, no
+CDN, works offline), and a WebSocket on `/ws` that pushes, as JSON text:
 
 - `hello` once per connection: take name, methods and their colours, bones and their sides
   (left / right), fps, recent keyposes, the chart's keys of the last 20 s, annotations;

@@ -1,4 +1,4 @@
-"""Compiled inner loops of the speed method (`streamkey.jit` kernels; issue 13).
+"""Compiled inner loops of the speed method (`streamkey.jit` kernels).
 
 - `hp_advance` / `hp_tail`: every HP scale of an online analysis at once. The forward
   substitution (U'y = v with the factor of `signal.hp_factor`) runs over the stream since its
