@@ -12,6 +12,7 @@ from functools import cache
 from types import ModuleType
 
 import numpy as np
+import pytest
 from cmu import DATA
 
 from streamkey import variants as V
@@ -91,3 +92,11 @@ def e_ratio(method: str, mode: str, name: str, which: str) -> float:
         return error_e(clean, reconstruct(clean, rows))
 
     return e(keys(method, mode, name, which)) / e(keys(method, mode, name, "clean"))
+
+
+def case(which: str, mode: str, table: dict[tuple[str, str], str]) -> object:
+    """A (variant, mode) test case, a strict expected failure when `table` holds its
+    measured miss."""
+    reason = table.get((which, mode))
+    marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+    return pytest.param(which, mode, marks=marks, id=f"{which}-{mode}")

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 from cmu import clips
-from invariance import count_ratio, e_ratio, load, variant
+from invariance import case, count_ratio, e_ratio, load, variant
 
 from streamkey.errors import UsageError
 from streamkey.methods import simplify
@@ -38,12 +38,6 @@ XFAIL_ALL: dict[tuple[str, str], str] = {  # key counts within 0.86-1.20 everywh
 }
 
 
-def _case(which: str, mode: str, table: dict[tuple[str, str], str]) -> object:
-    reason = table.get((which, mode))
-    marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
-    return pytest.param(which, mode, marks=marks, id=f"{which}-{mode}")
-
-
 def check(names: list[str], which: str, mode: str) -> None:
     ratios = {n: count_ratio("simplify", mode, n, which) for n in names}
     errors = {n: e_ratio("simplify", mode, n, which) for n in names}
@@ -52,14 +46,14 @@ def check(names: list[str], which: str, mode: str) -> None:
     assert all(e <= MAX_E_RATIO for e in errors.values()), summary
 
 
-@pytest.mark.parametrize(("which", "mode"), [_case(w, m, XFAIL) for w in VARIANTS
+@pytest.mark.parametrize(("which", "mode"), [case(w, m, XFAIL) for w in VARIANTS
                                              for m in ("offline", "online")])
 def test_a_variant_keeps_the_clean_takes_key_count_and_error(which: str, mode: str) -> None:
     check(CLIPS, which, mode)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("which", "mode"), [_case(w, m, XFAIL_ALL) for w in VARIANTS
+@pytest.mark.parametrize(("which", "mode"), [case(w, m, XFAIL_ALL) for w in VARIANTS
                                              for m in ("offline", "online")])
 def test_a_variant_keeps_the_clean_takes_key_count_and_error_on_every_clip(which: str,
                                                                           mode: str) -> None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from cmu import clips
-from invariance import count_ratio, f1, keys, load, variant
+from invariance import case, count_ratio, f1, keys, load, variant
 
 from streamkey.errors import UsageError
 from streamkey.methods import speed
@@ -41,12 +41,6 @@ XFAIL_ALL: dict[tuple[str, str], str] = {
 }
 
 
-def _case(which: str, mode: str, table: dict[tuple[str, str], str]) -> object:
-    reason = table.get((which, mode))
-    marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
-    return pytest.param(which, mode, marks=marks, id=f"{which}-{mode}")
-
-
 def check(names: list[str], which: str, mode: str) -> None:
     scores = {n: f1("speed", mode, n, which) for n in names}
     ratios = {n: count_ratio("speed", mode, n, which) for n in names}
@@ -58,14 +52,14 @@ def check(names: list[str], which: str, mode: str) -> None:
     assert all(RATIOS[0] <= r <= RATIOS[1] for r in ratios.values()), summary
 
 
-@pytest.mark.parametrize(("which", "mode"), [_case(w, m, XFAIL) for w in VARIANTS
+@pytest.mark.parametrize(("which", "mode"), [case(w, m, XFAIL) for w in VARIANTS
                                              for m in ("offline", "online")])
 def test_keys_of_a_variant_are_the_clean_takes_keys(which: str, mode: str) -> None:
     check(CLIPS, which, mode)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("which", "mode"), [_case(w, m, XFAIL_ALL) for w in VARIANTS
+@pytest.mark.parametrize(("which", "mode"), [case(w, m, XFAIL_ALL) for w in VARIANTS
                                              for m in ("offline", "online")])
 def test_keys_of_a_variant_are_the_clean_takes_keys_on_every_clip(which: str, mode: str) -> None:
     check(clips(), which, mode)
