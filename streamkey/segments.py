@@ -165,63 +165,114 @@ def _speed_kernel(q: np.ndarray, ahead: np.ndarray, behind: np.ndarray, scale: n
         out[i] = math.sqrt(ss / n_joints) * scale[i]
 
 
+@kernel
+def _speed_one(q: np.ndarray, a: int, b: int, scale: float,
+               n_joints: int) -> float:  # pragma: no cover - compiled
+    ss = 0.0
+    for j in range(n_joints):
+        for c in range(3):
+            d = q[a, j, c] - q[b, j, c]
+            ss += d * d
+    return math.sqrt(ss / n_joints) * scale
+
+
 @warmer
 def warm_segments() -> None:
     """Compile (or load from the cache) the body-speed kernel."""
     q = np.zeros((2, _N_SPEED, 3))
     _speed_kernel(q, np.array([1], dtype=np.int64), np.array([0], dtype=np.int64),
                   np.ones(1), _N_SPEED, np.empty(1))
+    _speed_one(q, 1, 0, 1.0, _N_SPEED)
+    _pose_kernel(np.zeros((1, len(SEGMENT_ROLES), 3)), _POSE_ROWS, _POSE_LIMITS,
+                 np.zeros(1, dtype=np.int64))
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    out: np.ndarray = a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
-    return out
+_POSES = (None, "T", "A", "N")
+_POSE_LIMITS = np.array([ARM_BEND_MAX, KNEE_BEND_MAX, LEG_TILT_MAX, ARM_ASYMMETRY_MAX,
+                         ARM_SIDEWAYS_MAX, T_ELEVATION[0], T_ELEVATION[1], A_ELEVATION[0]])
+# point rows of the pose: neck, hips, then per side shoulder, elbow, wrist, hip, knee, ankle
+_POSE_ROWS = np.array([_R["neck"], _R["left_hip"], _R["right_hip"]]
+                      + [_R[f"{side}_{j}"] for side in ("left", "right")
+                         for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")],
+                      dtype=np.int64)
 
 
-def _unit(a: np.ndarray) -> np.ndarray:
-    out: np.ndarray = a / np.sqrt(_dot(a, a))[..., None]
-    return out
+@kernel
+def _angle_deg(ax: float, ay: float, az: float, bx: float, by: float,
+               bz: float) -> float:  # pragma: no cover - compiled
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    nb = math.sqrt(bx * bx + by * by + bz * bz)
+    if not na * nb > 0.0:  # a zero or NaN vector: no angle, fails every limit
+        return 180.0
+    c = (ax * bx + ay * by + az * bz) / (na * nb)
+    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 
-def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    out: np.ndarray = np.degrees(np.arccos(np.clip(_dot(_unit(a), _unit(b)), -1.0, 1.0)))
-    return out
+@kernel
+def _pose_kernel(p: np.ndarray, rows: np.ndarray, lim: np.ndarray,
+                 out: np.ndarray) -> None:  # pragma: no cover - compiled
+    for i in range(len(out)):
+        out[i] = 0
+        q = p[i]
+        neck, lh, rh = q[rows[0]], q[rows[1]], q[rows[2]]
+        ux = neck[0] - 0.5 * (lh[0] + rh[0])
+        uy = neck[1] - 0.5 * (lh[1] + rh[1])
+        uz = neck[2] - 0.5 * (lh[2] + rh[2])
+        nu = math.sqrt(ux * ux + uy * uy + uz * uz)
+        if not nu > 0.0:
+            continue
+        ux, uy, uz = ux / nu, uy / nu, uz / nu
+        ls, rs = q[rows[3]], q[rows[9]]
+        sx, sy, sz = ls[0] - rs[0], ls[1] - rs[1], ls[2] - rs[2]
+        d = sx * ux + sy * uy + sz * uz
+        sx, sy, sz = sx - d * ux, sy - d * uy, sz - d * uz
+        ok = True
+        sideways = True
+        elev = np.empty(2)
+        for k in range(2):
+            b = 3 + 6 * k
+            sign = 1.0 if k == 0 else -1.0
+            s, e, w = q[rows[b]], q[rows[b + 1]], q[rows[b + 2]]
+            h, kn, a = q[rows[b + 3]], q[rows[b + 4]], q[rows[b + 5]]
+            if _angle_deg(e[0] - s[0], e[1] - s[1], e[2] - s[2],
+                          w[0] - e[0], w[1] - e[1], w[2] - e[2]) > lim[0]:
+                ok = False
+            ax, ay, az = w[0] - s[0], w[1] - s[1], w[2] - s[2]
+            na = math.sqrt(ax * ax + ay * ay + az * az)
+            if not na > 0.0:
+                ok = False
+                break
+            ax, ay, az = ax / na, ay / na, az / na
+            d = ax * ux + ay * uy + az * uz
+            elev[k] = math.degrees(math.asin(min(1.0, max(-1.0, d))))
+            fx, fy, fz = ax - d * ux, ay - d * uy, az - d * uz
+            if not _angle_deg(fx, fy, fz, sign * sx, sign * sy, sign * sz) <= lim[4]:
+                sideways = False
+            if _angle_deg(kn[0] - h[0], kn[1] - h[1], kn[2] - h[2],
+                          a[0] - kn[0], a[1] - kn[1], a[2] - kn[2]) > lim[1]:
+                ok = False
+            if _angle_deg(kn[0] - h[0], kn[1] - h[1], kn[2] - h[2], -ux, -uy, -uz) > lim[2]:
+                ok = False
+            if _angle_deg(a[0] - kn[0], a[1] - kn[1], a[2] - kn[2], -ux, -uy, -uz) > lim[2]:
+                ok = False
+        if not ok or not abs(elev[0] - elev[1]) <= lim[3]:
+            continue
+        mean = 0.5 * (elev[0] + elev[1])
+        if sideways and lim[5] <= mean <= lim[6]:
+            out[i] = 1
+        elif sideways and lim[7] <= mean < lim[5]:
+            out[i] = 2
+        elif mean < lim[7]:
+            out[i] = 3
 
 
 def calibration_pose(points: np.ndarray) -> list[str | None]:
     """The calibration pose ("T", "A", "N") of each frame of `points` (n, `SEGMENT_ROLES`, 3),
-    or None: see the module docstring for the angles."""
-    p = np.asarray(points, dtype=np.float64).reshape(-1, len(SEGMENT_ROLES), 3)
-
-    def g(role: str) -> np.ndarray:
-        return p[:, _R[role]]
-
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mid_hip = 0.5 * (g("left_hip") + g("right_hip"))
-        up = _unit(g("neck") - mid_hip)
-        side = g("left_shoulder") - g("right_shoulder")
-        side = _unit(side - _dot(side, up)[:, None] * up)
-        ok = np.ones(len(p), dtype=bool)
-        elevations = []
-        sideways = []
-        for name, sign in (("left", 1.0), ("right", -1.0)):
-            s, e, w = g(f"{name}_shoulder"), g(f"{name}_elbow"), g(f"{name}_wrist")
-            arm = _unit(w - s)
-            ok &= _angle(e - s, w - e) <= ARM_BEND_MAX
-            elevations.append(np.degrees(np.arcsin(np.clip(_dot(arm, up), -1.0, 1.0))))
-            flat = arm - _dot(arm, up)[:, None] * up
-            sideways.append(_angle(flat, sign * side) <= ARM_SIDEWAYS_MAX)
-            h, k, a = g(f"{name}_hip"), g(f"{name}_knee"), g(f"{name}_ankle")
-            ok &= _angle(k - h, a - k) <= KNEE_BEND_MAX
-            ok &= (_angle(k - h, -up) <= LEG_TILT_MAX) & (_angle(a - k, -up) <= LEG_TILT_MAX)
-        el, er = elevations
-        ok &= np.abs(el - er) <= ARM_ASYMMETRY_MAX
-        mean = 0.5 * (el + er)
-        out_to_side = sideways[0] & sideways[1]
-        t = ok & out_to_side & (mean >= T_ELEVATION[0]) & (mean <= T_ELEVATION[1])
-        a_ = ok & out_to_side & (mean >= A_ELEVATION[0]) & (mean < A_ELEVATION[1])
-        n_ = ok & (mean < A_ELEVATION[0])
-    return ["T" if t[i] else "A" if a_[i] else "N" if n_[i] else None for i in range(len(p))]
+    or None: see the module docstring for the angles. NaN points have none."""
+    p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, len(SEGMENT_ROLES), 3)
+    codes = np.zeros(len(p), dtype=np.int64)
+    _pose_kernel(p, _POSE_ROWS, _POSE_LIMITS, codes)
+    return [_POSES[c] for c in codes]
 
 
 class SegmentDetector:
@@ -346,15 +397,22 @@ class SegmentDetector:
             return []
         if self._first_seq is None:
             self._first_seq = seqs[0]
-        self._q = np.concatenate([self._q, pts])
+        n, m = self._count - self._q_first, len(pts)
+        if n + m > len(self._q):  # grow the buffer (rows before `_q_first` are gone)
+            grown = np.empty((max(2 * len(self._q), n + m, 4 * self.half + 8),
+                              len(SEGMENT_ROLES), 3))
+            grown[:n] = self._q[:n]
+            self._q = grown
+        self._q[n:n + m] = pts
         self._seqs += seqs
         self._times += times
-        self._count += len(pts)
+        self._count += m
         return self._decide(self._count - 1 - self.half, final=False)
 
     def finish(self) -> list[SegmentEvent]:
         """Decide every pending frame (the window's last frame standing in for the frames
-        after it) and close the open segment; the state is not reset."""
+        after it), close the open segment, and start a new window (a pipeline's end of
+        window: after a long gap, a restart, the end of the stream)."""
         if self._count == 0:
             return []
         events = self._decide(self._count - 1, final=True)
@@ -368,9 +426,7 @@ class SegmentDetector:
         elif self._still:  # an unconfirmed run from the window's first frame: a take
             events.append(self._closed("take", self._run_start, self._run_time, seq, time,
                                        seq))
-        self._take_start = None
-        self._still = False
-        self._count = 0
+        self.reset()
         return events
 
     # --- decisions -------------------------------------------------------------------------
@@ -381,16 +437,21 @@ class SegmentDetector:
         if hi < lo:
             return []
         last = self._count - 1
-        idx = np.arange(lo, hi + 1, dtype=np.int64)
-        ahead = np.minimum(idx + self.half, last)
-        behind = np.maximum(idx - self.half, 0)
-        span = (ahead - behind).astype(np.float64)
-        scale = np.where(span > 0, self._speed_scale / np.maximum(span, 1.0), 0.0)
-        speeds = np.empty(len(idx))
-        _speed_kernel(self._q, ahead - self._q_first, behind - self._q_first, scale, _N_SPEED,
-                      speeds)
-        events: list[SegmentEvent] = []
         base = self._q_first
+        if lo == hi:  # one frame (a live stream): no index arrays
+            a, b = min(lo + self.half, last), max(lo - self.half, 0)
+            scale = self._speed_scale / (a - b) if a > b else 0.0
+            speeds = [_speed_one(self._q, a - base, b - base, scale, _N_SPEED)]
+        else:
+            idx = np.arange(lo, hi + 1, dtype=np.int64)
+            ahead = np.minimum(idx + self.half, last)
+            behind = np.maximum(idx - self.half, 0)
+            span = (ahead - behind).astype(np.float64)
+            scales = np.where(span > 0, self._speed_scale / np.maximum(span, 1.0), 0.0)
+            out = np.empty(len(idx))
+            _speed_kernel(self._q, ahead - base, behind - base, scales, _N_SPEED, out)
+            speeds = out.tolist()
+        events: list[SegmentEvent] = []
         decided_at = self._seqs[last - base]
         for k, i in enumerate(range(lo, hi + 1)):
             self._frame(i, i - base, float(speeds[k]), decided_at, events)
@@ -398,8 +459,9 @@ class SegmentDetector:
         # keep the rows the next frames' windows and poses read
         keep_from = max(0, self._next - self.half)
         drop = keep_from - self._q_first
-        if drop > 0 and not final:
-            self._q = self._q[drop:]
+        if not final and drop > 0 and 2 * drop >= len(self._q):  # compact now and then
+            n = self._count - self._q_first
+            self._q[:n - drop] = self._q[drop:n]
             del self._seqs[:drop]
             del self._times[:drop]
             self._q_first = keep_from
