@@ -15,7 +15,8 @@ segments are the same in seconds at any capture rate):
   `h = half_window` (0.2 s): a centred difference over 0.4 s. The window is what makes the
   speed robust to sensor noise: 0.3 degrees of Gaussian noise on every rotation channel of a
   perfectly still body reads at most 0.043 body heights/s on every shared CMU clip at 120
-  and 30 Hz (0.089 with h = 0.1 s, 0.058 with 0.15 s), while walking never drops below 0.25.
+  and 30 Hz (0.089 with h = 0.1 s, 0.058 with 0.15 s), while the 16 gait clips (walks,
+  runs, dribbles) never drop below 0.145.
   At the ends of a window of the stream the displacement is taken to the first / last frame
   (a shorter span); a stream of one frame has speed 0.
 - Still frames: a Schmitt trigger on the body speed: a frame becomes still when the speed is
