@@ -63,6 +63,7 @@ import numpy as np
 
 from .errors import UsageError
 from .jit import kernel, warm_up, warmer
+from .keyframes import SCHEMA_VERSION, Event
 from .motion import Frame, Motion, Skeleton
 from .roles import MIURA_ROLES
 from .units import Duration, DurationLike, whole_frames
@@ -110,13 +111,18 @@ class Segment:
         """Number of frames in the segment."""
         return self.end - self.start + 1
 
+    def to_dict(self) -> dict[str, Any]:
+        """The segment as a JSON object (for `extract` output)."""
+        return {"kind": self.kind, "start": self.start, "end": self.end,
+                "start_time": round(self.start_time, 6), "end_time": round(self.end_time, 6),
+                "pose": self.pose}
+
 
 @dataclass(frozen=True, slots=True)
-class SegmentEvent:
+class SegmentEvent(Event):
     """A segment decision made when frame `decided_at` arrived: `end` None for an open segment
     (its start and kind known, its end not yet), else the closed, final segment."""
 
-    stream: str
     kind: SegmentKind
     start: int
     end: int | None
@@ -146,7 +152,8 @@ class SegmentEvent:
 
     def to_dict(self) -> dict[str, Any]:
         """The event as a JSON object (`"type": "segment"`)."""
-        return {"type": "segment", "id": self.id, "stream": self.stream, "kind": self.kind,
+        return {"v": SCHEMA_VERSION, "type": "segment", "id": self.id, "stream": self.stream,
+                "kind": self.kind,
                 "start": self.start, "end": self.end, "start_time": round(self.start_time, 6),
                 "end_time": None if self.end_time is None else round(self.end_time, 6),
                 "decided_at": self.decided_at, "latency_frames": self.latency_frames,
