@@ -302,7 +302,8 @@ class SegmentDetector:
                  role_mapping: dict[str, str] | None = None,
                  still_speed: float = STILL_SPEED, motion_speed: float = MOTION_SPEED,
                  half_window: DurationLike = HALF_WINDOW, min_still: DurationLike = MIN_STILL,
-                 min_calibration: DurationLike = MIN_CALIBRATION) -> None:
+                 min_calibration: DurationLike = MIN_CALIBRATION,
+                 noise_cutoff_hz: float | None = None) -> None:
         from .kinematics import body_height
         from .roles import resolve_roles
 
@@ -324,6 +325,7 @@ class SegmentDetector:
         height = body_height(skeleton)
         self._speed_scale = self.fps / height if height > 0 else 0.0
         self._role_mapping = role_mapping
+        self._noise_cutoff_hz = noise_cutoff_hz  # of the own feature stage (`push`)
         self._stage: Any = None
         warm_up(warm_segments)
         self.reset()
@@ -390,7 +392,8 @@ class SegmentDetector:
         if self._stage is None:
             from .online import FeatureStage
 
-            self._stage = FeatureStage(self.skeleton, self.fps, self._role_mapping)
+            self._stage = FeatureStage(self.skeleton, self.fps, self._role_mapping,
+                                       self._noise_cutoff_hz)
         return self._stage
 
     def push_points(self, seq: Sequence[int] | np.ndarray, time: Sequence[float] | np.ndarray,
@@ -538,16 +541,17 @@ def segments_of(events: Iterable[SegmentEvent]) -> list[Segment]:
 
 
 def detect_segments(motion: Motion, *, role_mapping: dict[str, str] | None = None,
-                    **params: Any) -> list[Segment]:
+                    noise_cutoff_hz: float | None = None, **params: Any) -> list[Segment]:
     """The session segments of a whole motion (its captured frames, file numbering, times
-    frame / fps): the same segments as `SegmentDetector` fed every frame then flushed.
+    frame / fps): the same segments as `SegmentDetector` fed every frame then flushed, with
+    the same sensor-noise front end (`noise_cutoff_hz`, as `features.compute_features`).
     `params`: `SegmentDetector`'s thresholds and durations."""
     from .features import compute_features
 
     det = SegmentDetector(motion.skeleton, motion.fps, role_mapping=role_mapping, **params)
     if motion.n_frames <= motion.first_frame:
         return []
-    feats = compute_features(motion, role_mapping)
+    feats = compute_features(motion, role_mapping, noise_cutoff_hz)
     points = feats.pelvis_points(det.points)[motion.first_frame:]
     seq = np.arange(motion.first_frame, motion.n_frames)
     events = det.push_points(seq, seq / motion.fps, points)

@@ -255,3 +255,32 @@ def test_fuzz_random_nan_constant_inputs() -> None:
         SegmentDetector(skel, 120.0, still_speed=0.2, motion_speed=0.1)
     assert det.flush() == []
     assert detect_segments(Motion(skel, np.zeros((0, n_ch)), 120.0)) == []
+
+
+def test_online_equals_offline_behind_the_noise_filter() -> None:
+    """With the sensor-noise front end on (6 Hz), as a pipeline may run it."""
+    v = V.with_calibration(V.with_noise(load("49_18.amc"), 0.3).motion)
+    offline = detect_segments(v.motion, noise_cutoff_hz=6.0)
+    _check_calibration(v, offline)
+    det = SegmentDetector(v.motion.skeleton, v.motion.fps, noise_cutoff_hz=6.0)
+    events: list[SegmentEvent] = []
+    for f in v.motion.frames():
+        events += det.push(f)
+    assert segments_of(events + det.flush()) == offline
+
+
+def test_fuzz_garbage_in_random_blocks() -> None:
+    """Random, NaN and constant rows in random block sizes: same segments as one block."""
+    m = load("07_01.bvh")
+    rng = np.random.default_rng(11)
+    x = m.channels[1:].copy()
+    x[rng.integers(0, len(x), 20)] = np.nan
+    x[100:160] = x[100]
+    x[200:220] = rng.normal(0, 90, (20, x.shape[1]))
+    motion = Motion(m.skeleton, x, m.fps)
+    whole = segments_of(_online(motion, np.array([0, len(x)])))
+    cuts = np.unique(np.concatenate([[0, len(x)], rng.integers(0, len(x), 40)]))
+    assert segments_of(_online(motion, cuts)) == whole
+    det = SegmentDetector(m.skeleton, m.fps)
+    with pytest.raises(UsageError):
+        det.push_points([0, 1], [0.0], np.zeros((2, 18, 3)))
