@@ -235,7 +235,10 @@ def load_motion(path: str | os.PathLike[str], min_frames: int = 1,
 
 
 def results_json(results: list[FileResult]) -> str:
-    """The documented JSON output of `streamkey extract` (schema in the README)."""
+    """The documented JSON output of `streamkey extract` (schema in the README), with each
+    file's session segments (calibration holds, still stretches, takes)."""
+    from .segments import detect_segments
+
     files = []
     for r in results:
         entry: dict[str, Any] = {"file": str(r.path)}
@@ -245,7 +248,8 @@ def results_json(results: list[FileResult]) -> str:
             assert r.motion is not None
             entry.update(frames=r.motion.n_frames, fps=r.motion.fps,
                          first_frame=r.motion.first_frame,
-                         methods={m: k.to_dict() for m, k in r.results.items()})
+                         methods={m: k.to_dict() for m, k in r.results.items()},
+                         segments=[s.to_dict() for s in detect_segments(r.motion)])
         files.append(entry)
     return json.dumps({"schema": SCHEMA_VERSION, "files": files}, indent=1) + "\n"
 

@@ -4,6 +4,7 @@ their variants: offline, online frame by frame and in blocks, at 30/60/120 Hz, w
 from __future__ import annotations
 
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -284,3 +285,26 @@ def test_fuzz_garbage_in_random_blocks() -> None:
     det = SegmentDetector(m.skeleton, m.fps)
     with pytest.raises(UsageError):
         det.push_points([0, 1], [0.0], np.zeros((2, 18, 3)))
+
+
+def test_extract_writes_the_segments_of_a_take_recorded_after_a_calibration_hold(
+        tmp_path: Path) -> None:
+    """A BVH file of 07_01 after a 2 s T-pose hold and a 0.5 s blend: `extract`'s JSON names
+    the hold as a calibration segment, then the take, in the file's frame numbers."""
+    import json
+
+    from streamkey.bvh import write_bvh
+    from streamkey.cli import main
+
+    m = read_motion(DATA / "07_01.bvh")
+    variant = V.with_calibration(m)
+    path = tmp_path / "calibrated.bvh"
+    write_bvh(variant.motion, path)
+    out = tmp_path / "keys.json"
+    assert main(["extract", str(path), "--method", "speed", "-o", str(out)]) == 0
+    segments = json.loads(out.read_text())["files"][0]["segments"]
+    assert [s["kind"] for s in segments] == ["calibration", "take"]
+    hold, take = segments
+    assert hold["start"] == 0 and hold["pose"]
+    assert abs(hold["end_time"] - 2.0) <= 0.3 and take["start"] == hold["end"] + 1
+    assert take["end"] == variant.motion.n_frames - 1
