@@ -56,9 +56,10 @@ OPTION = {
 TOLERANCE = {"simplify": ("--simplify-tolerance", "0.05", 0.05),
              "optimal": ("--optimal-tolerance", "0.002", 0.002)}
 # Not command-line parameters: shared inputs, identity, wiring, a per-joint array, a callback
-# (`-v` sets isodata's verbose + log), and the gap bridging (`--max-bridge`, tested below).
+# (`-v` sets isodata's verbose + log), the gap bridging (`--max-bridge`, tested below) and the
+# noise front end every method shares (`--noise-cutoff`, tested in test_noise_filter.py).
 NOT_OPTIONS = {"motion", "features", "skeleton", "fps", "stream", "role_mapping", "weights",
-               "log", "verbose", "max_bridge_frames"}
+               "log", "verbose", "max_bridge_frames", "noise_cutoff_hz"}
 
 
 def _parameters(fn) -> list[str]:
@@ -103,6 +104,7 @@ def test_every_method_parameter_has_an_option_in_its_method_group(command):
                 params = _method_params(args, online=online or live)
                 assert params[method][name] == value, (command, method, name)
     assert "--max-bridge" in groups["every method"]
+    assert "--noise-cutoff" in groups["every method"]
 
 
 def test_tolerance_keeps_its_old_spelling_where_it_is_unambiguous(capsys):
