@@ -1,5 +1,6 @@
-"""Results and events: offline `Keyframes`, online `KeyframeEvent`, `GapEvent`, `StatusEvent`,
-and the playable extras (`ProvisionalEvent`, `CancelEvent`, `SignalEvent`; `streamkey.playable`).
+"""Results and events: offline `Keyframes` and session `Segment`s, online `KeyframeEvent`,
+`GapEvent`, `StatusEvent`, `SegmentEvent` (`streamkey.segments`), and the playable extras
+(`ProvisionalEvent`, `CancelEvent`, `SignalEvent`; `streamkey.playable`).
 
 Events are final once emitted and serialise to the versioned JSON schema documented in the
 README (`to_dict()`, `"v": 2`); every event is an `Event`. Every event has an idempotent `id`:
@@ -14,15 +15,19 @@ import hashlib
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from .errors import UsageError
+
 __all__ = ["Keyframes", "KeyframeEvent", "GapEvent", "StatusEvent", "ProvisionalEvent",
            "CancelEvent", "SignalEvent", "Event", "SCHEMA_VERSION", "params_digest",
-           "rank_strength", "rank_strengths", "STRENGTH_WINDOW"]
+           "rank_strength", "rank_strengths", "STRENGTH_WINDOW", "Segment", "SegmentEvent",
+           "SegmentKind"]
 
 SCHEMA_VERSION = 2
+SegmentKind = Literal["calibration", "still", "take"]
 STRENGTH_WINDOW = 64  # keys: a key's strength is its score's rank among this many recent keys
 
 
@@ -114,11 +119,12 @@ def params_digest(params: dict[str, Any]) -> str:
     return hashlib.sha1(text.encode()).hexdigest()[:10]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class Event:
     """What the online keyframers and the engine emit, every kind of it about stream `stream`.
 
-    Subclasses are frozen: an event is final once emitted. Each has an idempotent `id` and
+    Subclasses are frozen and keyword-only (`KeyframeEvent(stream=..., method=..., ...)`): an
+    event is final once emitted. Each has an idempotent `id` and
     its documented JSON object (`to_dict()`); sinks dispatch on the subclass (`match`), and
     `streamkey.adapters.codec` encodes any of them to JSON text and OSC messages.
     """
@@ -135,7 +141,7 @@ class Event:
         raise NotImplementedError
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class KeyframeEvent(Event):
     """A final keyframe decision: frame `frame` decided when frame `decided_at` arrived.
 
@@ -173,7 +179,7 @@ class KeyframeEvent(Event):
                 "params": self.params, "confirms": self.confirms}
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class ProvisionalEvent(Event):
     """A likely key at `frame`, announced when frame `seen_at` arrived, before the final
     decision; exactly one `KeyframeEvent` (confirms=pid) or `CancelEvent` (pid) follows."""
@@ -198,7 +204,7 @@ class ProvisionalEvent(Event):
                 "seen_at": self.seen_at, "pid": self.pid}
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class CancelEvent(Event):
     """The provisional `pid` (at `frame`) did not become a key; decided at `decided_at`."""
 
@@ -219,7 +225,7 @@ class CancelEvent(Event):
                 "decided_at": self.decided_at}
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class SignalEvent(Event):
     """Continuous per-stream values at frame `seq` (opt-in): body speed, each method's
     running keyness (`streamkey.playable`)."""
@@ -240,7 +246,7 @@ class SignalEvent(Event):
                 "values": {k: round(float(v), 6) for k, v in self.values.items()}}
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class GapEvent(Event):
     """Frames `first`..`last` (inclusive) never arrived; `bridged` if interpolated over."""
 
@@ -262,7 +268,7 @@ class GapEvent(Event):
                 "bridged": self.bridged}
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class StatusEvent(Event):
     """Free-form status (warm-up done, restart, counters) for logs and dashboards."""
 
@@ -282,3 +288,68 @@ class StatusEvent(Event):
         return {"v": SCHEMA_VERSION, "type": "status", "id": self.id, "stream": self.stream,
                 "method": self.method, "status": self.status, "detail": _jsonable(self.detail)}
 
+
+@dataclass(frozen=True, slots=True)
+class Segment:
+    """Frames `start`..`end` (inclusive, the stream's frame numbers) of one kind; `pose` is the
+    calibration pose ("T", "A", "N") of a calibration hold, else None."""
+
+    kind: SegmentKind
+    start: int
+    end: int
+    start_time: float
+    end_time: float
+    pose: str | None = None
+
+    @property
+    def frames(self) -> int:
+        """Number of frames in the segment."""
+        return self.end - self.start + 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """The segment as a JSON object (for `extract` output)."""
+        return {"kind": self.kind, "start": self.start, "end": self.end,
+                "start_time": round(self.start_time, 6), "end_time": round(self.end_time, 6),
+                "pose": self.pose}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SegmentEvent(Event):
+    """A segment decision made when frame `decided_at` arrived: `end` None for an open segment
+    (its start and kind known, its end not yet), else the closed, final segment."""
+
+    kind: SegmentKind
+    start: int
+    end: int | None
+    start_time: float
+    end_time: float | None
+    decided_at: int
+    pose: str | None = None
+
+    @property
+    def latency_frames(self) -> int:
+        """Frames between the decided boundary (the end, or the start of an open segment) and
+        the frame that decided it."""
+        return self.decided_at - (self.start if self.end is None else self.end)
+
+    @property
+    def id(self) -> str:
+        """Idempotent id: stream/segment/kind/start/open|end."""
+        tail = "open" if self.end is None else str(self.end)
+        return f"{self.stream}/segment/{self.kind}/{self.start}/{tail}"
+
+    def segment(self) -> Segment:
+        """The closed segment (a `UsageError` for an open one)."""
+        if self.end is None or self.end_time is None:
+            raise UsageError("an open segment event has no end yet")
+        return Segment(self.kind, self.start, self.end, self.start_time, self.end_time,
+                       self.pose)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The event as a JSON object (`"type": "segment"`)."""
+        return {"v": SCHEMA_VERSION, "type": "segment", "id": self.id, "stream": self.stream,
+                "kind": self.kind,
+                "start": self.start, "end": self.end, "start_time": round(self.start_time, 6),
+                "end_time": None if self.end_time is None else round(self.end_time, 6),
+                "decided_at": self.decided_at, "latency_frames": self.latency_frames,
+                "pose": self.pose}

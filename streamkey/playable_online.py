@@ -203,7 +203,8 @@ class Playable(OnlineKeyframer):
         pid, self.next_pid = self.next_pid, self.next_pid + 1
         frame, time, strength = int(frame), float(time), float(strength)
         self.open[pid] = [frame, time, strength]
-        return ProvisionalEvent(self.stream, self.method, frame, time, strength, int(t), pid)
+        return ProvisionalEvent(stream=self.stream, method=self.method, frame=frame, time=time,
+                                strength=strength, seen_at=int(t), pid=pid)
 
     def _track(self, events: list[Event], t: int, final: int, announce: bool = True
                ) -> list[Event]:
@@ -231,7 +232,8 @@ class Playable(OnlineKeyframer):
             else:
                 self.open[pid][0:2] = [int(frame), float(time)]
         for pid in [p for p, v in self.open.items() if v[0] + self.radius <= final]:
-            out.append(CancelEvent(self.stream, self.method, self.open.pop(pid)[0], pid, t))
+            out.append(CancelEvent(stream=self.stream, method=self.method,
+                                   frame=self.open.pop(pid)[0], pid=pid, decided_at=t))
         return out
 
     def _keyness(self, final: int) -> float:
@@ -259,7 +261,7 @@ class Playable(OnlineKeyframer):
         if t % self.signal_every:
             return []
         values["body_speed"] = self.speed
-        return [SignalEvent(self.stream, t, float(block.time[i]), values)]
+        return [SignalEvent(stream=self.stream, seq=t, time=float(block.time[i]), values=values)]
 
     def process(self, block: FeatureBlock) -> list[Event]:  # type: ignore[override]
         """The inner keyframer frame by frame (its deferred work between frames), tracking
@@ -287,7 +289,8 @@ class Playable(OnlineKeyframer):
         """End of stream or window: the inner rest; every open provisional resolved."""
         out = self._track(list(self.inner.finish()), self.t, self.t - self.lookahead, False)
         for pid, p in sorted(self.open.items()):
-            out.append(CancelEvent(self.stream, self.method, p[0], pid, self.t))
+            out.append(CancelEvent(stream=self.stream, method=self.method, frame=p[0], pid=pid,
+                                   decided_at=self.t))
         self.open.clear()
         return out
 

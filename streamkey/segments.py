@@ -59,22 +59,20 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
 from .errors import UsageError
 from .jit import kernel, warm_up, warmer
-from .keyframes import SCHEMA_VERSION, Event
+from .keyframes import Segment, SegmentEvent, SegmentKind
 from .motion import Frame, Motion, Skeleton
 from .roles import MIURA_ROLES
 from .units import Duration, DurationLike, whole_frames
 
-__all__ = ["Segment", "SegmentEvent", "SegmentDetector", "SegmentKind", "detect_segments",
-           "motion_mask", "calibration_pose", "SEGMENT_ROLES", "STILL_SPEED", "MOTION_SPEED",
-           "HALF_WINDOW", "MIN_STILL", "MIN_CALIBRATION"]
-
-SegmentKind = Literal["calibration", "still", "take"]
+__all__ = ["Segment", "SegmentEvent", "SegmentDetector", "SegmentLimits", "SegmentKind",
+           "detect_segments", "motion_mask", "calibration_pose", "SEGMENT_ROLES", "STILL_SPEED",
+           "MOTION_SPEED", "HALF_WINDOW", "MIN_STILL", "MIN_CALIBRATION"]
 
 STILL_SPEED = 0.07  # body heights/s: below it a frame becomes still
 MOTION_SPEED = 0.10  # body heights/s: above it a still frame moves again
@@ -94,72 +92,6 @@ ARM_ASYMMETRY_MAX = 15.0  # degrees between the two arms' elevations
 ARM_SIDEWAYS_MAX = 45.0  # degrees between an arm (T, A) and the shoulder line
 T_ELEVATION = (-20.0, 25.0)
 A_ELEVATION = (-65.0, -20.0)
-
-
-@dataclass(frozen=True, slots=True)
-class Segment:
-    """Frames `start`..`end` (inclusive, the stream's frame numbers) of one kind; `pose` is the
-    calibration pose ("T", "A", "N") of a calibration hold, else None."""
-
-    kind: SegmentKind
-    start: int
-    end: int
-    start_time: float
-    end_time: float
-    pose: str | None = None
-
-    @property
-    def frames(self) -> int:
-        """Number of frames in the segment."""
-        return self.end - self.start + 1
-
-    def to_dict(self) -> dict[str, Any]:
-        """The segment as a JSON object (for `extract` output)."""
-        return {"kind": self.kind, "start": self.start, "end": self.end,
-                "start_time": round(self.start_time, 6), "end_time": round(self.end_time, 6),
-                "pose": self.pose}
-
-
-@dataclass(frozen=True, slots=True)
-class SegmentEvent(Event):
-    """A segment decision made when frame `decided_at` arrived: `end` None for an open segment
-    (its start and kind known, its end not yet), else the closed, final segment."""
-
-    kind: SegmentKind
-    start: int
-    end: int | None
-    start_time: float
-    end_time: float | None
-    decided_at: int
-    pose: str | None = None
-
-    @property
-    def latency_frames(self) -> int:
-        """Frames between the decided boundary (the end, or the start of an open segment) and
-        the frame that decided it."""
-        return self.decided_at - (self.start if self.end is None else self.end)
-
-    @property
-    def id(self) -> str:
-        """Idempotent id: stream/segment/kind/start/open|end."""
-        tail = "open" if self.end is None else str(self.end)
-        return f"{self.stream}/segment/{self.kind}/{self.start}/{tail}"
-
-    def segment(self) -> Segment:
-        """The closed segment (a `UsageError` for an open one)."""
-        if self.end is None or self.end_time is None:
-            raise UsageError("an open segment event has no end yet")
-        return Segment(self.kind, self.start, self.end, self.start_time, self.end_time,
-                       self.pose)
-
-    def to_dict(self) -> dict[str, Any]:
-        """The event as a JSON object (`"type": "segment"`)."""
-        return {"v": SCHEMA_VERSION, "type": "segment", "id": self.id, "stream": self.stream,
-                "kind": self.kind,
-                "start": self.start, "end": self.end, "start_time": round(self.start_time, 6),
-                "end_time": None if self.end_time is None else round(self.end_time, 6),
-                "decided_at": self.decided_at, "latency_frames": self.latency_frames,
-                "pose": self.pose}
 
 
 @kernel
@@ -285,6 +217,69 @@ def calibration_pose(points: np.ndarray) -> list[str | None]:
     return [_POSES[c] for c in codes]
 
 
+@dataclass(frozen=True, slots=True)
+class SegmentLimits:
+    """A detector's thresholds, its durations in whole frames at the stream's rate."""
+
+    still_speed: float  # body heights/s: below it a frame becomes still
+    motion_speed: float  # body heights/s: above it a still frame moves again
+    half: int  # frames: half the body-speed window
+    min_still: int  # frames: the shortest still stretch
+    min_calibration: int  # frames: the shortest calibration hold
+
+
+class _PointWindow:
+    """The recent frames' points, seqs and times (rows from stream index `first`), and how far
+    the stream has come in and been decided."""
+
+    def __init__(self) -> None:
+        self.q = np.empty((0, len(SEGMENT_ROLES), 3))  # points, rows from `first`
+        self.first = 0  # stream index of `q[0]`
+        self.seqs: list[int] = []  # seq of each row
+        self.times: list[float] = []  # time of each row
+        self.count = 0  # frames in so far
+        self.next = 0  # stream index of the next frame to decide
+
+    def append(self, seqs: list[int], times: list[float], pts: np.ndarray,
+               min_rows: int) -> None:
+        """Add consecutive frames (the buffer grows by doubling, at least to `min_rows`)."""
+        n, m = self.count - self.first, len(pts)
+        if n + m > len(self.q):  # grow the buffer (rows before `first` are gone)
+            grown = np.empty((max(2 * len(self.q), n + m, min_rows), len(SEGMENT_ROLES), 3))
+            grown[:n] = self.q[:n]
+            self.q = grown
+        self.q[n:n + m] = pts
+        self.seqs += seqs
+        self.times += times
+        self.count += m
+
+    def forget_before(self, keep_from: int) -> None:
+        """Drop the rows before stream index `keep_from`, now and then (when at least half
+        the buffer can go), so compaction costs O(1) a frame."""
+        drop = keep_from - self.first
+        if drop > 0 and 2 * drop >= len(self.q):
+            n = self.count - self.first
+            self.q[:n - drop] = self.q[drop:n]
+            del self.seqs[:drop]
+            del self.times[:drop]
+            self.first = keep_from
+
+
+@dataclass
+class _StillRun:
+    """The current run of still frames (the last one, while the body moves)."""
+
+    still: bool = False  # the last decided frame is still
+    start: int = 0  # seq of the run's first frame
+    start_time: float = 0.0  # its time
+    length: int = 0  # frames in the run
+    pose_length: int = 0  # the run's first frames, all in calibration pose `pose`
+    pose: str | None = None  # that pose ("T", "A", "N"), None before one is seen
+    confirmed: bool = False  # at least `min_still` frames: a still stretch
+    kind: SegmentKind = "still"  # "calibration" once the pose has held `min_calibration`
+    before: tuple[int, float] = (0, 0.0)  # seq and time of the frame before: a take's last
+
+
 class SegmentDetector:
     """Online (sans-I/O) session segments of one stream: feed frames, get `SegmentEvent`s.
 
@@ -312,48 +307,56 @@ class SegmentDetector:
         if not (0 < still_speed <= motion_speed and math.isfinite(motion_speed)):
             raise UsageError("expected 0 < still_speed <= motion_speed (body heights/s), got "
                              f"{still_speed} and {motion_speed}")
-        self.skeleton = skeleton
-        self.fps = float(fps)
-        self.stream = stream
-        self.still_speed = float(still_speed)
-        self.motion_speed = float(motion_speed)
-        self.half = whole_frames(half_window, fps, 1)
-        self.min_still = whole_frames(min_still, fps, 1)
-        self.min_calibration = whole_frames(min_calibration, fps, 1)
-        self.roles = resolve_roles(skeleton, role_mapping, SEGMENT_ROLES)
-        self.points = [self.roles[r] for r in SEGMENT_ROLES]
+        self.skeleton = skeleton  # the stream's skeleton (its own feature stage's)
+        self.fps = float(fps)  # the stream's rate
+        self.stream = stream  # the stream id its events carry
+        self.limits = SegmentLimits(float(still_speed), float(motion_speed),
+                                    whole_frames(half_window, fps, 1),
+                                    whole_frames(min_still, fps, 1),
+                                    whole_frames(min_calibration, fps, 1))
+        self.roles = resolve_roles(skeleton, role_mapping, SEGMENT_ROLES)  # role -> joint
+        self.points = [self.roles[r] for r in SEGMENT_ROLES]  # FK points read, in role order
         height = body_height(skeleton)
-        self._speed_scale = self.fps / height if height > 0 else 0.0
-        self._role_mapping = role_mapping
+        self._speed_scale = self.fps / height if height > 0 else 0.0  # to body heights/s
+        self._role_mapping = role_mapping  # of the own feature stage (`push`)
         self._noise_cutoff_hz = noise_cutoff_hz  # of the own feature stage (`push`)
-        self._stage: Any = None
+        self._stage: Any = None  # the own feature stage, made on the first `push`
         warm_up(warm_segments)
         self.reset()
+
+    @property
+    def half(self) -> int:
+        """Frames: half the body-speed window."""
+        return self.limits.half
+
+    @property
+    def min_still(self) -> int:
+        """Frames: the shortest still stretch."""
+        return self.limits.min_still
+
+    @property
+    def min_calibration(self) -> int:
+        """Frames: the shortest calibration hold."""
+        return self.limits.min_calibration
+
+    @property
+    def still_speed(self) -> float:
+        """Body heights/s: below it a frame becomes still."""
+        return self.limits.still_speed
+
+    @property
+    def motion_speed(self) -> float:
+        """Body heights/s: above it a still frame moves again."""
+        return self.limits.motion_speed
 
     # --- state -----------------------------------------------------------------------------
 
     def reset(self) -> None:
         """Forget the stream (a new window starts); parameters are kept."""
-        self._q = np.empty((0, len(SEGMENT_ROLES), 3))  # recent points, rows from `_q_first`
-        self._q_first = 0  # stream index of `_q[0]`
-        self._seqs: list[int] = []  # seq and time of frames whose speed is not known yet,
-        self._times: list[float] = []  # and of the recent ones (same rows as `_q`)
-        self._count = 0  # frames in so far
-        self._next = 0  # stream index of the next frame to decide
-        self._first_seq: int | None = None
-        self._still = False
-        self._run_start = 0
-        self._run_time = 0.0
-        self._run_len = 0
-        self._pose_len = 0
-        self._pose: str | None = None
-        self._confirmed = False
-        self._kind: SegmentKind = "still"
-        self._take_start: int | None = None
-        self._take_time = 0.0
-        self._before = (0, 0.0)
-        self._last_seq = 0
-        self._last_time = 0.0
+        self._window = _PointWindow()  # recent frames, the stream's progress
+        self._run = _StillRun()  # the current still run
+        self._take: tuple[int, float] | None = None  # seq and time of the open take's start
+        self._last = (0, 0.0)  # seq and time of the last decided frame
 
     # --- ways in ---------------------------------------------------------------------------
 
@@ -408,131 +411,109 @@ class SegmentDetector:
                              f"{len(times)} and {len(pts)}")
         if not len(pts):
             return []
-        if self._first_seq is None:
-            self._first_seq = seqs[0]
-        n, m = self._count - self._q_first, len(pts)
-        if n + m > len(self._q):  # grow the buffer (rows before `_q_first` are gone)
-            grown = np.empty((max(2 * len(self._q), n + m, 4 * self.half + 8),
-                              len(SEGMENT_ROLES), 3))
-            grown[:n] = self._q[:n]
-            self._q = grown
-        self._q[n:n + m] = pts
-        self._seqs += seqs
-        self._times += times
-        self._count += m
-        return self._decide(self._count - 1 - self.half, final=False)
+        w = self._window
+        w.append(seqs, times, pts, 4 * self.limits.half + 8)
+        return self._decide(w.count - 1 - self.limits.half, final=False)
 
     def finish(self) -> list[SegmentEvent]:
         """Decide every pending frame (the window's last frame standing in for the frames
         after it), close the open segment, and start a new window (a pipeline's end of
         window: after a long gap, a restart, the end of the stream)."""
-        if self._count == 0:
+        if self._window.count == 0:
             return []
-        events = self._decide(self._count - 1, final=True)
-        seq, time = self._last_seq, self._last_time
-        if self._still and self._confirmed:
-            events.append(self._closed(self._kind, self._run_start, self._run_time, seq, time,
-                                       seq, self._pose))
-        elif self._take_start is not None:
-            events.append(self._closed("take", self._take_start, self._take_time, seq, time,
-                                       seq))
-        elif self._still:  # an unconfirmed run from the window's first frame: a take
-            events.append(self._closed("take", self._run_start, self._run_time, seq, time,
-                                       seq))
+        events = self._decide(self._window.count - 1, final=True)
+        seq, time = self._last
+        run = self._run
+        if run.still and run.confirmed:
+            events.append(self._closed(run.kind, run.start, run.start_time, seq, time, seq,
+                                       run.pose))
+        elif self._take is not None:
+            events.append(self._closed("take", *self._take, seq, time, seq))
+        elif run.still:  # an unconfirmed run from the window's first frame: a take
+            events.append(self._closed("take", run.start, run.start_time, seq, time, seq))
         self.reset()
         return events
 
     # --- decisions -------------------------------------------------------------------------
 
     def _decide(self, upto: int, final: bool) -> list[SegmentEvent]:
-        """Decide frames `_next`..`upto` (stream indices) now that their speed is known."""
-        lo, hi = self._next, upto
+        """Decide frames `next`..`upto` (stream indices) now that their speed is known."""
+        w, half = self._window, self.limits.half
+        lo, hi = w.next, upto
         if hi < lo:
             return []
-        last = self._count - 1
-        base = self._q_first
+        last = w.count - 1
+        base = w.first
         if lo == hi:  # one frame (a live stream): no index arrays
-            a, b = min(lo + self.half, last), max(lo - self.half, 0)
+            a, b = min(lo + half, last), max(lo - half, 0)
             scale = self._speed_scale / (a - b) if a > b else 0.0
-            speeds = [_speed_one(self._q, a - base, b - base, scale, _N_SPEED)]
+            speeds = [_speed_one(w.q, a - base, b - base, scale, _N_SPEED)]
         else:
             idx = np.arange(lo, hi + 1, dtype=np.int64)
-            ahead = np.minimum(idx + self.half, last)
-            behind = np.maximum(idx - self.half, 0)
+            ahead = np.minimum(idx + half, last)
+            behind = np.maximum(idx - half, 0)
             span = (ahead - behind).astype(np.float64)
             scales = np.where(span > 0, self._speed_scale / np.maximum(span, 1.0), 0.0)
             out = np.empty(len(idx))
-            _speed_kernel(self._q, ahead - base, behind - base, scales, _N_SPEED, out)
+            _speed_kernel(w.q, ahead - base, behind - base, scales, _N_SPEED, out)
             speeds = out.tolist()
         events: list[SegmentEvent] = []
-        decided_at = self._seqs[last - base]
+        decided_at = w.seqs[last - base]
         for k, i in enumerate(range(lo, hi + 1)):
-            self._frame(i, i - base, float(speeds[k]), decided_at, events)
-        self._next = hi + 1
-        # keep the rows the next frames' windows and poses read
-        keep_from = max(0, self._next - self.half)
-        drop = keep_from - self._q_first
-        if not final and drop > 0 and 2 * drop >= len(self._q):  # compact now and then
-            n = self._count - self._q_first
-            self._q[:n - drop] = self._q[drop:n]
-            del self._seqs[:drop]
-            del self._times[:drop]
-            self._q_first = keep_from
+            self._frame(i - base, float(speeds[k]), decided_at, events)
+        w.next = hi + 1
+        if not final:  # keep the rows the next frames' windows and poses read
+            w.forget_before(max(0, w.next - half))
         return events
 
-    def _frame(self, i: int, row: int, speed: float, decided_at: int,
+    def _frame(self, row: int, speed: float, decided_at: int,
                events: list[SegmentEvent]) -> None:
         """One frame through the state machine (its speed known)."""
-        seq, time = self._seqs[row], self._times[row]
-        still = speed <= self.motion_speed if self._still else speed < self.still_speed
+        w, run, lim = self._window, self._run, self.limits
+        seq, time = w.seqs[row], w.times[row]
+        still = speed <= lim.motion_speed if run.still else speed < lim.still_speed
         if still:
-            if not self._still:
-                self._run_start, self._run_time = seq, time
-                self._before = (self._last_seq, self._last_time)  # a take's last frame
-                self._run_len = self._pose_len = 0
-                self._pose = None
-                self._confirmed = False
-                self._kind = "still"
-            self._run_len += 1
-            if self._pose_len == self._run_len - 1 and self._pose_len < self.min_calibration:
-                pose = calibration_pose(self._q[row])[0]
-                if pose is not None and self._pose in (None, pose):
-                    self._pose_len += 1
-                    self._pose = pose
-            if not self._confirmed and self._run_len >= self.min_still:
-                self._confirmed = True
-                if self._take_start is not None:
-                    events.append(self._closed("take", self._take_start, self._take_time,
-                                               *self._before, decided_at))
-                    self._take_start = None
-                events.append(SegmentEvent(self.stream, "still", self._run_start, None,
-                                           self._run_time, None, decided_at))
-            if (self._confirmed and self._kind == "still"
-                    and self._pose_len >= self.min_calibration):
-                self._kind = "calibration"
-                events.append(SegmentEvent(self.stream, "calibration", self._run_start, None,
-                                           self._run_time, None, decided_at, self._pose))
+            if not run.still:
+                self._run = run = _StillRun(start=seq, start_time=time, before=self._last)
+            run.length += 1
+            if run.pose_length == run.length - 1 and run.pose_length < lim.min_calibration:
+                pose = calibration_pose(w.q[row])[0]
+                if pose is not None and run.pose in (None, pose):
+                    run.pose_length += 1
+                    run.pose = pose
+            if not run.confirmed and run.length >= lim.min_still:
+                run.confirmed = True
+                if self._take is not None:
+                    events.append(self._closed("take", *self._take, *run.before, decided_at))
+                    self._take = None
+                events.append(self._opened("still", run.start, run.start_time, decided_at))
+            if run.confirmed and run.kind == "still" and run.pose_length >= lim.min_calibration:
+                run.kind = "calibration"
+                events.append(self._opened("calibration", run.start, run.start_time,
+                                           decided_at, run.pose))
         else:
-            if self._still and self._confirmed:
-                events.append(self._closed(self._kind, self._run_start, self._run_time,
-                                           self._last_seq, self._last_time, decided_at,
-                                           self._pose if self._kind == "calibration" else None))
-                self._take_start, self._take_time = seq, time
-                events.append(SegmentEvent(self.stream, "take", seq, None, time, None,
-                                           decided_at))
-            elif self._take_start is None:  # the window's first frames: a take from there
-                start, start_time = (self._run_start, self._run_time) if self._still else (
-                    seq, time)
-                self._take_start, self._take_time = start, start_time
-                events.append(SegmentEvent(self.stream, "take", start, None, start_time, None,
-                                           decided_at))
-        self._still = still
-        self._last_seq, self._last_time = seq, time
+            if run.still and run.confirmed:
+                events.append(self._closed(run.kind, run.start, run.start_time, *self._last,
+                                           decided_at, run.pose))
+                self._take = (seq, time)
+                events.append(self._opened("take", seq, time, decided_at))
+            elif self._take is None:  # the window's first frames: a take from there
+                self._take = (run.start, run.start_time) if run.still else (seq, time)
+                events.append(self._opened("take", *self._take, decided_at))
+        run.still = still
+        self._last = (seq, time)
+
+    def _opened(self, kind: SegmentKind, start: int, start_time: float, decided_at: int,
+                pose: str | None = None) -> SegmentEvent:
+        return SegmentEvent(stream=self.stream, kind=kind, start=start, end=None,
+                            start_time=start_time, end_time=None, decided_at=decided_at,
+                            pose=pose)
 
     def _closed(self, kind: SegmentKind, start: int, start_time: float, end: int,
                 end_time: float, decided_at: int, pose: str | None = None) -> SegmentEvent:
-        return SegmentEvent(self.stream, kind, start, end, start_time, end_time, decided_at,
-                            pose if kind == "calibration" else None)
+        return SegmentEvent(stream=self.stream, kind=kind, start=start, end=end,
+                            start_time=start_time, end_time=end_time, decided_at=decided_at,
+                            pose=pose if kind == "calibration" else None)
 
 
 def segments_of(events: Iterable[SegmentEvent]) -> list[Segment]:

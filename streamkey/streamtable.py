@@ -205,8 +205,8 @@ class StreamTable:
             kf.reset()
         pipeline.guard.reset()
         pipeline.features.reset()
-        return [StatusEvent(state.name, "*", "error",
-                            {"error": f"{type(exc).__name__}: {exc}", "seq": seq})]
+        return [StatusEvent(stream=state.name, method="*", status="error",
+                            detail={"error": f"{type(exc).__name__}: {exc}", "seq": seq})]
 
     # ------------------------------------------------------------------ snapshots
 

@@ -17,7 +17,8 @@ from cmu import ROOT
 import streamkey
 
 CORE = ["streamkey/signal.py", "streamkey/kinematics.py", "streamkey/features.py",
-        "streamkey/online.py", "streamkey/motion.py", "streamkey/keyframes.py",
+        "streamkey/online.py", "streamkey/featurestage.py", "streamkey/segments.py",
+        "streamkey/motion.py", "streamkey/keyframes.py",
         "streamkey/playable.py", "streamkey/playable_online.py",
         "streamkey/snapshot.py",
         *[str(p.relative_to(ROOT)) for p in (ROOT / "streamkey" / "methods").glob("*.py")]]

@@ -57,10 +57,12 @@ def test_typed_events_encode_as_their_json_records_do() -> None:
 
 def test_osc_carries_the_numbers_of_the_json_object() -> None:
     """Times and strengths are rounded to 6 decimals as in the JSON, then sent as float32."""
-    event = KeyframeEvent("s", "speed", 42, 1 / 3, 1.5, 162, 120, "p", strength=2 / 3)
+    event = KeyframeEvent(stream="s", method="speed", frame=42, time=1 / 3, score=1.5,
+                          decided_at=162, lookahead=120, params="p", strength=2 / 3)
     (message,) = osc_messages(event, "d")
     args = OscMessage(message).params
     assert args[:3] == [42, round(1 / 3, 6), float(np.float32(round(2 / 3, 6)))]
-    gap, status = GapEvent("s", "*", 5, 9, True), StatusEvent("s", "*", "error", {"seq": 3})
+    gap, status = (GapEvent(stream="s", method="*", first=5, last=9, bridged=True),
+                   StatusEvent(stream="s", method="*", status="error", detail={"seq": 3}))
     assert OscMessage(osc_messages(gap)[0]).params == [5, 9, 1]
     assert OscMessage(osc_messages(status)[0]).address == "/streamkey/s/status/error"

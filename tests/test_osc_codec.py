@@ -129,7 +129,8 @@ def type_tags(message: bytes) -> str:
     return message[start + 1 : message.index(b"\0", start)].decode()
 
 
-KEY = KeyframeEvent("take 1", "speed", 42, 0.35, 1.5, 162, 120, "abcdef0123")
+KEY = KeyframeEvent(stream="take 1", method="speed", frame=42, time=0.35, score=1.5,
+                    decided_at=162, lookahead=120, params="abcdef0123")
 
 
 def test_numeric_layout_addresses_and_type_tags_are_the_documented_ones():
@@ -141,10 +142,12 @@ def test_numeric_layout_addresses_and_type_tags_are_the_documented_ones():
     assert abs(msg.params[1] - 0.35) < 1e-7
     assert 0.0 <= msg.params[2] <= 1.0
     assert OscMessage(event_messages(KEY, "d")[0]).params[1] == 0.35
-    (gap,) = event_messages(GapEvent("take 1", "*", 200, 229, False))
+    (gap,) = event_messages(GapEvent(stream="take 1", method="*", first=200, last=229,
+                                          bridged=False))
     assert (OscMessage(gap).address, OscMessage(gap).params) == ("/streamkey/take_1/gap",
                                                                  [200, 229, 0])
-    (status,) = event_messages(StatusEvent("take 1", "*", "restart", {"last_seq": 316, "seq": 1}))
+    (status,) = event_messages(StatusEvent(stream="take 1", method="*", status="restart",
+                                                detail={"last_seq": 316, "seq": 1}))
     assert (OscMessage(status).address, OscMessage(status).params) == (
         "/streamkey/take_1/status/restart", [1])
 
@@ -168,7 +171,8 @@ def test_new_event_types_map_by_their_dict_type():
 
 
 def test_bundle_round_trips_through_our_decoder_and_python_osc():
-    messages = event_messages(KEY) + event_messages(GapEvent("take 1", "*", 5, 9, True))
+    gap = GapEvent(stream="take 1", method="*", first=5, last=9, bridged=True)
+    messages = event_messages(KEY) + event_messages(gap)
     tag = ntp_timetag(1_796_000_000.25)
     packet = encode_bundle(messages, tag)
     assert decode_bundle(packet) == (tag, messages)

@@ -95,8 +95,9 @@ def test_every_online_event_carries_a_strength_in_0_1_and_a_v2_id():
     keys = [e for e in events if isinstance(e, KeyframeEvent)]
     assert len({e.id for e in keys}) == len(keys)
     assert all(e.id == f"default/{e.method}/{e.frame}/{e.params}" for e in keys)
-    assert GapEvent("s", "*", 5, 9, True).id == "s/gap/5"
-    assert StatusEvent("s", "*", "restart", {"seq": 7}).id == "s/status/restart/7"
+    assert GapEvent(stream="s", method="*", first=5, last=9, bridged=True).id == "s/gap/5"
+    assert StatusEvent(stream="s", method="*", status="restart",
+                       detail={"seq": 7}).id == "s/status/restart/7"
 
 
 # ----------------------------------------------------------------------------- debounce

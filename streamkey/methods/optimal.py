@@ -766,8 +766,9 @@ class MaxGap(OnlineKeyframer):
         while end - self.last > self.gap:
             a = self.last - self.t0
             k = om.best_split(np.array(self.rows), a, a + self.gap + 1, a + self.gap)
-            out.append(KeyframeEvent(self.stream, self.method, self.seq[k], self.time[k], 0.0,
-                                     self.seq[-1], self.lookahead, self.params_digest,
+            out.append(KeyframeEvent(stream=self.stream, method=self.method, frame=self.seq[k],
+                                     time=self.time[k], score=0.0, decided_at=self.seq[-1],
+                                     lookahead=self.lookahead, params=self.params_digest,
                                      strength=0.0))  # inserted: not a key the method found
             self.last = k + self.t0
         return out
