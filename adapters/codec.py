@@ -12,6 +12,16 @@ documented JSON fields and tolerate missing ones.
 OSC layouts (documented in `adapters.osc`): `numeric` (`NUMERIC_LAYOUT`, one message per event,
 numbers only, stream and method in the address) and `compact` (`/streamkey/keyframe`, one
 message per keyframe).
+
+A session segment (`SegmentEvent`, `"type": "segment"`) is, in the `numeric` layout,
+
+    /streamkey/<stream>/segment/<kind>  i open, i start, i end, f start_time, f end_time,
+                                        i latency_frames
+
+with `<kind>` `calibration`, `still` or `take`; `open` 1 when the segment starts (its end not
+known yet: `end` and `end_time` are -1), 0 when it is closed (final); `latency_frames` as in
+the JSON. The times follow the sink's time type (`f`, or `d` with `?time=d`). The calibration
+pose ("T", "A", "N") is in the JSON only.
 """
 
 from __future__ import annotations
@@ -31,6 +41,7 @@ from streamkey.keyframes import (
     GapEvent,
     KeyframeEvent,
     ProvisionalEvent,
+    SegmentEvent,
     SignalEvent,
     StatusEvent,
 )
@@ -47,6 +58,7 @@ NUMERIC_LAYOUT = {  # event type -> (address under /streamkey/<stream>/, OSC typ
     "gap": ("gap", "iii"),
     "status": ("status/<status>", "i"),
     "signal": ("signal/<name>", "f"),
+    "segment": ("segment/<kind>", "iiiffi"),
 }
 NAME_LIMIT = 64
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -70,7 +82,8 @@ def record_json(record: Mapping[str, Any], *, compact: bool = True) -> str:
 
 def event_id(event: Event | Mapping[str, Any]) -> str | None:
     """The idempotent id of an event or of a logged record (schema v2 `id`): keyframes
-    `stream/method/frame/params-digest`, gaps `stream/gap/<first seq>`, status
+    `stream/method/frame/params-digest`, gaps `stream/gap/<first seq>`, segments
+    `stream/segment/<kind>/<start>/<end or open>`, status
     `stream/status/<name>/<seq>`; None for a record without one (a status without a seq).
     A record's own `id` wins; the same string is computed for records that lack it."""
     if isinstance(event, Event):
@@ -82,6 +95,10 @@ def event_id(event: Event | Mapping[str, Any]) -> str | None:
         return f"{stream}/{event.get('method')}/{event.get('frame')}/{event.get('params')}"
     if kind == "gap":
         return f"{stream}/gap/{event.get('first')}"
+    if kind == "segment":
+        end = event.get("end")
+        return (f"{stream}/segment/{event.get('kind')}/{event.get('start')}/"
+                f"{'open' if end is None else end}")
     detail = event.get("detail")
     if kind == "status" and isinstance(detail, dict) and detail.get("seq") is not None:
         return f"{stream}/status/{event.get('status')}/{detail['seq']}"
@@ -159,7 +176,21 @@ def osc_messages(event: Event, time_type: str = "f") -> list[bytes]:
             return [encode_message(f"{root}/signal/{osc_name(name)}", "f",
                                    (_r6(float(value)),))
                     for name, value in event.values.items()]
+        case SegmentEvent():
+            return [_segment_message(root, event.kind, event.start, event.end,
+                                     event.start_time, event.end_time, event.latency_frames,
+                                     time_type)]
     return []
+
+
+def _segment_message(root: str, kind: Any, start: Any, end: Any, start_time: Any,
+                     end_time: Any, latency: Any, time_type: str) -> bytes:
+    """`/streamkey/<stream>/segment/<kind>`: open, start, end, start_time, end_time, latency
+    (an open segment: end and end_time -1)."""
+    closed = end is not None
+    return encode_message(f"{root}/segment/{osc_name(kind)}", f"iii{time_type}{time_type}i", (
+        int(not closed), _int32(start), _int32(end) if closed else -1, _r6(_float(start_time)),
+        _r6(_float(end_time)) if closed else -1.0, _int32(latency)))
 
 
 def record_messages(record: Mapping[str, Any], time_type: str = "f") -> list[bytes]:
@@ -188,6 +219,10 @@ def record_messages(record: Mapping[str, Any], time_type: str = "f") -> list[byt
         seq = detail.get("seq", -1) if isinstance(detail, dict) else -1
         return [encode_message(f"{root}/status/{osc_name(d.get('status', '_'))}", "i",
                                (_int32(seq),))]
+    if kind == "segment":
+        return [_segment_message(root, d.get("kind", "_"), d.get("start"), d.get("end"),
+                                 d.get("start_time"), d.get("end_time"),
+                                 d.get("latency_frames"), time_type)]
     if kind == "signal":
         values = d.get("values") or {}
         return [encode_message(f"{root}/signal/{osc_name(name)}", "f", (_float(value),))

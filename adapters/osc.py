@@ -21,6 +21,10 @@ wall-clock arrival of the frame that decided them (`NUMERIC_LAYOUT` lists the me
     /streamkey/<stream>/gap                   i first, i last, i bridged
     /streamkey/<stream>/status/<status>       i seq
     /streamkey/<stream>/signal/<name>         f value
+    /streamkey/<stream>/segment/<kind>        i open, i start, i end, f start_time,
+                                              f end_time, i latency_frames
+                                              (<kind>: calibration, still, take; open 1
+                                              with end and end_time -1, closed 0)
 
 `compact` layout (`osc://host:port?layout=compact`, `run --osc-layout compact`; the earlier
 layout, one message per keyframe, no bundle, other events not sent):

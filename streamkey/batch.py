@@ -17,12 +17,12 @@ from typing import Any
 from .amc import read_motion
 from .errors import InputError, StreamkeyError
 from .features import compute_features
-from .keyframes import SCHEMA_VERSION, Keyframes
+from .keyframes import SCHEMA_VERSION, Keyframes, Segment
 from .methods import COUNTED_METHODS, offline_method
 from .methods.params import to_method_units
 from .motion import Motion
 from .playable import debounce
-from .streaming import MinIntervalLike, common_params, run_online
+from .streaming import MinIntervalLike, common_params, run_online_with_segments
 from .units import DurationLike
 
 __all__ = ["MOTION_SUFFIXES", "find_motion_files", "extract_motion", "FileResult",
@@ -157,6 +157,7 @@ class FileResult:
     motion: Motion | None
     results: dict[str, Keyframes]
     error: str | None = None
+    segments: list[Segment] | None = None  # the online pipeline's (None: found offline)
 
 
 def extract_files(paths: list[Path], methods: list[str],
@@ -188,7 +189,7 @@ def extract_files_online(paths: list[Path], methods: list[str],
 
     def work(path: Path) -> FileResult:
         motion = load_motion(path, roles=roles)
-        return FileResult(path, motion, run_online(motion, methods, params, lookahead))
+        return _online_result(path, motion, methods, params, lookahead)
 
     return per_file(paths, work, progress)
 
@@ -202,10 +203,18 @@ def extract_one(path: Path, methods: list[str], params: dict[str, dict[str, Any]
     def work(p: Path) -> FileResult:
         motion = load_motion(p, roles=roles)
         if online:
-            return FileResult(p, motion, run_online(motion, methods, params, lookahead))
+            return _online_result(p, motion, methods, params, lookahead)
         return FileResult(p, motion, extract_motion(motion, methods, params))
 
     return _guarded(work, Path(path))
+
+
+def _online_result(path: Path, motion: Motion, methods: list[str],
+                   params: dict[str, dict[str, Any]] | None,
+                   lookahead: DurationLike | None) -> FileResult:
+    """One file through the online pipeline: its keys and the segments it sent."""
+    keys, segments = run_online_with_segments(motion, methods, params, lookahead)
+    return FileResult(path, motion, keys, segments=segments)
 
 
 def merge_results(paths: list[Path], done: Iterable[tuple[int, FileResult]]) -> list[FileResult]:
@@ -236,7 +245,8 @@ def load_motion(path: str | os.PathLike[str], min_frames: int = 1,
 
 def results_json(results: list[FileResult]) -> str:
     """The documented JSON output of `streamkey extract` (schema in the README), with each
-    file's session segments (calibration holds, still stretches, takes)."""
+    file's session segments (calibration holds, still stretches, takes): those the online
+    pipeline sent (`extract --online`), else found offline."""
     from .segments import detect_segments
 
     files = []
@@ -249,7 +259,8 @@ def results_json(results: list[FileResult]) -> str:
             entry.update(frames=r.motion.n_frames, fps=r.motion.fps,
                          first_frame=r.motion.first_frame,
                          methods={m: k.to_dict() for m, k in r.results.items()},
-                         segments=[s.to_dict() for s in detect_segments(r.motion)])
+                         segments=[s.to_dict() for s in (
+                             detect_segments(r.motion) if r.segments is None else r.segments)])
         files.append(entry)
     return json.dumps({"schema": SCHEMA_VERSION, "files": files}, indent=1) + "\n"
 

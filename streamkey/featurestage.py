@@ -19,7 +19,7 @@ import numpy as np
 from .errors import UsageError
 from .filters import FrontEnd, Rows, warm_filters
 from .jit import warm_up
-from .keyframes import CancelEvent, Event, KeyframeEvent, ProvisionalEvent
+from .keyframes import CancelEvent, Event, KeyframeEvent, ProvisionalEvent, SegmentEvent
 from .kinematics import (
     FKResult,
     body_height,
@@ -157,6 +157,7 @@ class FeatureStage:
                  noise_cutoff_hz: float | None = None) -> None:
         self.skeleton = skeleton
         self.fps = float(fps)
+        self.role_mapping = role_mapping  # given roles (None: the skeleton's own)
         self.roles = resolve_roles(skeleton, role_mapping)
         self.body_height = body_height(skeleton)
         self.rotation_columns = skeleton.rotation_columns().astype(np.int64)
@@ -219,7 +220,7 @@ class FeatureStage:
                 e = replace(e, decided_at=at(e.decided_at), lookahead=e.lookahead + h)
             elif isinstance(e, ProvisionalEvent):
                 e = replace(e, seen_at=at(e.seen_at))
-            elif isinstance(e, CancelEvent):
+            elif isinstance(e, (CancelEvent, SegmentEvent)):
                 e = replace(e, decided_at=at(e.decided_at))
             out.append(e)
         return out

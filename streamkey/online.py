@@ -49,7 +49,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .errors import UsageError
+from .errors import RoleError, UsageError
 from .featurestage import FeatureBlock, FeatureStage
 from .filters import DEFAULT_NOISE_CUTOFF_HZ
 from .keyframes import (
@@ -57,11 +57,13 @@ from .keyframes import (
     Event,
     GapEvent,
     KeyframeEvent,
+    SegmentEvent,
     StatusEvent,
     params_digest,
     rank_strength,
 )
 from .motion import Frame, Skeleton
+from .segments import SegmentDetector
 
 __all__ = ["StreamGuard", "GuardCounters", "FeatureStage", "FeatureBlock", "OnlineKeyframer",
            "Pipeline", "DEFAULT_MAX_BRIDGE_FRAMES", "DEFAULT_MAX_REORDER_FRAMES"]
@@ -214,6 +216,18 @@ class OnlineKeyframer:
         """Advance over clean consecutive frames (subclass hook)."""
         raise NotImplementedError
 
+    def note_segment(self, event: SegmentEvent) -> None:
+        """A session segment was decided (a calibration hold, a still stretch or a take, open
+        or closed; `streamkey.segments`). The pipeline calls this for every segment event
+        before giving the keyframer the frame that decided it (`event.decided_at`, in the
+        numbering of the frames the keyframer is given), and before `finish()` for the
+        segment an end of window closes; a method may keep those frames out of its running
+        statistics. Default: nothing, except a wrapper passes it to the keyframer it wraps
+        (subclass hook)."""
+        inner = getattr(self, "inner", None)
+        if isinstance(inner, OnlineKeyframer):
+            inner.note_segment(event)
+
     def candidates(self) -> list[tuple[int, float, float]]:
         """Keys this keyframer expects among its undecided frames now, as (seq, time, score)
         (subclass hook, read for provisional events; must not change state)."""
@@ -265,13 +279,14 @@ def forget_scores(kf: OnlineKeyframer) -> None:
 
 def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
            frames: Iterable[Frame], defer_idle: bool = False,
-           reset_on_gap: bool = False) -> list[Event]:
+           reset_on_gap: bool = False, detector: SegmentDetector | None = None) -> list[Event]:
     events: list[Event] = []
     pending: list[Frame] = []
 
     def run_pending() -> None:
         if pending:
-            events.extend(_feed(stage, keyframers, stage.compute(pending), defer_idle))
+            events.extend(_feed(stage, keyframers, stage.compute(pending), defer_idle,
+                                detector))
             pending.clear()
 
     for frame in frames:
@@ -279,7 +294,7 @@ def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineK
         if gaps:
             run_pending()
         if restart:  # a long gap or a source restart: new windows, statistics kept
-            events.extend(_end_window(stage, keyframers, defer_idle))
+            events.extend(_end_window(stage, keyframers, defer_idle, detector))
             for kf in keyframers:
                 kf.restart(keep_statistics=not reset_on_gap)
             if reset_on_gap:  # else the rotations unwrap on across the hole, as the
@@ -292,14 +307,35 @@ def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineK
     return events
 
 
+def _process(keyframers: Sequence[OnlineKeyframer], block: FeatureBlock,
+             detector: SegmentDetector | None) -> list[Event]:
+    """The segment detector, then every keyframer, on a block. Each segment event is noted
+    by every keyframer before it is given the frame that decided it (the block is cut
+    there), and goes out just before that frame's keyframe events."""
+    events: list[Event] = []
+    lo = 0
+    for segment in detector.process(block) if detector is not None else ():
+        cut = segment.decided_at - int(block.seq[0])
+        if cut > lo:
+            part = block.slice(lo, cut)
+            for kf in keyframers:
+                events.extend(kf.process(part))
+            lo = cut
+        for kf in keyframers:
+            kf.note_segment(segment)
+        events.append(segment)
+    part = block if lo == 0 else block.slice(lo, len(block))
+    for kf in keyframers:
+        events.extend(kf.process(part))
+    return events
+
+
 def _feed(stage: FeatureStage, keyframers: Sequence[OnlineKeyframer], block: FeatureBlock,
-          defer_idle: bool = False) -> list[Event]:
+          defer_idle: bool = False, detector: SegmentDetector | None = None) -> list[Event]:
     """Every keyframer's events on a block, at the frames whose arrival decided them."""
     if not len(block):
         return []
-    events: list[Event] = []
-    for kf in keyframers:
-        events.extend(kf.process(block))
+    events = _process(keyframers, block, detector)
     if not defer_idle:
         for kf in keyframers:
             events.extend(kf.idle())
@@ -307,23 +343,39 @@ def _feed(stage: FeatureStage, keyframers: Sequence[OnlineKeyframer], block: Fea
 
 
 def _end_window(stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
-                defer_idle: bool = False) -> list[Event]:
+                defer_idle: bool = False, detector: SegmentDetector | None = None
+                ) -> list[Event]:
     """The frames the front end still holds, then everything pending decided: the end of
-    a window (a long gap, a restart, the end of the stream)."""
-    events = _feed(stage, keyframers, stage.drain(), defer_idle)
+    a window (a long gap, a restart, the end of the stream). The open segment closes
+    first (noted by the keyframers before they finish)."""
+    events = _feed(stage, keyframers, stage.drain(), defer_idle, detector)
     done: list[Event] = []
+    for segment in detector.finish() if detector is not None else ():
+        for kf in keyframers:
+            kf.note_segment(segment)
+        done.append(segment)
     for kf in keyframers:
         done.extend(kf.finish())
     return events + stage.arrived(done)
 
 
 class Pipeline:
-    """Several keyframers on one stream: one guard, one feature stage, features computed once."""
+    """Several keyframers on one stream: one guard, one feature stage, features computed once,
+    and one session-segment detector beside them (`streamkey.segments`).
+
+    `segments=True` (the default) runs a `SegmentDetector` on the same clean, filtered frames
+    as the keyframers: its `SegmentEvent`s (calibration holds, still stretches, takes, open
+    and closed) go out in the event stream in order, each noted by every keyframer
+    (`OnlineKeyframer.note_segment`) before the keyframers are given the frame that decided
+    it. A skeleton without the joints the detector reads (`segments.SEGMENT_ROLES`) runs
+    without it. `segments=False`: no detector, no segment events.
+    """
 
     def __init__(self, keyframers: Sequence[OnlineKeyframer], stream: str = "default",
                  max_bridge_frames: int | None = None,
                  reset_on_gap: bool = False,
-                 noise_cutoff_hz: float | None | EllipsisType = ...) -> None:
+                 noise_cutoff_hz: float | None | EllipsisType = ...,
+                 segments: bool = True) -> None:
         if not keyframers:
             raise UsageError("a pipeline needs at least one keyframer")
         first = keyframers[0]
@@ -336,6 +388,7 @@ class Pipeline:
         # `...`: the keyframers' own setting; else the pipeline's wins
         if noise_cutoff_hz is not ... and noise_cutoff_hz != self.features.noise_cutoff_hz:
             self.features.configure(noise_cutoff_hz)
+        self.segments = _detector(self.features, stream) if segments else None
         self._idle_due = False
 
     @property
@@ -350,7 +403,7 @@ class Pipeline:
         events = self.idle()
         before = self.features.given
         events.extend(_drive(self.guard, self.features, self.keyframers, [frame], True,
-                             self.reset_on_gap))
+                             self.reset_on_gap, self.segments))
         self._idle_due = self.features.given != before
         return events
 
@@ -367,7 +420,7 @@ class Pipeline:
     def push_block(self, frames: Iterable[Frame]) -> list[Event]:
         """Feed many frames; same events as pushing them one by one."""
         return self.idle() + _drive(self.guard, self.features, self.keyframers, frames,
-                                    reset_on_gap=self.reset_on_gap)
+                                    reset_on_gap=self.reset_on_gap, detector=self.segments)
 
     def snapshot(self) -> bytes:
         """Versioned snapshot of every keyframer, the guard and the features (`snapshot.py`)."""
@@ -385,11 +438,28 @@ class Pipeline:
     def flush(self) -> list[Event]:
         """End of stream for every keyframer."""
         events: list[Event] = self.idle()
-        events.extend(_end_window(self.features, self.keyframers))
+        events.extend(_end_window(self.features, self.keyframers, detector=self.segments))
+        self._idle_due = False
+        self.reset()
+        return events
+
+    def reset(self) -> None:
+        """Forget the stream (after `flush`, or a fault): every keyframer's window and
+        statistics, the guard's last frame, the front end, the open segment."""
         self._idle_due = False
         for kf in self.keyframers:
             kf.reset()
             forget_scores(kf)
         self.guard.reset()
         self.features.reset()
-        return events
+        if self.segments is not None:
+            self.segments.reset()
+
+
+def _detector(stage: FeatureStage, stream: str) -> SegmentDetector | None:
+    """The pipeline's segment detector (None: the skeleton lacks the joints it reads)."""
+    try:
+        return SegmentDetector(stage.skeleton, stage.fps, stream=stream,
+                               role_mapping=stage.role_mapping)
+    except RoleError:
+        return None

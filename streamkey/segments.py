@@ -393,7 +393,7 @@ class SegmentDetector:
 
     def _feature_stage(self) -> Any:
         if self._stage is None:
-            from .online import FeatureStage
+            from .featurestage import FeatureStage
 
             self._stage = FeatureStage(self.skeleton, self.fps, self._role_mapping,
                                        self._noise_cutoff_hz)
@@ -458,9 +458,9 @@ class SegmentDetector:
             _speed_kernel(w.q, ahead - base, behind - base, scales, _N_SPEED, out)
             speeds = out.tolist()
         events: list[SegmentEvent] = []
-        decided_at = w.seqs[last - base]
-        for k, i in enumerate(range(lo, hi + 1)):
-            self._frame(i - base, float(speeds[k]), decided_at, events)
+        for k, i in enumerate(range(lo, hi + 1)):  # frame i is known when i + half is in
+            self._frame(i - base, float(speeds[k]), w.seqs[min(i + half, last) - base],
+                        events)
         w.next = hi + 1
         if not final:  # keep the rows the next frames' windows and poses read
             w.forget_before(max(0, w.next - half))

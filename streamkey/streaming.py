@@ -10,7 +10,7 @@ import numpy as np
 
 from . import playable_online
 from .errors import UsageError
-from .keyframes import KeyframeEvent, Keyframes
+from .keyframes import KeyframeEvent, Keyframes, Segment, SegmentEvent
 from .methods import online_class
 from .methods.params import to_method_units
 from .motion import Motion
@@ -18,8 +18,8 @@ from .online import OnlineKeyframer, Pipeline
 from .playable import parse_min_interval
 from .units import DurationLike
 
-__all__ = ["make_keyframers", "run_online", "check_online_params", "common_params",
-           "MinIntervalLike"]
+__all__ = ["make_keyframers", "run_online", "run_online_with_segments", "check_online_params",
+           "common_params", "MinIntervalLike"]
 
 # `min_interval`: seconds for every method, {method or "*": seconds}, or the CLI's text
 MinIntervalLike = float | Mapping[str, float] | str | None
@@ -114,10 +114,23 @@ def run_online(motion: Motion, methods: list[str],
     """Push every captured frame of `motion` through the online keyframers, then flush.
     `max_gap` and `min_interval` as for `batch.extract_motion` (here the keyframers apply
     them as frames arrive)."""
+    return run_online_with_segments(motion, methods, params, lookahead, max_gap=max_gap,
+                                    min_interval=min_interval)[0]
+
+
+def run_online_with_segments(motion: Motion, methods: list[str],
+                             params: dict[str, dict[str, Any]] | None = None,
+                             lookahead: DurationLike | None = None, *,
+                             max_gap: float | None = None, min_interval: MinIntervalLike = None
+                             ) -> tuple[dict[str, Keyframes], list[Segment] | None]:
+    """`run_online`, and the session segments the pipeline sent as it went (closed
+    `SegmentEvent`s; None when the skeleton lacks the joints the detector reads)."""
     params = common_params(params, max_gap, min_interval)
     keyframers = make_keyframers(motion, methods, params, lookahead)
     pipeline = Pipeline(keyframers)
     events = pipeline.push_block(motion.frames()) + pipeline.flush()
+    segments = None if pipeline.segments is None else [
+        e.segment() for e in events if isinstance(e, SegmentEvent) and e.end is not None]
     out = {}
     for kf in keyframers:
         mine = sorted((e for e in events if isinstance(e, KeyframeEvent) and e.method == kf.method),
@@ -128,4 +141,4 @@ def run_online(motion: Motion, methods: list[str],
             np.array([e.score for e in mine]), {**kf.params, "online": True}, motion.n_frames,
             info={"latency_frames_max": max(latency, default=0), "lookahead": kf.lookahead},
             strength=[e.strength for e in mine])
-    return out
+    return out, segments

@@ -61,7 +61,9 @@ def test_a_rerun_appending_to_its_log_skips_what_is_there_and_says_so(tmp_path):
     events = read_jsonl(log)
     keys = [event_id(e) for e in events if e["type"] == "keyframe"]
     assert len(keys) == len(set(keys)) > 5
-    assert f"duplicates skipped {len(keys)}" in result.stderr
+    ids = [event_id(e) for e in events]  # keyframes, and the take's segment events
+    assert len(ids) == len(set(ids)) == len(keys) + 2
+    assert f"duplicates skipped {len(ids)}" in result.stderr
 
 
 def test_zmq_consumer_example_keeps_each_event_of_two_publishers_once():
