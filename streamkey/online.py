@@ -371,6 +371,9 @@ class Pipeline:
     without it. `segments=False`: no detector, no segment events.
     """
 
+    segments: SegmentDetector | None = None  # the stream's detector (None: off; and in
+    # snapshots of pipelines from before it, which then run without it)
+
     def __init__(self, keyframers: Sequence[OnlineKeyframer], stream: str = "default",
                  max_bridge_frames: int | None = None,
                  reset_on_gap: bool = False,

@@ -269,3 +269,14 @@ def test_run_over_the_engine_logs_and_sends_calibration_then_take(tmp_path: Path
             for m in messages if "/segment/" in m.address]
     assert sent == [(e["kind"], int(e["end"] is None), e["start"],
                      -1 if e["end"] is None else e["end"]) for e in segs]
+
+
+def test_a_pipeline_restored_from_a_snapshot_inside_a_hold_sends_the_same_segments() -> None:
+    v = V.with_calibration(clip("07_01.bvh"))
+    frames = v.motion.frames()
+    whole = segment_events(run(Pipeline(make_keyframers(v.motion, ["speed"])), frames))
+    first = Pipeline(make_keyframers(v.motion, ["speed"]))
+    before = first.push_block(frames[:150])  # inside the calibration hold, still open
+    restored = Pipeline.restore(first.snapshot())
+    after = restored.push_block(frames[150:]) + restored.flush()
+    assert segment_events(before + after) == whole
