@@ -89,7 +89,7 @@ def test_every_online_event_carries_a_strength_in_0_1_and_a_v2_id():
     for e in events:
         d = e.to_dict()
         assert d["v"] == 2 and d["id"] == e.id and d["type"] in (
-            "keyframe", "provisional", "cancel", "signal", "gap", "status")
+            "keyframe", "provisional", "cancel", "signal", "gap", "status", "segment")
         if isinstance(e, KeyframeEvent | ProvisionalEvent):
             assert 0.0 <= e.strength <= 1.0
     keys = [e for e in events if isinstance(e, KeyframeEvent)]
