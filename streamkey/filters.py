@@ -28,9 +28,9 @@ needs no lookahead but lags by a speed-dependent amount, which moves keys in tim
 zero-phase filter does not.
 
 `FrontEnd` is the per-stream stage before the features: it unwraps the rotation channels,
-low-passes them and the root position, and holds each frame for `delay` frames. A later
-session-state stage (calibration holds, still stretches, reported as segments) plugs in
-here, seeing the same rows with the same delay.
+low-passes them and the root position, and holds each frame for `delay` frames. The
+session-state stage (`segments.SegmentDetector`: calibration holds, still stretches, takes),
+run by the pipeline beside the keyframers, sees the same rows with the same delay.
 """
 
 from __future__ import annotations

@@ -10,8 +10,14 @@ Flow of one frame::
 
     Frame -> StreamGuard.accept -> [clean frames] -> FeatureStage.compute
           -> FrontEnd (unwrap, noise low-pass: frame f comes out when f + delay is in)
+          -> FeatureBlock -> SegmentDetector.process(block) -> [SegmentEvent ...]
+                             (each noted by every keyframer, `note_segment`, before the
+                             keyframers are given the frame that decided it)
           -> FeatureBlock -> keyframer.process(block) -> [KeyframeEvent ...]
           -> FeatureStage.arrived (decided_at: the frame whose arrival decided it)
+
+The segment detector (`Pipeline(segments=True)`, the default; `streamkey.segments`) sends
+the session's calibration holds, still stretches and takes as they are found.
 
 The noise filter (`filters.FrontEnd`, off by default, `noise_cutoff_hz=6.0` to use it) is the
 same offline (`features.compute_features`) and online, so the keyframers see the same
