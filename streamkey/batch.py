@@ -157,7 +157,7 @@ class FileResult:
     motion: Motion | None
     results: dict[str, Keyframes]
     error: str | None = None
-    segments: list[Segment] | None = None  # the online pipeline's (None: found offline)
+    segments: list[Segment] | None = None  # found with the keys (None: by `results_json`)
 
 
 def extract_files(paths: list[Path], methods: list[str],
@@ -172,7 +172,7 @@ def extract_files(paths: list[Path], methods: list[str],
 
     def work(path: Path) -> FileResult:
         motion = load_motion(path, roles=roles)
-        return FileResult(path, motion, extract_motion(motion, methods, params))
+        return _offline_result(path, motion, methods, params)
 
     return per_file(paths, work, progress)
 
@@ -204,9 +204,20 @@ def extract_one(path: Path, methods: list[str], params: dict[str, dict[str, Any]
         motion = load_motion(p, roles=roles)
         if online:
             return _online_result(p, motion, methods, params, lookahead)
-        return FileResult(p, motion, extract_motion(motion, methods, params))
+        return _offline_result(p, motion, methods, params)
 
     return _guarded(work, Path(path))
+
+
+def _offline_result(path: Path, motion: Motion, methods: list[str],
+                    params: dict[str, dict[str, Any]] | None) -> FileResult:
+    """One file through the offline methods; with a noise cut-off (`params["*"]`), its
+    segments behind the same filter, as the online pipeline finds them."""
+    from .segments import detect_segments
+
+    cutoff = (params or {}).get("*", {}).get("noise_cutoff_hz")
+    segments = None if cutoff is None else detect_segments(motion, noise_cutoff_hz=cutoff)
+    return FileResult(path, motion, extract_motion(motion, methods, params), segments=segments)
 
 
 def _online_result(path: Path, motion: Motion, methods: list[str],

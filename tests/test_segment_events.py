@@ -151,9 +151,11 @@ def test_behind_the_noise_filter_segments_equal_offline_and_latency_counts_the_d
             assert e.latency_frames <= bound + det.half + pipeline.delay, e
 
 
-def extract_json(path: Path, online: bool) -> list[dict[str, Any]]:
+def extract_json(path: Path, online: bool, params: dict[str, Any] | None = None
+                 ) -> list[dict[str, Any]]:
     extract = extract_files_online if online else extract_files
-    return json.loads(results_json(list(extract([path], ["speed"]))))["files"][0]["segments"]
+    results = list(extract([path], ["speed"], params))
+    return json.loads(results_json(results))["files"][0]["segments"]
 
 
 @pytest.mark.parametrize("variant", ["calibration", "stillness", "clean"])
@@ -280,3 +282,14 @@ def test_a_pipeline_restored_from_a_snapshot_inside_a_hold_sends_the_same_segmen
     restored = Pipeline.restore(first.snapshot())
     after = restored.push_block(frames[150:]) + restored.flush()
     assert segment_events(before + after) == whole
+
+
+def test_extract_online_segments_equal_offline_behind_the_noise_filter(tmp_path: Path) -> None:
+    v = V.with_calibration(V.with_noise(clip("07_01.bvh"), 0.3).motion)
+    path = tmp_path / "noisy.bvh"
+    write_bvh(v.motion, path)
+    params = {"*": {"noise_cutoff_hz": 6.0}}
+    online, offline = extract_json(path, True, params), extract_json(path, False, params)
+    assert online == offline
+    filtered = [s.to_dict() for s in detect_segments(read_bvh(path), noise_cutoff_hz=6.0)]
+    assert offline == filtered and [s["kind"] for s in online][:2] == ["calibration", "take"]
