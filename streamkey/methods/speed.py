@@ -96,6 +96,7 @@ from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
 from ..signal import HP_SETTLE, hp_factor, hp_filter, hp_lambda, hp_prefix, hp_settle, local_minima
 from ..units import Duration, DurationLike, whole_frames
+from .ring import RingWindow
 from .speed_kernels import (
     band_offsets,
     chain_totals,
@@ -526,67 +527,6 @@ def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10
 
 # --- online (bounded lookahead: a key at frame f is sent by frame f + lookahead) -------------
 
-class _Ring:
-    """Rows of the last `capacity` frames (positions and times), amortised O(1) append."""
-
-    def __init__(self, capacity: int, width: int) -> None:
-        self.capacity = capacity
-        self.width = width
-        self.clear()
-
-    def clear(self) -> None:
-        """Forget every row."""
-        self._rows = np.empty((0, self.width))
-        self._times = np.empty(0)
-        self._start = self._end = 0
-        self.first_seq = 0
-        self.dropped_since = 0
-
-    def __len__(self) -> int:
-        return self._end - self._start
-
-    def __getstate__(self) -> dict[str, Any]:
-        """The held rows only, not the spare buffer (snapshots stay small)."""
-        state = dict(self.__dict__)
-        state["_rows"] = self._rows[self._start : self._end].copy()
-        state["_times"] = self._times[self._start : self._end].copy()
-        state["_start"], state["_end"] = 0, len(self)
-        return state
-
-    def extend(self, first_seq: int, rows: np.ndarray, times: np.ndarray) -> None:
-        """Append consecutive frames starting at `first_seq`; drop the oldest beyond capacity."""
-        k, start, end = len(rows), self._start, self._end
-        held = end - start
-        if held == 0:
-            self.first_seq = first_seq
-        if end + k > len(self._rows):
-            need = held + k
-            size = max(16, min(2 * self.capacity, 2 * need))
-            rows_new = np.empty((max(size, need), self.width))
-            times_new = np.empty(len(rows_new))
-            rows_new[:held] = self._rows[start:end]
-            times_new[:held] = self._times[start:end]
-            self._rows, self._times = rows_new, times_new
-            start, end = 0, held
-        self._rows[end : end + k] = rows
-        self._times[end : end + k] = times
-        self._end = end + k
-        drop = held + k - self.capacity
-        if drop > 0:
-            start += drop
-            self.first_seq += drop
-            self.dropped_since += drop
-        self._start = start
-
-    def rows(self) -> np.ndarray:
-        """The held rows, oldest first (a view)."""
-        return self._rows[self._start : self._end]
-
-    def time(self, seq: int) -> float:
-        """Time of held frame `seq`."""
-        return float(self._times[self._start + seq - self.first_seq])
-
-
 class _Job:
     """One regular re-analysis, done in steps over the frames after its anchor frame.
 
@@ -671,7 +611,7 @@ class Online(OnlineKeyframer):
         self._pos_settle = int(settle_frames(np.array([hp_lambda(f_c, 1.0 / self.fps)]))[0])
         # Speeds redone by a regular update: those a frame of the last hop can still change.
         self._fresh = min(self._region, self.hop + self._pos_settle + 1)
-        self._ring = _Ring(self.history + self.lookahead + self.hop + 2, 3 * len(MIURA_ROLES))
+        self._ring = RingWindow(self.history + self.lookahead + self.hop + 2, 3 * len(MIURA_ROLES))
         self._bank = HPBank(self._lams)
         packed_factors(self._lams)  # built now (shared, derived), not on a streaming frame
         self._work = _WorkRows()
