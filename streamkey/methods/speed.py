@@ -52,6 +52,7 @@ window (positions, speeds), the carried forward values (the region's rows x 144 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -60,6 +61,7 @@ from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import Keyframes
 from ..motion import Motion
 from ..roles import MIURA_ROLES
+from ..segments import Segment, motion_mask
 from .speed_chains import (
     BAND_BUDGET,
     WARD_1D_FROM,
@@ -114,8 +116,15 @@ def _positions(motion: Motion, features: Features | None, first: int | None = No
 def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10.0,
             f_max: float = 8.0, f_min: float = 0.2, r: float = 0.95,
             mojena_k: float = 2.75,
-            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
-    """Keyposes at speed minima whose multiscale intensity survives Ward + Mojena (Miura 3)."""
+            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ,
+            segments: Sequence[Segment] | None = None) -> Keyframes:
+    """Keyposes at speed minima whose multiscale intensity survives Ward + Mojena (Miura 3).
+
+    `segments` (the session segments of `motion`, `segments.detect_segments`): candidates
+    outside takes (in calibration holds and still stretches) are left out of Ward + Mojena's
+    sample, so that a session state does not move the cut-off; they still get keys by it.
+    `Online.note_segment` does the same with the segment events of a stream.
+    """
     check_params(f_c, f_max, f_min, r, mojena_k)
     features = features or compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     params: dict[str, Any] = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r,
@@ -127,7 +136,10 @@ def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10
     bank = HPBank(scale_lambdas(freqs, dt))
     cand = candidates_of(v)
     u = intensities(cand, scale_minima(v, bank))
-    res = mojena_threshold(u, mojena_k)
+    in_take = np.ones(len(cand), dtype=bool)
+    if segments is not None:
+        in_take = motion_mask(segments, motion.n_frames, motion.first_frame)[cand + off]
+    res = mojena_threshold(u[in_take], mojena_k)
     keep = u > res.threshold
     info = {"candidates": cand + off, "intensities": u, "n_clusters": res.n_clusters,
             "level_cutoff": res.level_cutoff, "threshold": res.threshold,

@@ -52,6 +52,7 @@ from ..keyframes import KeyframeEvent
 from ..motion import Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
+from ..segments import SegmentEvent
 from ..signal import hp_lambda
 from ..units import Duration, DurationLike, whole_frames
 from .ring import RingWindow
@@ -78,6 +79,7 @@ from .speed_state import (
     Decisions,
     LeadHold,
     PoseRows,
+    QuietSpans,
     Spans,
     StageMinima,
     StageSpeeds,
@@ -189,6 +191,7 @@ class Online(OnlineKeyframer):
         self._speeds = WindowSpeeds()  # of the window
         self._job: Analysis | None = None  # the running analysis
         self._lead = LeadHold()  # the stream's first frame
+        self._quiet = QuietSpans()  # calibration holds and still stretches
 
     def restart(self, keep_statistics: bool = True) -> None:
         """A new window after a long gap or a source restart (after `finish()`): the cut-off
@@ -199,6 +202,13 @@ class Online(OnlineKeyframer):
         if keep_statistics:
             kept.resume_after = last
             self._cutoff = kept
+
+    def note_segment(self, event: SegmentEvent) -> None:
+        """A session segment event (before the frame that decided it is pushed): candidates
+        in calibration holds and still stretches stay out of the cut-off sample, as
+        `extract(..., segments=...)` leaves them out offline; they still get keys by it."""
+        if event.kind in ("calibration", "still"):
+            self._quiet.note(event.start, event.end)
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
         """Append frames, doing each frame's share of the running analysis; every `hop`
@@ -273,9 +283,10 @@ class Online(OnlineKeyframer):
         decisions.upto = t
         if not np.any(new):
             return events
-        threshold = self._cutoff.threshold(np.concatenate([self._cutoff.recent(t), u[new]]),
-                                           final=True)
-        self._cutoff.extend(seqs[new].tolist(), u[new].tolist())  # decided: for a restart
+        counted = new & self._quiet.outside(seqs)
+        threshold = self._cutoff.threshold(
+            np.concatenate([self._cutoff.recent(t), u[counted]]), final=True)
+        self._cutoff.extend(seqs[counted].tolist(), u[counted].tolist())  # for a restart
         return events + [self.event(frame=int(c), time=self._ring.time(int(c)),
                                     score=float(x), decided_at=t)
                          for c, x in zip(seqs[new], u[new], strict=True) if x > threshold]
@@ -286,7 +297,8 @@ class Online(OnlineKeyframer):
         due = self._decisions.due
         while due and due[0][0] + self.lookahead <= self._last_seq:
             c, u, keep = due.popleft()
-            self._cutoff.add(c, u)
+            if self._quiet.counts(c):
+                self._cutoff.add(c, u)
             if keep:
                 events.append(self.event(frame=c, time=self._ring.time(c), score=u,
                                          decided_at=c + self.lookahead))
@@ -313,8 +325,9 @@ class Online(OnlineKeyframer):
         self._speeds.dropped += ring.dropped_since
         ring.dropped_since = 0
         # Decided (sent or not) in the last `cutoff_history` frames: intensities as decided.
-        sample = np.concatenate([self._cutoff.recent(t),
-                                 [u for _, u, _ in self._decisions.due]])
+        self._quiet.forget_before(ring.first_seq)
+        sample = np.concatenate([self._cutoff.recent(t), [u for c, u, _ in self._decisions.due
+                                                          if self._quiet.counts(c)]])
         # Stage costs, ~µs (measured at the defaults: speed signal, HP trends, chains,
         # Ward + Mojena and decisions).
         cost = np.array([50 if old is not None else 50 + len(snap) // 4,
@@ -394,7 +407,9 @@ class Online(OnlineKeyframer):
         seqs = sp.cand + inputs.base
         new = (seqs > inputs.lo) & (seqs <= inputs.zone_end)
         if np.any(new):
-            cut = np.concatenate([inputs.sample, u[new], u[seqs > inputs.zone_end]])
+            counted = self._quiet.outside(seqs)
+            cut = np.concatenate([inputs.sample, u[new & counted],
+                                  u[(seqs > inputs.zone_end) & counted]])
             threshold = self._cutoff.threshold(cut, False)
             decisions.due.extend(zip(seqs[new].tolist(), u[new].tolist(),
                                      (u[new] > threshold).tolist(), strict=True))

@@ -21,7 +21,7 @@ from .speed_kernels import hp_advance, hp_tail
 from .speed_scales import HPBank, WorkRows, packed_factors, reference_lead
 
 __all__ = ["Spans", "PoseRows", "LeadHold", "WindowSpeeds", "TrendCarry", "CutoffSample",
-           "Decisions", "AnalysisInput", "StageSpeeds", "StageMinima", "Analysis"]
+           "QuietSpans", "Decisions", "AnalysisInput", "StageSpeeds", "StageMinima", "Analysis"]
 
 
 @dataclass(frozen=True)
@@ -185,6 +185,35 @@ class CutoffSample:
         if res.n_clusters == 1 and not final and len(sample) < self.warmup:
             return two_cluster_threshold(sample)
         return res.threshold
+
+
+class QuietSpans:
+    """Calibration holds and still stretches noted from segment events (`note_segment`):
+    candidates inside them stay out of the cut-off sample (session states, not motion)."""
+
+    def __init__(self) -> None:
+        self.spans: list[tuple[int, int | None]] = []  # (first, last or None while open)
+
+    def note(self, start: int, end: int | None) -> None:
+        """A calibration hold or still stretch from frame `start` (to `end`, None: open)."""
+        self.spans = [span for span in self.spans if span[0] != start] + [(start, end)]
+
+    def forget_before(self, seq: int) -> None:
+        """Drop the spans that end before frame `seq` (no candidate there is asked about)."""
+        self.spans = [span for span in self.spans if span[1] is None or span[1] >= seq]
+
+    def outside(self, seqs: np.ndarray) -> np.ndarray:
+        """Per frame of `seqs`: True when it is in no span (a frame of motion)."""
+        seqs = np.asarray(seqs)
+        out = np.ones(len(seqs), dtype=bool)
+        for start, end in self.spans:
+            out &= (seqs < start) if end is None else (seqs < start) | (seqs > end)
+        return out
+
+    def counts(self, seq: int) -> bool:
+        """Is frame `seq` in no span (its intensity counts in the cut-off sample)?"""
+        return not any(start <= seq and (end is None or seq <= end)
+                       for start, end in self.spans)
 
 
 class Decisions:
