@@ -1,6 +1,12 @@
 """Session segments and the speed cut-off: candidates in calibration holds and still
 stretches stay out of Ward + Mojena's sample (a session state must not move the cut-off),
-offline (`extract(segments=...)`) and online (`Online.note_segment`) alike."""
+offline (`extract(segments=...)`) and online (`Online.note_segment`) alike.
+
+Measured offline on the 33 BVH clips' variants (F1 against the clean take with the same
+setting): without / with segments, calibration mean F1 0.900 / 0.890 (worst 0.42, 06_12, both),
+stillness 0.929 / 0.923 (worst 0.55 both), 60 Hz 0.911 / 0.908 (worst 0.55 / 0.60): the
+variants' holds are exact, so rest (`REST_SPEED`) already keeps them candidate-free, and the
+segment detector reads calm motion as still (49_18: 87 of 127 candidates)."""
 
 from __future__ import annotations
 
