@@ -51,7 +51,7 @@ def state(pipeline: Pipeline) -> dict[str, object]:
     sal = running(sal)
     return {"moments": sal.out_mom.n, "window": sal.t + 1, "map_stats": sal.st.n,
             "basis": None if sal.basis is None else sal.basis.vectors.copy(),
-            "cutoff_sample": len(speed._hist_u), "lam": opt.solver.lam,
+            "cutoff_sample": len(speed._cutoff.values), "lam": opt.solver.lam,
             "rate_frames": opt.solver.log_n}
 
 
@@ -122,10 +122,10 @@ def test_a_source_that_starts_over_keeps_its_statistics_in_the_past():
     first = frames()[:1200]
     pipeline.push_block(first)
     speed = pipeline.keyframers[0]
-    kept = len(speed._hist_seq)
+    kept = len(speed._cutoff.seqs)
     events = pipeline.push_block(first[:300])
     assert pipeline.guard.counters.restarts == 1
-    history = list(speed._hist_seq)
+    history = list(speed._cutoff.seqs)
     assert kept >= 20 and history == sorted(history)  # the old pass first, then the new one
     assert sum(seq < 0 for seq in history) >= kept  # all kept (and the flushed ones)
     assert all(e.frame < 300 for e in events if isinstance(e, KeyframeEvent))

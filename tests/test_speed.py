@@ -18,7 +18,7 @@ from streamkey.bvh import read_bvh
 from streamkey.errors import UsageError
 from streamkey.features import compute_features
 from streamkey.keyframes import Event, GapEvent, KeyframeEvent
-from streamkey.methods import speed
+from streamkey.methods import speed, speed_chains
 from streamkey.motion import Motion
 from streamkey.roles import MIURA_ROLES
 from streamkey.signal import hp_filter, hp_lambda
@@ -198,9 +198,9 @@ def test_windowed_dp_correspondence_is_optimal_when_many_minima_vanish(
     cases += [(np.sort(rng.choice(100, size=60, replace=False)),
                np.sort(rng.choice(np.arange(80, 160), size=n, replace=False)))
               for n in range(1, 30)]
-    monkeypatch.setattr(speed, "BAND_BUDGET", 10**12)  # the full band DP
+    monkeypatch.setattr(speed_chains, "BAND_BUDGET", 10**12)  # the full band DP
     full = [_cost(b, a, speed.match_minima(b, a)) for a, b in cases]
-    monkeypatch.setattr(speed, "BAND_BUDGET", 0)  # now the windowed DP and its certificate
+    monkeypatch.setattr(speed_chains, "BAND_BUDGET", 0)  # now the windowed DP, certified
     for (a, b), reference in zip(cases, full, strict=True):
         assert _cost(a, b, speed.match_minima(a, b)) == reference
         if len(b) <= 2:
@@ -307,7 +307,8 @@ def test_memory_stays_bounded_by_the_window_on_a_long_stream() -> None:
     sizes = []
     for i in range(0, len(frames), 250):
         kf.push_block(frames[i : i + 250])
-        sizes.append((len(kf._ring), len(kf._ring._rows), len(kf._v), len(kf._hist_u)))
+        sizes.append((len(kf._ring), len(kf._ring._rows), len(kf._speeds.v),
+                      len(kf._cutoff.values)))
     cap = kf._ring.capacity
     assert cap == 600 + 120 + 24 + 2
     assert all(n <= cap and rows <= 2 * cap and v < cap for n, rows, v, _ in sizes)
@@ -374,11 +375,11 @@ def test_1d_ward_gives_scipys_levels_and_mojena_verdict() -> None:
         np.testing.assert_allclose(np.sort(speed.ward_1d(u)[0]), levels, rtol=1e-9,
                                    atol=1e-12, err_msg=f"case {case}")
         scipy_way = speed.mojena_threshold(u)
-        old, speed.WARD_1D_FROM = speed.WARD_1D_FROM, 0
+        old, speed_chains.WARD_1D_FROM = speed_chains.WARD_1D_FROM, 0
         try:
             ours = speed.mojena_threshold(u)
         finally:
-            speed.WARD_1D_FROM = old
+            speed_chains.WARD_1D_FROM = old
         assert (ours.threshold, ours.n_clusters) == (scipy_way.threshold, scipy_way.n_clusters)
 
 
@@ -389,16 +390,16 @@ def test_1d_ward_keeps_the_offline_keyposes_on_the_shared_clips_concatenated() -
     feats = compute_features(motion)
     ours = speed.extract(motion, features=feats)
     assert len(ours.info["candidates"]) >= speed.WARD_1D_FROM  # the 1-D path ran
-    old, speed.WARD_1D_FROM = speed.WARD_1D_FROM, 10**9
+    old, speed_chains.WARD_1D_FROM = speed_chains.WARD_1D_FROM, 10**9
     try:
         scipy_way = speed.extract(motion, features=feats)
     finally:
-        speed.WARD_1D_FROM = old
+        speed_chains.WARD_1D_FROM = old
     np.testing.assert_array_equal(ours.frames, scipy_way.frames)
 
 
 def test_the_regular_analysis_is_spread_over_the_frames_after_its_start() -> None:
-    """No push runs a whole re-analysis: its four steps (speed and the carried HP forward
+    """No push runs a whole re-analysis: its four stages (speed and the carried HP forward
     passes; the HP trends of every scale and their minima; the chains; Ward + Mojena and the
     decisions) run on four different frames of the `delay` after the analysis starts."""
     from streamkey.bench import long_motion
@@ -409,12 +410,12 @@ def test_the_regular_analysis_is_spread_over_the_frames_after_its_start() -> Non
     per_push = []
     for frame in motion.frames():
         job = kf._job
-        before = job.step if job is not None else None
+        before = job.done if job is not None else None
         kf.push(frame)
         if job is None:
             job = kf._job
             before = 0
-        per_push.append(0 if job is None else job.step - before)
+        per_push.append(0 if job is None else job.done - before)
     steady = np.array(per_push[2592:3384])  # window full (2,546 frames), 33 whole hops
     assert steady.max() == 1
     assert steady.sum() == 33 * 4
@@ -431,15 +432,15 @@ def test_hp_tables_are_shared_between_streams_and_left_out_of_pickles() -> None:
     b = speed.Online(motion.skeleton, motion.fps, stream="other")
     a.push_block(frames[:3600])
     b.push_block(frames[:3600])
-    tables = speed.packed_factors(a._lams)
-    assert all(x is y for x, y in zip(tables, speed.packed_factors(b._lams), strict=True))
+    tables = speed.packed_factors(a._carry.lams)
+    assert all(x is y for x, y in zip(tables, speed.packed_factors(b._carry.lams), strict=True))
     clone = pickle.loads(pickle.dumps(a))
     sizes, events = [], []
-    for frame in frames[3600:]:  # one hop: every step of an analysis in flight
+    for frame in frames[3600:]:  # one hop: every stage of an analysis in flight
         events += a.push(frame)
         sizes.append(len(pickle.dumps(a)))
     # Measured 1.44-1.51 MB (the window's rows, the carried HP forward values); the tables
     # are 2.4 MB.
     assert max(sizes) < 2 * 2**20 and sum(t.nbytes for t in tables) > 2 * 2**20
     assert clone.push_block(frames[3600:]) + clone.flush() == events + a.flush()
-    assert speed.packed_factors(clone._lams)[0] is tables[0]
+    assert speed.packed_factors(clone._carry.lams)[0] is tables[0]

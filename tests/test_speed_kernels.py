@@ -11,7 +11,7 @@ from cmu import DATA
 from streamkey.bench import long_motion
 from streamkey.bvh import read_bvh
 from streamkey.features import compute_features
-from streamkey.methods import speed
+from streamkey.methods import speed, speed_chains
 from streamkey.methods import speed_kernels as kern
 from streamkey.roles import MIURA_ROLES
 from streamkey.signal import local_minima
@@ -120,7 +120,7 @@ def test_chain_totals_equal_the_numpy_chains_on_a_clip(monkeypatch: pytest.Monke
     counts = np.array([len(m) for m, _ in per_scale], dtype=np.int64)
     got = kern.chain_totals(cand, minima, u, counts, speed.BAND_BUDGET)
     assert len(kern.chain_totals(cand, minima, u, counts, 10)) == 0  # over budget: not done
-    monkeypatch.setattr(speed, "_band_dp", numpy_band_dp)
+    monkeypatch.setattr(speed_chains, "_band_dp", numpy_band_dp)
     assert np.array_equal(got, speed.intensities(cand, per_scale))
     assert np.count_nonzero(got) > len(got) // 2
 
