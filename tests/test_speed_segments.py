@@ -32,7 +32,7 @@ def online_with_segments(m: Motion, lookahead: int) -> tuple[list[KeyframeEvent]
     """Every frame to a segment detector and the keyframer; each segment event is noted
     before the frame that decided it is pushed (the pipeline's order)."""
     det = SegmentDetector(m.skeleton, m.fps)
-    kf = speed.Online(m.skeleton, m.fps, lookahead=lookahead)
+    kf = speed.Online(m.skeleton, m.fps, lookahead=lookahead, segment_statistics=True)
     keys: list[KeyframeEvent] = []
     seen: list[SegmentEvent] = []
     for frame in m.frames():
@@ -71,5 +71,5 @@ def test_segment_events_change_nothing_on_a_take_without_stillness() -> None:
     m = load("07_05.bvh")
     keys, seen = online_with_segments(m, 120)
     assert all(e.kind == "take" for e in seen)
-    plain = speed.Online(m.skeleton, m.fps)
+    plain = speed.Online(m.skeleton, m.fps, segment_statistics=True)
     assert keys == plain.push_block(m.frames()) + plain.flush()

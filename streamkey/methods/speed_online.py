@@ -127,7 +127,8 @@ class Online(OnlineKeyframer):
                  history: DurationLike = HISTORY, cutoff_history: DurationLike = CUTOFF_HISTORY,
                  warmup_candidates: int = 20, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
-                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES,
+                 segment_statistics: bool = False) -> None:
         check_params(f_c, f_max, f_min, r, mojena_k)
         lookahead = _frames("lookahead", lookahead, fps, 3)
         if hop is None:  # a fifth of the lookahead, at most 0.2 s (24 frames at 120 Hz)
@@ -140,6 +141,8 @@ class Online(OnlineKeyframer):
         params = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r, "mojena_k": mojena_k,
                   "hop": hop, "history": history, "cutoff_history": cutoff_history,
                   "warmup_candidates": int(warmup_candidates)}
+        if segment_statistics:  # in the digest only when on, so today's digests stay
+            params["segment_statistics"] = True
         super().__init__(skeleton, fps, lookahead=lookahead, stream=stream,
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
                          params=params)
@@ -147,6 +150,8 @@ class Online(OnlineKeyframer):
         self.hop = int(hop)  # frames between analyses
         self.history = int(history)  # frames of window before the lookahead
         self.cutoff_history = int(cutoff_history)  # frames of decided intensities in the cut
+        # segments out of the cut-off sample (off: the detector reads calm motion as still)
+        self.segment_statistics = segment_statistics
         # Frames an analysis is spread over; its zone ends lookahead - hop - delay frames back.
         # Two thirds of the hop: the mean online/offline F1 on the shared clips is 0.867 with
         # no spread, 0.856 / 0.854 / 0.853 / 0.849 spread over 8 / 12 / 16 / 23 frames.
@@ -206,8 +211,10 @@ class Online(OnlineKeyframer):
     def note_segment(self, event: SegmentEvent) -> None:
         """A session segment event (before the frame that decided it is pushed): candidates
         in calibration holds and still stretches stay out of the cut-off sample, as
-        `extract(..., segments=...)` leaves them out offline; they still get keys by it."""
-        if event.kind in ("calibration", "still"):
+        `extract(..., segments=...)` leaves them out offline; they still get keys by it. Only
+        with `segment_statistics=True`: on the shared clips it moved no variant's keys closer
+        to the clean take's, and the detector reads calm motion as still."""
+        if self.segment_statistics and event.kind in ("calibration", "still"):
             self._quiet.note(event.start, event.end)
 
     def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
