@@ -474,7 +474,8 @@ class Online(OnlineKeyframer):
         self._keys.append(k)
         r = k - self._base
         decided = int(self._seq[self._t - self._base])
-        return self.event(int(self._seq[r]), float(self._time[r]), score, decided)
+        return self.event(frame=int(self._seq[r]), time=float(self._time[r]), score=score,
+                          decided_at=decided)
 
     def _window_keys(self, t: int) -> None:
         """P: keys of the recursion on [anchor, t] (every `hop` frames)."""
