@@ -19,12 +19,9 @@ RATIOS, MAX_E_RATIO = (0.8, 1.25), 1.10
 
 # Unmet targets, as measured (count ratios, largest E ratio).
 XFAIL: dict[tuple[str, str], str] = {
-    ("60 Hz", "online"): "measured: counts 0.88-1.00, E ratio 1.14 (09_12), 1.11 (07_05)",
     ("calibration", "offline"): "measured: counts 0.88-1.06, E ratio 1.50 (06_02): the "
                                 "recursion's first chords start at the calibration pose",
     ("calibration", "online"): "measured: counts 0.93-1.00, E ratio 1.32 (02_01), 1.11 (06_02)",
-    ("stillness", "offline"): "measured: counts 0.88-1.06, E ratio 1.60 (02_01): the last "
-                              "chord ends after the stillness",
 }
 XFAIL_ALL: dict[tuple[str, str], str] = {  # key counts within 0.86-1.20 everywhere
     ("60 Hz", "offline"): "measured: E ratio above 1.10 on 3 of 35 clips, at most 1.33 (05_06)",
