@@ -4,6 +4,7 @@ session corpus is made of."""
 from __future__ import annotations
 
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -80,7 +81,7 @@ def test_transitions_hold_then_blend_with_no_jump_of_the_root() -> None:
             assert steps < 2.0, (session.name, take.name, steps)  # cm a frame, no jump
 
 
-def test_bad_session_input_raises_a_usage_error(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_bad_session_input_raises_a_usage_error(tmp_path: Path) -> None:
     walk = read_motion(DATA / "07_01.bvh")
     hop = read_motion(DATA / "131_03.bvh")  # another skeleton (3ds Max joint names)
     with pytest.raises(UsageError, match="does not match"):
