@@ -140,3 +140,27 @@ def test_bench_files_carry_the_rows_the_goal_and_the_readme_block(tmp_path: Path
     assert block == readme_block(summarise(rows))
     assert block in md.read_text(encoding="utf-8")
     assert len(block.splitlines()) == 2 + 2 * len(METHODS)  # header, rule, method x corpus
+
+
+@pytest.mark.slow
+def test_bench_agreement_on_one_clip_writes_both_files_and_names_them(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from streamkey.cli.main import main
+
+    assert main(["bench", "--agreement", "--data", str(DATA), "--clips", "07_01",
+                 "--sessions", "none", "-o", str(tmp_path)]) == 0
+    out, err = capsys.readouterr()
+    assert f"wrote {tmp_path / 'bench_agreement.json'}" in out
+    assert "clip [1/1] 07_01.bvh" in err  # progress on stderr
+    result = json.loads((tmp_path / "bench_agreement.json").read_text(encoding="utf-8"))
+    assert [r["method"] for r in result["rows"]] == list(METHODS)
+    assert result["clips"] == 1 and result["sessions"] == 0
+
+
+def test_bench_agreement_names_a_missing_subject(capsys: pytest.CaptureFixture[str]) -> None:
+    from streamkey.cli.main import main
+
+    assert main(["bench", "--agreement", "--data", str(DATA), "--clips", "07_01",
+                 "--sessions", "99"]) == 2
+    err = capsys.readouterr().err
+    assert "no subject 99" in err and "01, 02, 05" in err

@@ -208,6 +208,14 @@ def main(data_dir: str | None, clips: str | None, sessions: str | None,
         raise UsageError("bench --agreement needs the CMU clips: --data DIR")
     paths = _clip_paths(data, clips)
     subjects = _subjects(sessions)
+    if subjects:  # a wrong name fails now, not after the clips are measured
+        from ..sessions import subject_takes
+
+        have = subject_takes(sorted(data.iterdir()))
+        missing = [s for s in subjects if s not in have]
+        if missing:
+            raise UsageError(f"--sessions: no subject {', '.join(missing)} with two or more "
+                             f"BVH takes in {data}; have {', '.join(have) or 'none'}")
     say(f"bench agreement: {len(paths)} clips and the sessions, started "
         f"{time.strftime('%H:%M:%S')}")
     t0 = time.perf_counter()
