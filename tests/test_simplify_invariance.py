@@ -19,22 +19,19 @@ RATIOS, MAX_E_RATIO = (0.8, 1.25), 1.10
 
 # Unmet targets, as measured (count ratios, largest E ratio).
 XFAIL: dict[tuple[str, str], str] = {
-    ("60 Hz", "online"): "measured: counts 0.88-1.00, E ratio 1.14 (09_12), 1.11 (07_05)",
-    ("calibration", "offline"): "measured: counts 0.88-1.06, E ratio 1.50 (06_02): the "
+    ("calibration", "offline"): "measured: counts 0.88-1.20, E ratio 1.16 (09_12): the "
                                 "recursion's first chords start at the calibration pose",
-    ("calibration", "online"): "measured: counts 0.93-1.00, E ratio 1.32 (02_01), 1.11 (06_02)",
-    ("stillness", "offline"): "measured: counts 0.88-1.06, E ratio 1.60 (02_01): the last "
-                              "chord ends after the stillness",
+    ("calibration", "online"): "measured: counts 0.88-1.20, E ratio 1.16 (09_12)",
 }
-XFAIL_ALL: dict[tuple[str, str], str] = {  # key counts within 0.86-1.20 everywhere
-    ("60 Hz", "offline"): "measured: E ratio above 1.10 on 3 of 35 clips, at most 1.33 (05_06)",
-    ("60 Hz", "online"): "measured: E ratio above 1.10 on 10 of 35 clips, at most 1.30 (05_11)",
-    ("30 Hz", "offline"): "measured: E ratio above 1.10 on 6 of 35 clips, at most 1.44 (09_06)",
-    ("30 Hz", "online"): "measured: E ratio above 1.10 on 7 of 35 clips, at most 1.66 (07_12)",
-    ("calibration", "offline"): "measured: E ratio above 1.10 on 6 of 35, at most 1.50 (06_02)",
-    ("calibration", "online"): "measured: E ratio above 1.10 on 4 of 35, at most 1.32 (02_01)",
-    ("stillness", "offline"): "measured: E ratio above 1.10 on 4 of 35, at most 1.60 (02_01)",
-    ("stillness", "online"): "measured: E ratio above 1.10 on 1 of 35: 1.12 (06_08)",
+XFAIL_ALL: dict[tuple[str, str], str] = {  # key counts within 0.80-1.21 everywhere
+    ("60 Hz", "offline"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.22 (05_11)",
+    ("60 Hz", "online"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.16 (05_11)",
+    ("30 Hz", "offline"): "measured: E ratio above 1.10 on 3 of 35 clips, at most 1.22 (05_11)",
+    ("30 Hz", "online"): "measured: E ratio above 1.10 on 3 of 35 clips, at most 1.21 (05_06)",
+    ("calibration", "offline"): "measured: E ratio above 1.10 on 10 of 35, at most 1.97 "
+                                "(07_01): the hold before the take moves the frame numbers, "
+                                "so the split grid lies elsewhere in the take",
+    ("calibration", "online"): "measured: E ratio above 1.10 on 11 of 35, at most 1.97 (07_01)",
 }
 
 

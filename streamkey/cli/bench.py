@@ -16,7 +16,15 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--offline", action="store_true")
     p.add_argument("--online", action="store_true")
     p.add_argument("--agreement", action="store_true",
-                   help="online vs offline F1 against lookahead on every shared clip (slow)")
+                   help="online vs offline at the default settings of both sides, on every "
+                        "clip of --data and on sessions (each subject's takes back to back, "
+                        "1-2 minutes): F1 within ±4 frames, key-count ratio, optimal's E at "
+                        "the same key count, sessions also after their first 10 s (2-3 CPU-min)")
+    p.add_argument("--sessions", help="agreement: comma-separated subjects whose takes make "
+                   "the sessions (default: every subject with two or more BVH takes; "
+                   "'none': clips only)")
+    p.add_argument("--lookahead-sweep", dest="lookahead_sweep", action="store_true",
+                   help="with --agreement: F1 against lookahead per method instead (slow)")
     p.add_argument("--memory", action="store_true",
                    help="live: RSS over an accelerated 1-hour stream with every sink")
     p.add_argument("--latency", action="store_true", help="live: replay and run as processes, "
@@ -37,8 +45,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--robustness", action="store_true",
                    help="keys of resampled, noisy, padded, lossy and mistimed variants of each "
                         "clip against the clean take's, offline and online")
-    p.add_argument("--clips", help="robustness: comma-separated clip names or files "
-                   "(default: every .bvh of --data)")
+    p.add_argument("--clips", help="robustness, agreement: comma-separated clip names or "
+                   "files (default: every .bvh of --data; agreement: and every .amc)")
     p.add_argument("--variants", help="robustness: comma-separated variant names "
                    "(default: all; e.g. '30 Hz,noise 0.3°,1%% dropped')")
     p.add_argument("--frames", type=int, default=100_000, help="offline motion length")
@@ -60,6 +68,10 @@ def run(args: argparse.Namespace) -> int:
         from ..bench.robustness import main as bench_robustness
 
         return bench_robustness(args.data, args.clips, args.variants, args.output)
+    if args.agreement and not args.lookahead_sweep:
+        from ..bench.agreement import main as bench_agreement
+
+        return bench_agreement(args.data, args.clips, args.sessions, args.output)
     data = Path(args.data or "../shared/data/cmu")
     if args.playable:
         from ..bench.playable import bench_playable
