@@ -137,3 +137,42 @@ def test_library_extract_equals_the_cli_with_max_gap_and_min_interval(tmp_path):
             infos = [k.info for r in results for k in r.results.values()]
             assert any(i["max_gap_added"] for i in infos)
             assert any(i["min_interval_dropped"] for i in infos)
+
+
+KERNELS = '''
+from streamkey.jit import kernel
+
+@kernel
+def step(x):
+    return 2.0 * x + 1.0
+
+@kernel
+def total(a):
+    s = 0.0
+    for v in a:
+        s += step(v)
+    return s
+'''
+
+
+def test_a_cold_kernel_cache_prints_progress_per_kernel_and_a_warm_one_nothing(tmp_path):
+    (tmp_path / "ff_sample_kernels.py").write_text(KERNELS)
+    code = ("import sys, numpy; sys.path.insert(0, sys.argv[1]); "
+            "import streamkey.cli.compiling as c; c.HEARTBEAT_S = 0.02; c.report_compilation(); "
+            "import ff_sample_kernels as k; print(k.total(numpy.arange(3.0)))")
+    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    cold = subprocess.run([sys.executable, "-P", "-c", code, str(tmp_path)], env=env,
+                          capture_output=True, text=True, timeout=300, check=True)
+    assert cold.stdout.strip() == "9.0"
+    lines = cold.stderr.splitlines()
+    assert lines[0].startswith("compiling kernels for this machine (once")
+    done = [ln for ln in lines if re.match(r"compiling kernels \d+/\d+: ", ln)]
+    # the callee compiles inside its caller: both named, callee first
+    assert [ln.split(":")[1].split()[0] for ln in done] == ["ff_sample_kernels.step",
+                                                            "ff_sample_kernels.total"]
+    # N/M: M counts every kernel imported so far (here also the package's own)
+    assert re.match(r"compiling kernels 2/\d+: ", done[-1])
+    assert any(ln.startswith("  still compiling ff_sample_kernels.") for ln in lines)
+    warm = subprocess.run([sys.executable, "-P", "-c", code, str(tmp_path)], env=env,
+                          capture_output=True, text=True, timeout=300, check=True)
+    assert warm.stdout.strip() == "9.0" and "compiling" not in warm.stderr

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from .. import __version__
 from ..errors import StreamkeyError
 from . import bench, cluster, demo, eval, extract, figures, replay, run
+from .compiling import report_compilation
 
 __all__ = ["main", "build_parser"]
 
@@ -35,6 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code (2 for input and usage errors)."""
     args = build_parser().parse_args(argv)
+    report_compilation()  # a cold kernel cache: progress lines, not a silent minute
     try:
         return int(args.func(args))
     except StreamkeyError as exc:
