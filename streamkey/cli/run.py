@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from .common import dashboard, read
+from .input_watch import InputWatch
 from .options import (
     add_dashboard_options,
     add_method_options,
@@ -55,6 +56,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",
                    help="stop once frames have flowed and then none came for SECONDS "
                         "(default: run until Ctrl-C / SIGTERM)")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no warnings about refused input while running (still counted in "
+                        "the summary)")
     p.add_argument("--realtime", action="store_true",
                    help="run ahead of ordinary processes (SCHED_RR 10 where allowed, else "
                         "nice -10), so frames do not wait for a busy machine's other work")
@@ -86,7 +90,6 @@ def run(args: argparse.Namespace) -> int:
 
     from ..adapters.osc import with_layout
     from ..amc import bvh_equivalent, read_motion
-    from ..live import run_live
     from ..methods import parse_methods
     from ..streaming import check_online_params
 
@@ -106,19 +109,41 @@ def run(args: argparse.Namespace) -> int:
         return dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                          stream=args.stream)
     _check_streams(args)
-    summary = asyncio.run(run_live(source, methods, args.to or ["-"], online_params(args),
-                                   None, args.listen, args.stream,
-                                   rate=0.0 if args.fast else None,
-                                   idle_exit=args.idle_exit,
-                                   reset_on_gap=args.reset_on_gap, max_streams=args.max_streams,
-                                   stream_idle=args.stream_idle))
+    watch = InputWatch(quiet=args.quiet)
+    summary = asyncio.run(_run_watched(args, source, methods, watch))
     print(summary.text(), file=sys.stderr)
+    if (problems := watch.summary_line()) is not None:
+        print(problems, file=sys.stderr)
     if args.summary:
-        Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
+        Path(args.summary).write_text(json.dumps(
+            {**summary.as_dict(), "input_problems": dict(watch.counts)}, indent=1) + "\n")
     if summary.source_error:  # the source died: say so and fail, never idle on
         print(f"error: {args.source}: {summary.source_error}", file=sys.stderr)
         return 2
     return 0
+
+
+async def _run_watched(args: argparse.Namespace, source: Any, methods: list[str],
+                       watch: InputWatch) -> Any:
+    """The engine (as `run_live` builds it) with `watch` reading its counters meanwhile."""
+    import asyncio
+
+    from ..adapters import make_sink, parse_address
+    from ..live import build_engine, run_engine
+
+    sinks = [make_sink(parse_address(a), args.listen) for a in args.to or ["-"]]
+    engine = build_engine(source, methods, sinks, online_params(args), None, args.stream,
+                          rate=0.0 if args.fast else None, idle_exit=args.idle_exit,
+                          on_frame=watch.on_frame, reset_on_gap=args.reset_on_gap,
+                          max_streams=args.max_streams, stream_idle=args.stream_idle,
+                          freeze_gc=True)
+    watch.engine = engine
+    task = asyncio.create_task(watch.watch())
+    try:
+        return await run_engine(engine)
+    finally:
+        task.cancel()
+        watch.check(final=True)
 
 
 def _check_streams(args: argparse.Namespace) -> None:
