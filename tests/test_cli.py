@@ -176,3 +176,24 @@ def test_a_cold_kernel_cache_prints_progress_per_kernel_and_a_warm_one_nothing(t
     warm = subprocess.run([sys.executable, "-P", "-c", code, str(tmp_path)], env=env,
                           capture_output=True, text=True, timeout=300, check=True)
     assert warm.stdout.strip() == "9.0" and "compiling" not in warm.stderr
+
+
+def test_extract_of_one_long_file_is_never_silent_for_long(tmp_path, capsys, monkeypatch):
+    from streamkey.cli import common
+
+    monkeypatch.setattr(common, "HEARTBEAT_S", 0.05)
+    assert main(["extract", str(DATA / "07_01.bvh"), "--method", "all",
+                 "-o", str(tmp_path / "keys.json")]) == 0
+    beats = [ln for ln in capsys.readouterr().err.splitlines()
+             if ln.startswith("  ... 07_01.bvh [1/1] (")]
+    assert beats, "no progress line while the file was worked on"
+    assert main(["extract", str(DATA / "07_01.bvh"), "--method", "all", "-q",
+                 "-o", str(tmp_path / "keys.json")]) == 0
+    assert "..." not in capsys.readouterr().err
+
+
+def test_bench_offline_and_online_have_help():
+    out = subprocess.run([sys.executable, "-m", "streamkey", "bench", "--help"],
+                         capture_output=True, text=True, check=True).stdout
+    flat = " ".join(out.split())
+    assert "--offline offline methods:" in flat and "--online online keyframers:" in flat
