@@ -35,10 +35,12 @@ page URL carries `?token=...` and the page and the WebSocket refuse requests wit
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
 from importlib import resources
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -58,7 +60,7 @@ from .summary import RunSummary
 
 __all__ = ["Annotator", "LiveView", "DashboardSink", "run_dashboard", "METHOD_COLORS",
            "MAX_TEXT", "ACTIONS", "check_port", "method_color", "bone_sides",
-           "default_log"]
+           "default_log", "session_dir"]
 
 MAX_TEXT = 500            # characters of a label or a reason
 MAX_KEYS = 10_000         # keyed frames remembered for labels and rejections
@@ -542,9 +544,23 @@ async def run_dashboard(source: Source | Motion, methods: list[str], to: list[st
     return await run_engine(engine), board
 
 
+def session_dir() -> Path:
+    """Where session logs go when neither `--log` nor a `jsonl:` sink names one:
+    `$STREAMKEY_SESSIONS`, else `$XDG_STATE_HOME/streamkey/sessions`, else
+    `~/.local/state/streamkey/sessions` (not the current folder: a demo run from a checkout
+    must not litter it)."""
+    if os.environ.get("STREAMKEY_SESSIONS"):
+        return Path(os.environ["STREAMKEY_SESSIONS"])
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "streamkey" / "sessions"
+
+
 def default_log() -> str:
-    """`session-<UTC time>.jsonl` in the current folder: where annotations go by default."""
-    return time.strftime("session-%Y%m%d-%H%M%S.jsonl", time.gmtime())
+    """`session-<UTC time>.jsonl` in `session_dir()` (created): where annotations go by
+    default."""
+    folder = session_dir()
+    folder.mkdir(parents=True, exist_ok=True)
+    return str(folder / time.strftime("session-%Y%m%d-%H%M%S.jsonl", time.gmtime()))
 
 
 def check_port(port: int) -> int:

@@ -197,3 +197,80 @@ def test_bench_offline_and_online_have_help():
                          capture_output=True, text=True, check=True).stdout
     flat = " ".join(out.split())
     assert "--offline offline methods:" in flat and "--online online keyframers:" in flat
+
+
+def test_run_from_a_file_of_another_kind_or_a_one_slash_address_says_what_would_work(capsys):
+    for source, expected in (
+            ("README.md", "run --from README.md: not a BVH (.bvh) or AMC (.amc) file; run "
+                          "replays a BVH or AMC file, or listens on a live source: osc://"),
+            ("osc:/127.0.0.1:9000", "run --from osc:/127.0.0.1:9000: an address needs two "
+                                    "slashes: osc://127.0.0.1:9000"),
+            ("take-that-is-not-here", "neither a file nor an address")):
+        assert main(["run", "--from", source]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and expected in err and err.count("\n") == 1, err
+
+
+def test_a_busy_port_is_worded_the_same_for_every_listener(capsys):
+    import socket
+
+    from streamkey.cli.main import BUSY_HINT
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp, socket.socket() as tcp:
+        udp.bind(("127.0.0.1", 0))
+        tcp.bind(("127.0.0.1", 0))
+        tcp.listen()
+        u, t = udp.getsockname()[1], tcp.getsockname()[1]
+        clip = str(DATA / "07_01.bvh")
+        for argv, where in (
+                (["run", "--from", f"osc://127.0.0.1:{u}", "--skeleton", clip], u),
+                (["run", "--from", clip, "--to", f"ws://127.0.0.1:{t}"], t),
+                (["run", "--from", clip, "--dashboard", str(t)], t)):
+            assert main([*argv, "--method", "simplify"]) == 2
+            err = capsys.readouterr().err.strip().splitlines()[-1]
+            assert err.endswith(f"cannot listen on 127.0.0.1:{where}: {BUSY_HINT}"), err
+
+
+def test_ctrl_c_interrupts_a_folder_extract_with_exit_130_and_says_so(tmp_path):
+    import signal
+
+    proc = subprocess.Popen([sys.executable, "-m", "streamkey", "extract", str(DATA),
+                             "--method", "all", "-o", str(tmp_path / "keys.json")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        while not proc.stderr.readline().startswith("[2/"):  # well into the batch
+            assert proc.poll() is None
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130
+    assert "interrupted: extract stopped by Ctrl-C before it finished" in err
+    assert "Traceback" not in err and not (tmp_path / "keys.json").exists()
+
+
+def test_demo_dashboard_logs_the_session_outside_the_current_folder(tmp_path):
+    import signal
+
+    cwd, sessions = tmp_path / "cwd", tmp_path / "sessions"
+    cwd.mkdir()
+    env = {**__import__("os").environ, "STREAMKEY_SESSIONS": str(sessions)}
+    proc = subprocess.Popen([sys.executable, "-m", "streamkey", "demo", "--dashboard", "0",
+                             "--seconds", "2"], cwd=cwd, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    lines = []
+    try:
+        while not any("dashboard on http" in ln for ln in lines):
+            line = proc.stderr.readline()
+            assert line, "".join(lines)
+            lines.append(line)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    logs = list(sessions.glob("session-*.jsonl"))
+    assert len(logs) == 1 and list(cwd.iterdir()) == []
+    assert f"sending to jsonl:{logs[0]}" in "".join(lines)

@@ -6,6 +6,7 @@ Every input error becomes one `error: ...` line on stderr and exit code 2, never
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from collections.abc import Sequence
 
@@ -14,7 +15,16 @@ from ..errors import StreamkeyError
 from . import bench, cluster, demo, eval, extract, figures, replay, run
 from .compiling import report_compilation
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "busy_port"]
+
+_BUSY = re.compile(r"(cannot listen on \S+?:\d+): .*\bin use\b.*$", re.I | re.S)
+BUSY_HINT = "the port is in use (give another port, or 0 for a free one)"
+
+
+def busy_port(message: str) -> str:
+    """One wording for a busy port, whichever listener (OSC, WebSocket, ZeroMQ, dashboard)
+    and library said it."""
+    return _BUSY.sub(lambda m: f"{m.group(1)}: {BUSY_HINT}", message)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,9 +50,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except StreamkeyError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {busy_port(str(exc))}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # live commands stop on Ctrl-C themselves (exit 0)
+        print(f"interrupted: {args.command} stopped by Ctrl-C before it finished",
+              file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0

@@ -74,6 +74,7 @@ def _source(args: argparse.Namespace, methods: list[str], skeleton: Any) -> Any:
     (with the `--skeleton` motion, if given)."""
     from ..adapters import make_source, parse_address
 
+    _check_source_address(args.source)
     if Path(args.source).suffix.lower() in (".bvh", ".amc"):
         motion = read(args.source, args)
         _check_keyframers(motion, methods, args)
@@ -144,6 +145,29 @@ async def _run_watched(args: argparse.Namespace, source: Any, methods: list[str]
     finally:
         task.cancel()
         watch.check(final=True)
+
+
+LIVE_SOURCES = ("osc://HOST:PORT, zmq+tcp://HOST:PORT, zmq+ipc://PATH, axis+tcp://HOST:PORT, "
+                "vmc://HOST:PORT or - (JSON Lines on stdin)")
+
+
+def _check_source_address(source: str) -> None:
+    """A `--from` that is neither a BVH/AMC file nor an address gets told what would be:
+    a file of another kind, or an address with one slash."""
+    import re
+
+    from ..errors import UsageError
+
+    if source == "-" or "://" in source:
+        return
+    if (m := re.match(r"([a-z][a-z0-9+]*):/?([^/].*)", source)) and not Path(source).exists():
+        raise UsageError(f"run --from {source}: an address needs two slashes: "
+                         f"{m.group(1)}://{m.group(2)}")
+    if Path(source).suffix.lower() not in (".bvh", ".amc"):
+        what = ("not a BVH (.bvh) or AMC (.amc) file" if Path(source).exists()
+                else "neither a file nor an address")
+        raise UsageError(f"run --from {source}: {what}; run replays a BVH or AMC file, or "
+                         f"listens on a live source: {LIVE_SOURCES}")
 
 
 def _check_streams(args: argparse.Namespace) -> None:
