@@ -1,10 +1,12 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
 
+import pytest
 from cmu import DATA
 
 from streamkey.cli import main
@@ -274,3 +276,29 @@ def test_demo_dashboard_logs_the_session_outside_the_current_folder(tmp_path):
     logs = list(sessions.glob("session-*.jsonl"))
     assert len(logs) == 1 and list(cwd.iterdir()) == []
     assert f"sending to jsonl:{logs[0]}" in "".join(lines)
+
+
+def test_a_warm_demo_runs_the_four_keyframers_at_once(capfd):
+    from streamkey.demo import run_demo
+
+    assert run_demo(seconds=2.0) == 0  # paced at 120 Hz; the kernels are in the cache
+    out, err = capfd.readouterr()
+    assert "first run on this machine" not in err
+    assert "done: 240 frames" in out
+
+
+@pytest.mark.slow
+def test_a_first_demo_shows_simplify_while_the_other_kernels_compile(tmp_path):
+    """A cold kernel cache (a new machine): simplify's events come while the others compile
+    in a background process, then the four keyframers run from the start."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    proc = subprocess.run([sys.executable, "-m", "streamkey", "demo", "--seconds", "3"],
+                          env=env, capture_output=True, text=True, timeout=1800)
+    assert proc.returncode == 0, proc.stderr
+    out, err = proc.stdout, proc.stderr
+    assert "first run on this machine" in err and "background: compiling kernels" in err
+    assert "all kernels ready" in err
+    methods = re.findall(r"^t=\s*[\d.]+s\s+(\w+)\s+keyframe", out, re.M)
+    assert methods[:3] == ["simplify"] * 3  # the preview: simplify alone, live
+    assert out.count("done: 360 frames") == 1  # then the demo itself, every keyframer
+    assert {"saliency", "speed", "optimal"} <= set(methods[3:])

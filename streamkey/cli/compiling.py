@@ -17,8 +17,9 @@ HEARTBEAT_S = 4.0  # longest silence while a kernel compiles
 class _Progress:
     """Counts the kernels compiled and prints `compiling kernels N/M: name (s)` lines."""
 
-    def __init__(self, out: TextIO | None) -> None:
+    def __init__(self, out: TextIO | None, prefix: str = "") -> None:
         self.out = out
+        self.prefix = prefix
         self.done: set[str] = set()
         self.current: list[str] = []  # names being compiled (nested: a kernel's callees)
         self.started = 0.0
@@ -49,7 +50,7 @@ class _Progress:
 
     def _say(self, line: str) -> None:
         self.last_line = time.monotonic()
-        print(line, file=self.out or sys.stderr, flush=True)
+        print(self.prefix + line, file=self.out or sys.stderr, flush=True)
 
     def _beat(self) -> None:
         """A daemon thread that speaks when no line came for `HEARTBEAT_S` during a compile
@@ -73,11 +74,12 @@ class _Progress:
 _INSTALLED: list[_Progress] = []
 
 
-def report_compilation(out: TextIO | None = None) -> None:
+def report_compilation(out: TextIO | None = None, prefix: str = "") -> None:
     """Print compile progress on `out` (default: the current stderr) whenever kernels
-    compile in this process; once per process (later calls change nothing)."""
+    compile in this process, each line after `prefix`; once per process (later calls change
+    nothing)."""
     from ..jit import watch_compilation
 
     if not _INSTALLED:
-        _INSTALLED.append(_Progress(out))
+        _INSTALLED.append(_Progress(out, prefix))
         watch_compilation(_INSTALLED[0])
