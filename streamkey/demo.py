@@ -42,8 +42,7 @@ def run_demo(seconds: float = 20.0, offline: bool = False, fast: bool = False,
     summary = asyncio.run(run_live(
         motion, list(ONLINE_METHODS), [], stream="demo", rate=0.0 if fast else None,
         on_event=lambda e: _print_event(e, counts, out),
-        on_ready=lambda line: print(line, file=sys.stderr, flush=True)
-        if line.startswith("compiling") else None))
+        on_ready=lambda line: None))  # compiling: the progress lines say it (cli/compiling)
     lat = summary.latency_percentiles()
     print(f"done: {summary.frames_in} frames, keyframes per method: "
           + ", ".join(f"{m} {n}" for m, n in counts.items())

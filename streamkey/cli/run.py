@@ -124,6 +124,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _ready(line: str) -> None:
+    """The engine's status lines on stderr, but its one-line compile notice: the progress
+    lines (`cli/compiling.py`) say when kernels really compile, and how far along."""
+    if not line.startswith("compiling the numba kernels"):
+        print(line, file=sys.stderr, flush=True)
+
+
 async def _run_watched(args: argparse.Namespace, source: Any, methods: list[str],
                        watch: InputWatch) -> Any:
     """The engine (as `run_live` builds it) with `watch` reading its counters meanwhile."""
@@ -137,7 +144,7 @@ async def _run_watched(args: argparse.Namespace, source: Any, methods: list[str]
                           rate=0.0 if args.fast else None, idle_exit=args.idle_exit,
                           on_frame=watch.on_frame, reset_on_gap=args.reset_on_gap,
                           max_streams=args.max_streams, stream_idle=args.stream_idle,
-                          freeze_gc=True)
+                          freeze_gc=True, on_ready=_ready)
     watch.engine = engine
     task = asyncio.create_task(watch.watch())
     try:
