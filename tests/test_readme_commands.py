@@ -117,3 +117,11 @@ def test_readme_command_blocks_run_in_order(mirror):
         assert all(line in lines for line in block), block
         done = _bash("\n".join(block), mirror)
         assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_readme_and_docs_cite_no_document_a_reader_does_not_have():
+    for path in [README, *sorted((ROOT / "docs").glob("*.md"))]:
+        text = path.read_text()
+        for pattern in (r"\bDESIGN\b", r"\bissues? #?\d", r"\bthe issue\b",
+                        r"\.\./shared/(?!data)"):
+            assert not re.search(pattern, text, re.I), f"{path.name}: {pattern}"
