@@ -137,17 +137,22 @@ def _listen() -> None:
 
         def on_start(self, ev: Any) -> None:
             self.started.append(time.monotonic())
-            for fn in list(_WATCHERS):
-                fn(_name(ev), None)
+            if name := _name(ev):
+                for fn in list(_WATCHERS):
+                    fn(name, None)
 
         def on_end(self, ev: Any) -> None:
             seconds = time.monotonic() - self.started.pop() if self.started else 0.0
-            for fn in list(_WATCHERS):
-                fn(_name(ev), seconds)
+            if name := _name(ev):
+                for fn in list(_WATCHERS):
+                    fn(name, seconds)
 
-    def _name(ev: Any) -> str:
+    def _name(ev: Any) -> str | None:
+        """`module.function` of one of our kernels; None for numba's own helpers."""
         py = getattr(ev.data.get("dispatcher"), "py_func", None)
-        return f"{py.__module__.rsplit('.', 1)[-1]}.{py.__name__}" if py else "kernel"
+        if py is None or py.__module__ not in {k.__module__ for k in _KERNELS}:
+            return None
+        return f"{py.__module__.rsplit('.', 1)[-1]}.{py.__name__}"
 
     event.register("numba:compile", Forward())
     _LISTENING.append(True)

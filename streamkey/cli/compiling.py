@@ -41,8 +41,9 @@ class _Progress:
                 self.current.append(name)
                 self._beat()
                 return
-            if name in self.current:
-                self.current.remove(name)
+            if name not in self.current:  # its start was not ours (a refused compile)
+                return
+            self.current.remove(name)
             self.done.add(name)
             total = max(kernel_count(), len(self.done))
             self._say(f"compiling kernels {len(self.done)}/{total}: {name} "
