@@ -61,16 +61,17 @@ def _print_event(event: dict[str, Any], counts: dict[str, int], out: TextIO) -> 
 
 
 def _kernels_cold() -> bool:
-    """True when some kernel of the online keyframers is not in numba's cache yet."""
+    """True when the preview keyframer's kernels (and the front end's) are not in numba's
+    cache yet: the first run on a machine. Imports only that keyframer's modules, so the
+    preview compiles nothing of the others."""
     from . import jit
-    from .methods import ONLINE_METHODS
     from .online import Pipeline
     from .replay.demo import demo_motion
     from .streaming import make_keyframers
 
     jit._WATCHERS.insert(0, _refuse_compiling)  # before any progress line
-    try:  # builds (imports) every keyframer; a cold kernel stops it before it compiles
-        Pipeline(make_keyframers(demo_motion(0.1), list(ONLINE_METHODS), {}))
+    try:  # a cold kernel stops the build before it compiles
+        Pipeline(make_keyframers(demo_motion(0.1), [PREVIEW_METHOD], {}))
     except _Cold:
         return True
     finally:
@@ -135,14 +136,22 @@ def _preview_while_compiling(motion: Any, out: TextIO) -> bool:
 def compile_in_background() -> None:
     """Compile the kernels of every online keyframer but the preview's into numba's on-disk
     cache (`demo`'s background process on a cold cache), with progress lines on stderr."""
+    from importlib import import_module
+
     from . import jit
     from .cli.compiling import report_compilation
-    from .methods import ONLINE_METHODS
+    from .methods import ONLINE_METHODS, online_class
     from .online import Pipeline
     from .replay.demo import demo_motion
     from .streaming import make_keyframers
 
     report_compilation(prefix="background: ")
     others = [m for m in ONLINE_METHODS if m != PREVIEW_METHOD]
-    Pipeline(make_keyframers(demo_motion(0.1), others, {}))  # imports and front-end kernels
+    for name in others:  # imports the methods' modules (their warmers register)
+        online_class(name)
+    import_module("streamkey.segments")
+    front = {"streamkey.kinematics", "streamkey.signal", "streamkey.filters"}
+    # the methods' own kernels first: the preview compiles the front end's meanwhile
+    jit.warm_up(*[w for w in jit._WARMERS if w.__module__ not in front])
+    Pipeline(make_keyframers(demo_motion(0.1), others, {}))  # the rest, by now in the cache
     jit.warm_up()
