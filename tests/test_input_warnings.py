@@ -115,3 +115,17 @@ def test_positions_only_stdin_lines_are_explained(tmp_path):
     warnings = [ln for ln in done.stderr.splitlines() if ln.startswith("warning:")]
     assert len(warnings) == 1 and "rotation channels" in warnings[0], done.stderr
     assert "input problems:" in done.stderr and " 5" in done.stderr.split("input problems:")[1]
+
+
+def test_with_the_dashboard_too_refused_input_is_explained(tmp_path):
+    port = free_port()
+    proc = _run(port, "--skeleton", str(CLIP), "--dashboard", "0", "--log",
+                str(tmp_path / "session.jsonl"))
+    try:
+        _send(port, encode_frame(0, 0.0, np.zeros(5)))
+        line, took = _line_with(proc, "warning: frame on stream 'default' refused")
+        assert "expected 96 finite channel values" in line and took < 1.0 * MS
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60 * MS)
+    assert "input problems: invalid 1" in err

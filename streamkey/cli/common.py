@@ -101,17 +101,28 @@ def dashboard(args: argparse.Namespace, source: Any, methods: list[str], to: lis
     import json
 
     from ..dashboard import check_port, default_log, run_dashboard
+    from .input_watch import InputWatch
 
     port = check_port(args.dashboard)
     log = args.log or (None if any(a.startswith("jsonl:") for a in to) else default_log())
+    watch = InputWatch(quiet=getattr(args, "quiet", False))
+
+    def watching(board: Any) -> None:  # refused input explained on stderr meanwhile
+        watch.engine = board.engine
+        watch.task = asyncio.get_running_loop().create_task(watch.watch())
+
     summary, board = asyncio.run(run_dashboard(
         source, methods, to, online_params(args), None,
         args.listen, stream, rate=rate, port=port, log=log, loop=loop,
-        idle_exit=getattr(args, "idle_exit", None)))
+        idle_exit=getattr(args, "idle_exit", None), on_start=watching))
+    watch.check(final=True)
     print(summary.text(), file=sys.stderr)
+    if (problems := watch.summary_line()) is not None:
+        print(problems, file=sys.stderr)
     print(f"annotations: {board.annotator.count}", file=sys.stderr)
     if getattr(args, "summary", None):
-        Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
+        Path(args.summary).write_text(json.dumps(
+            {**summary.as_dict(), "input_problems": dict(watch.counts)}, indent=1) + "\n")
     if summary.source_error:
         print(f"error: {getattr(args, 'source', 'source')}: {summary.source_error}",
               file=sys.stderr)

@@ -41,6 +41,7 @@ class InputWatch:
         self.quiet = quiet
         self.repeat_s = repeat_s
         self.engine: Any = None
+        self.task: asyncio.Task[None] | None = None  # `watch()` when the caller keeps it
         self.counts: Counter[str] = Counter()
         self._said_at: dict[str, float] = {}
         self._unsaid: Counter[str] = Counter()
@@ -135,8 +136,9 @@ class InputWatch:
                        f"{n_channels} channels (frames must carry one value per channel, in "
                        "the skeleton's order); dropped")
         else:
-            self._note("invalid", grew, f"frame on stream {stream!r} with a non-finite value "
-                       f"or bad seq/time (expected {n_channels} finite channels); dropped")
+            self._note("invalid", grew, f"frame on stream {stream!r} refused: expected "
+                       f"{n_channels} finite channel values (one per skeleton channel) and a "
+                       "usable seq/time; dropped")
 
     def _check_first_pose(self) -> None:
         if self._pose_checked or len(self._first) < 2 or self.engine is None:
