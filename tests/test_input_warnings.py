@@ -4,6 +4,7 @@ per kind then rate-limited, and counts it at the end (real processes, real UDP p
 from __future__ import annotations
 
 import json
+import re
 import signal
 import socket
 import subprocess
@@ -119,12 +120,24 @@ def test_positions_only_stdin_lines_are_explained(tmp_path):
 
 def test_with_the_dashboard_too_refused_input_is_explained(tmp_path):
     port = free_port()
-    proc = _run(port, "--skeleton", str(CLIP), "--dashboard", "0", "--log",
-                str(tmp_path / "session.jsonl"))
+    from websockets.sync.client import connect
+
+    proc = streamkey("run", "--from", f"osc://127.0.0.1:{port}", "--method", "simplify",
+                     "--skeleton", str(CLIP), "--dashboard", "0", "--log",
+                     str(tmp_path / "session.jsonl"))
     try:
-        _send(port, encode_frame(0, 0.0, np.zeros(5)))
-        line, took = _line_with(proc, "warning: frame on stream 'default' refused")
-        assert "expected 96 finite channel values" in line and took < 1.0 * MS
+        lines = "".join(wait_ready(proc, "dashboard on", timeout=300))
+        if "listening on" not in lines:  # the page binds first, then the source
+            wait_ready(proc, timeout=300)
+        page = re.search(r"dashboard on (http://\S+?)/?\s", lines).group(1)
+        with connect(page.replace("http://", "ws://") + "/ws") as ws:
+            assert json.loads(ws.recv(timeout=30 * MS))["type"] == "hello"
+            _send(port, encode_frame(0, 0.0, np.zeros(5)))
+            line, took = _line_with(proc, "warning: frame on stream 'default' refused")
+            assert "expected 96 finite channel values" in line and took < 1.0 * MS
+            while (message := json.loads(ws.recv(timeout=30 * MS)))["type"] != "input":
+                pass
+            assert message["text"] == line.strip()  # the page shows the same line
     finally:
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60 * MS)

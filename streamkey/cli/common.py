@@ -109,6 +109,7 @@ def dashboard(args: argparse.Namespace, source: Any, methods: list[str], to: lis
 
     def watching(board: Any) -> None:  # refused input explained on stderr meanwhile
         watch.engine = board.engine
+        watch.notify = lambda line: board.broadcast({"type": "input", "text": line})
         watch.task = asyncio.get_running_loop().create_task(watch.watch())
 
     summary, board = asyncio.run(run_dashboard(

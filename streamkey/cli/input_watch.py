@@ -12,6 +12,7 @@ import asyncio
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable
 from typing import Any, TextIO
 
 import numpy as np
@@ -42,6 +43,7 @@ class InputWatch:
         self.repeat_s = repeat_s
         self.engine: Any = None
         self.task: asyncio.Task[None] | None = None  # `watch()` when the caller keeps it
+        self.notify: Callable[[str], None] | None = None  # also gets each line (the page)
         self.counts: Counter[str] = Counter()
         self._said_at: dict[str, float] = {}
         self._unsaid: Counter[str] = Counter()
@@ -173,3 +175,5 @@ class InputWatch:
     def _say(self, line: str) -> None:
         if not self.quiet:
             print(line, file=self.out or sys.stderr, flush=True)
+        if self.notify is not None:
+            self.notify(line)

@@ -143,6 +143,7 @@ const HANDLERS = {
   cancel(m) { state.provisional.delete(`${m.method}/${m.pid}`); state.dirty = true; },
   gap(m) { note(`gap: frames ${m.first}..${m.last} missing${m.bridged ? " (bridged)" : ""}`); },
   status(m) { note(`status: ${m.status}`); },
+  input(m) { note(m.text); },  // refused input, explained (what arrived, what was expected)
   stats(m) {
     $("c-frames").textContent = m.frames;
     $("c-drops").textContent = m.drops;
