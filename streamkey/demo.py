@@ -6,7 +6,7 @@ from typing import Any, TextIO
 
 from .replay.demo import demo_motion
 
-__all__ = ["run_demo", "compile_in_background", "PREVIEW_METHOD"]
+__all__ = ["run_demo", "PREVIEW_METHOD"]
 
 PREVIEW_METHOD = "simplify"  # its kernels (and the front end's) compile first, in seconds
 
@@ -98,7 +98,7 @@ def _preview_while_compiling(motion: Any, out: TextIO) -> bool:
     from .live import build_engine, run_engine
 
     background = subprocess.Popen(
-        [sys.executable, "-c", "from streamkey.demo import compile_in_background as c; c()"])
+        [sys.executable, "-c", "from streamkey.cli.demo import compile_in_background as c; c()"])
     print(f"first run on this machine: numba compiles the kernels once (about a minute); "
           f"meanwhile {PREVIEW_METHOD} runs alone, the other keyframers compile in the "
           "background", file=sys.stderr, flush=True)
@@ -131,27 +131,3 @@ def _preview_while_compiling(motion: Any, out: TextIO) -> bool:
     print("all kernels ready: the four keyframers on the demo motion from the start",
           file=sys.stderr, flush=True)
     return True
-
-
-def compile_in_background() -> None:
-    """Compile the kernels of every online keyframer but the preview's into numba's on-disk
-    cache (`demo`'s background process on a cold cache), with progress lines on stderr."""
-    from importlib import import_module
-
-    from . import jit
-    from .cli.compiling import report_compilation
-    from .methods import ONLINE_METHODS, online_class
-    from .online import Pipeline
-    from .replay.demo import demo_motion
-    from .streaming import make_keyframers
-
-    report_compilation(prefix="background: ")
-    others = [m for m in ONLINE_METHODS if m != PREVIEW_METHOD]
-    for name in others:  # imports the methods' modules (their warmers register)
-        online_class(name)
-    import_module("streamkey.segments")
-    front = {"streamkey.kinematics", "streamkey.signal", "streamkey.filters"}
-    # the methods' own kernels first: the preview compiles the front end's meanwhile
-    jit.warm_up(*[w for w in jit._WARMERS if w.__module__ not in front])
-    Pipeline(make_keyframers(demo_motion(0.1), others, {}))  # the rest, by now in the cache
-    jit.warm_up()
