@@ -1,5 +1,6 @@
-"""The README's shell commands, as written: each parses, names files that exist, and the cheap
-ones run from (a mirror of) the repository root and succeed, so the README cannot rot."""
+"""The shell commands of the README and docs/, as written: each parses, names files that
+exist, and the cheap ones run from (a mirror of) the repository root and succeed; every local
+link reaches its file and heading; no page cites a document the reader does not have."""
 
 from __future__ import annotations
 
@@ -39,11 +40,15 @@ CHEAP_BLOCKS = [
 ]
 
 
+PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
+
+
 def readme_commands() -> list[str]:
-    """Every command line of the README's ```bash blocks (continuations joined, comments
-    and blank lines left out)."""
+    """Every command line of the ```bash blocks of the README and docs/ (continuations
+    joined, comments and blank lines left out); all run from the repository root."""
     lines = []
-    for block in re.findall(r"```bash\n(.*?)```", README.read_text(), re.S):
+    text = "\n".join(page.read_text() for page in PAGES)
+    for block in re.findall(r"```bash\n(.*?)```", text, re.S):
         for line in re.sub(r"\\\n\s*", "", block).splitlines():
             line = re.sub(r"\s+#\s.*$", "", line).strip()  # a trailing comment
             if line and not line.startswith("#"):
@@ -65,7 +70,7 @@ def _simple_commands(line: str) -> list[list[str]]:
 
 def test_every_readme_command_names_a_real_program_and_parses():
     lines = readme_commands()
-    assert len(lines) > 25
+    assert len(lines) > 40
     for line in lines:
         commands = _simple_commands(line)
         after_redirect = {i for i, c in enumerate(commands)
@@ -120,8 +125,27 @@ def test_readme_command_blocks_run_in_order(mirror):
 
 
 def test_readme_and_docs_cite_no_document_a_reader_does_not_have():
-    for path in [README, *sorted((ROOT / "docs").glob("*.md"))]:
+    for path in PAGES:
         text = path.read_text()
         for pattern in (r"\bDESIGN\b", r"\bissues? #?\d", r"\bthe issue\b",
                         r"\.\./shared/(?!data)"):
             assert not re.search(pattern, text, re.I), f"{path.name}: {pattern}"
+
+
+def _anchors(text: str) -> set[str]:
+    """GitHub's heading anchors of a Markdown text."""
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-")
+            for h in re.findall(r"^#+ (.+)$", text, re.M)}
+
+
+def test_every_local_link_of_the_readme_and_docs_reaches_a_file_and_heading():
+    for page in PAGES:
+        text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+://", target):
+                continue
+            path, _, anchor = target.partition("#")
+            dest = (page.parent / path).resolve() if path else page
+            assert dest.exists(), f"{page.name}: {target}"
+            if anchor and dest.suffix == ".md":
+                assert anchor in _anchors(dest.read_text()), f"{page.name}: {target}"
