@@ -302,3 +302,17 @@ def test_a_first_demo_shows_simplify_while_the_other_kernels_compile(tmp_path):
     assert methods[:3] == ["simplify"] * 3  # the preview: simplify alone, live
     assert out.count("done: 360 frames") == 1  # then the demo itself, every keyframer
     assert {"saliency", "speed", "optimal"} <= set(methods[3:])
+
+
+def test_the_long_memory_stream_of_bench_online_reports_progress_with_an_estimate():
+    from streamkey.bench.core import _stream_memory
+    from streamkey.replay.demo import demo_motion
+
+    class Sink:
+        def push(self, frame) -> None:
+            pass
+
+    said: list[str] = []
+    _stream_memory(Sink, demo_motion(1.0), 96_001, said.append)
+    assert len(said) == 2 and all(re.fullmatch(
+        r"bench online: memory stream \d\d,000/96,001 frames, about \d+ s left", s) for s in said)
