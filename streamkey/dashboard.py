@@ -35,10 +35,12 @@ page URL carries `?token=...` and the page and the WebSocket refuse requests wit
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
 from importlib import resources
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -58,11 +60,12 @@ from .summary import RunSummary
 
 __all__ = ["Annotator", "LiveView", "DashboardSink", "run_dashboard", "METHOD_COLORS",
            "MAX_TEXT", "ACTIONS", "check_port", "method_color", "bone_sides",
-           "default_log"]
+           "default_log", "session_dir"]
 
 MAX_TEXT = 500            # characters of a label or a reason
 MAX_KEYS = 10_000         # keyed frames remembered for labels and rejections
 MAX_ANNOTATIONS = 1000    # annotations kept in memory (all of them are in the log)
+MAX_SEGMENTS = 50         # session segments (calibration, still, take) kept for late pages
 MAX_CLIENT_MESSAGE = 4096  # bytes of one operator message
 ACTIONS = ("label", "key", "reject", "accept", "undo")
 SIDE_COLORS = {"L": "#1565c0", "R": "#e65100"}  # left / right bones of the live figure
@@ -309,6 +312,7 @@ class DashboardSink(WebSocketSink):
         self.view: LiveView | None = None
         self.engine: Engine | None = None
         self.recent: deque[dict[str, Any]] = deque(maxlen=recent)
+        self.segments: OrderedDict[tuple[Any, Any], dict[str, Any]] = OrderedDict()
         self.chart: deque[dict[str, Any]] = deque(maxlen=4000)  # keys for the strip chart
         self.latency: deque[float] = deque(maxlen=2000)
         self.delay: dict[str, deque[int]] = {}  # method -> latency_frames of its last keys
@@ -388,6 +392,11 @@ class DashboardSink(WebSocketSink):
                 self.chart.append({"method": method, "frame": frame})
                 record["pose"] = self.view.pose_of(frame) if self.view else None
                 self.recent.append(record)
+            case _ if record.get("type") == "segment":
+                # one entry per segment (an open one is replaced when it closes)
+                self.segments[(record.get("kind"), record.get("start"))] = record
+                while len(self.segments) > MAX_SEGMENTS:
+                    self.segments.popitem(last=False)
             case _:
                 pass
         self.broadcast(record)
@@ -409,7 +418,7 @@ class DashboardSink(WebSocketSink):
             out["drops"] += g["duplicates"] + g["out_of_order"] + g["invalid"]
             out["gaps"] = g["gaps"]
             out["lost"] = g["lost"]  # seq holes: frames that never arrived
-            out["lookahead"] = dict(stats.lookahead)
+            out["lookahead"] = _lookahead_now(eng, dict(stats.lookahead))
         out["events"] = dict(stats.events)
         if self.latency:
             lat = np.array(self.latency)
@@ -437,7 +446,8 @@ class DashboardSink(WebSocketSink):
                 "fps": self.view.fps if self.view else None, "max_text": MAX_TEXT,
                 "recent": list(self.recent), "keys": self._chart_keys(),
                 "annotations": list(self.annotations)[-50:],
-                "signals": list(self.signals), "saliency": list(self.saliency)}
+                "signals": list(self.signals), "saliency": list(self.saliency),
+                "segments": list(self.segments.values())}
 
     def _chart_keys(self) -> list[dict[str, Any]]:
         """Keys of the last 20 s (what the page's chart remembers), so a page opened late
@@ -542,9 +552,35 @@ async def run_dashboard(source: Source | Motion, methods: list[str], to: list[st
     return await run_engine(engine), board
 
 
+def _lookahead_now(engine: Engine, lookahead: dict[str, int]) -> dict[str, int]:
+    """Each method's lookahead as it applies now: a keyframer that chose among inner ones
+    (saliency's `auto` preset) reports the chosen one's (121 frames, then 37 after a switch
+    to "high"), not the bound it started with."""
+    for state in list(engine.table.live.values())[:1]:
+        for kf in state.pipeline.keyframers:
+            active = getattr(kf, "active", None)
+            if active is not None and kf.method in lookahead:
+                lookahead[kf.method] = int(active.lookahead)
+    return lookahead
+
+
+def session_dir() -> Path:
+    """Where session logs go when neither `--log` nor a `jsonl:` sink names one:
+    `$STREAMKEY_SESSIONS`, else `$XDG_STATE_HOME/streamkey/sessions`, else
+    `~/.local/state/streamkey/sessions` (not the current folder: a demo run from a checkout
+    must not litter it)."""
+    if os.environ.get("STREAMKEY_SESSIONS"):
+        return Path(os.environ["STREAMKEY_SESSIONS"])
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "streamkey" / "sessions"
+
+
 def default_log() -> str:
-    """`session-<UTC time>.jsonl` in the current folder: where annotations go by default."""
-    return time.strftime("session-%Y%m%d-%H%M%S.jsonl", time.gmtime())
+    """`session-<UTC time>.jsonl` in `session_dir()` (created): where annotations go by
+    default."""
+    folder = session_dir()
+    folder.mkdir(parents=True, exist_ok=True)
+    return str(folder / time.strftime("session-%Y%m%d-%H%M%S.jsonl", time.gmtime()))
 
 
 def check_port(port: int) -> int:

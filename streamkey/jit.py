@@ -22,13 +22,16 @@ import types
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
-__all__ = ["kernel", "warmer", "warm_up", "cache_is_cold", "prefetch"]
+__all__ = ["kernel", "warmer", "warm_up", "cache_is_cold", "prefetch", "watch_compilation",
+           "kernel_count"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 _WARMERS: list[Callable[[], None]] = []
 _KERNELS: list[_Kernel] = []
 _WARMED: set[Callable[[], None]] = set()
+_WATCHERS: list[Callable[[str, float | None], None]] = []
+_LISTENING: list[bool] = []  # [True] once numba's compile events are hooked
 
 
 class _Kernel:
@@ -49,6 +52,8 @@ class _Kernel:
         if self.compiled is None:
             import numba
 
+            if _WATCHERS and not _LISTENING:
+                _listen()
             fn = self.py_func
             names = fn.__code__.co_names
             if any(isinstance(fn.__globals__.get(name), _Kernel) for name in names):
@@ -105,6 +110,52 @@ def warm_up(*warmers: Callable[[], None]) -> None:
         if fn not in _WARMED:
             fn()
             _WARMED.add(fn)
+
+
+def watch_compilation(fn: Callable[[str, float | None], None]) -> None:
+    """Call `fn(name, None)` when numba starts compiling a kernel (`module.function`) and
+    `fn(name, seconds)` when it is done: progress for a cold cache, where compiling every
+    kernel takes about a minute. Loading from the cache calls nothing. numba is hooked
+    only once a kernel is used, so `--help` and error paths still never import it."""
+    _WATCHERS.append(fn)
+
+
+def kernel_count() -> int:
+    """How many kernels the modules imported so far define (the total for progress)."""
+    return sum(1 for k in _KERNELS if not isinstance(k, _Intrinsic))
+
+
+def _listen() -> None:
+    """Forward numba's `numba:compile` events to the watchers."""
+    import time
+
+    from numba.core import event
+
+    class Forward(event.Listener):
+        def __init__(self) -> None:
+            self.started: list[float] = []
+
+        def on_start(self, ev: Any) -> None:
+            self.started.append(time.monotonic())
+            if name := _name(ev):
+                for fn in list(_WATCHERS):
+                    fn(name, None)
+
+        def on_end(self, ev: Any) -> None:
+            seconds = time.monotonic() - self.started.pop() if self.started else 0.0
+            if name := _name(ev):
+                for fn in list(_WATCHERS):
+                    fn(name, seconds)
+
+    def _name(ev: Any) -> str | None:
+        """`module.function` of one of our kernels; None for numba's own helpers."""
+        py = getattr(ev.data.get("dispatcher"), "py_func", None)
+        if py is None or py.__module__ not in {k.__module__ for k in _KERNELS}:
+            return None
+        return f"{py.__module__.rsplit('.', 1)[-1]}.{py.__name__}"
+
+    event.register("numba:compile", Forward())
+    _LISTENING.append(True)
 
 
 class _Intrinsic(_Kernel):

@@ -352,6 +352,7 @@ def test_browser_operator_session_waits_on_state_never_on_time(tmp_path: Path) -
         wait.until(lambda _: all(re.search(rf"{m} [\d.]+ f / [\d.]+ ms", text("c-delay"))
                                  for m in LIVE))
         assert text("c-lost") == "0" and text("c-drops").isdigit()
+        assert text("stream") == ""  # the take is the stream: named once
         assert text("take") == "demo" and re.fullmatch(r"\d\d:\d\d:\d\d\.\d{3}", text("timecode"))
         wait.until(lambda _: len(driver.find_elements(By.CSS_SELECTOR, cards)) >= 3)
         # event types of the v2 contract and unknown ones go through the page's own dispatch:
@@ -424,10 +425,16 @@ def test_browser_operator_session_waits_on_state_never_on_time(tmp_path: Path) -
         wait.until(lambda _: len(driver.find_elements(
             By.CSS_SELECTOR, "#keys li[data-method=simplify]:not([hidden])")) >= 2)
         toggle = driver.find_element(By.ID, "view2-mode")
+        assert toggle.text == "show top view"  # the button names its action
         toggle.click()
         wait.until(lambda _: toggle.get_attribute("data-mode") == "top")
+        assert toggle.text == "show side view"
         toggle.click()
         wait.until(lambda _: toggle.get_attribute("data-mode") == "side")
+        # a session segment (an open calibration hold) is drawn as a span behind the curves
+        assert js("HANDLERS.segment({type: 'segment', kind: 'calibration', "
+                  "start: state.frame - 120, end: null}); drawChart(); "
+                  "return state.segments.size") == 1
         ActionChains(driver).move_to_element(driver.find_element(By.ID, "c-frames")).perform()
         driver.execute_script("window.scrollTo(0, 0)")
         shot = (ROOT / "docs" if os.environ.get("STREAMKEY_UPDATE_DOCS") else ROOT / "results")
@@ -691,3 +698,26 @@ def streamkey_argv() -> list[str]:
     import sys
 
     return [sys.executable, "-m", "streamkey"]
+
+
+def test_the_lookahead_counter_follows_the_auto_preset_after_its_switch(data_dir: Path) -> None:
+    """05_06 (fast dance): `auto` saliency starts with "low" (121 frames) and switches to
+    "high" after 2 s; the counter then shows 37, the lookahead that applies."""
+    from types import SimpleNamespace
+
+    from streamkey.amc import read_motion
+    from streamkey.dashboard import _lookahead_now
+    from streamkey.online import Pipeline
+    from streamkey.streaming import make_keyframers
+
+    motion = read_motion(str(data_dir / "05_06.bvh"))
+    pipeline = Pipeline(make_keyframers(motion, ["saliency"], {}))
+    engine = SimpleNamespace(table=SimpleNamespace(live={"take": SimpleNamespace(
+        pipeline=pipeline)}))
+    frames = motion.frames()
+    for frame in frames[:10]:
+        pipeline.push(frame)
+    assert _lookahead_now(engine, {"saliency": 121}) == {"saliency": 121}  # undecided
+    for frame in frames[10:400]:
+        pipeline.push(frame)
+    assert _lookahead_now(engine, {"saliency": 121}) == {"saliency": 37}

@@ -7,7 +7,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 from cmu import DATA, ROOT
 from live_helpers import (
@@ -81,9 +80,11 @@ def test_annotate_session_recipe_logs_a_replayed_take(tmp_path):
     assert bash
     port_in, port_out = free_port(), free_port()
     log = tmp_path / "take.jsonl"
+    # As the README gives it: from the repository root, relative path, no venv activated (an
+    # empty PATH entry, i.e. the current folder, where `streamkey/` is the package folder).
     env = {"OSC_IN": str(port_in), "OSC_OUT": str(port_out), "IDLE_EXIT": str(1.5 * MS),
-           "PATH": str(Path(sys.executable).parent) + ":/usr/bin:/bin"}
-    session = subprocess.Popen([bash, str(EXAMPLES / "annotate_session.sh"), str(CLIP), str(log)],
+           "PATH": ":/usr/bin:/bin"}
+    session = subprocess.Popen(["examples/annotate_session.sh", str(CLIP), str(log)], cwd=ROOT,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     wait_ready(session)
     replay = streamkey("replay", str(CLIP), "--to", f"osc://127.0.0.1:{port_in}")

@@ -200,7 +200,7 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
         table.append({"method": f"{name} ({len(long_frames):,} frames)",
                      **_push_costs(make, long_frames)})
     say(f"bench online: memory over a {stream_frames:,}-frame looped stream ...")
-    memory = _stream_memory(pipeline, motion, stream_frames)
+    memory = _stream_memory(pipeline, motion, stream_frames, say)
     say(f"bench online: growth after warm-up {memory['growth_after_warmup_mb']:.3g} MB; "
         "engine latency at 120 Hz ...")
     seconds = 60.0 if stream_frames >= 100_000 else 15.0
@@ -252,7 +252,8 @@ def _engine_latency(motion: Motion, seconds: float = 60.0) -> dict[str, Any]:
             "per_method": per_method}
 
 
-def _stream_memory(make: Callable[[], Any], motion: Motion, total: int) -> dict[str, Any]:
+def _stream_memory(make: Callable[[], Any], motion: Motion, total: int,
+                   say: Say = _quiet) -> dict[str, Any]:
     from ..motion import Frame
 
     target = make()
@@ -269,6 +270,10 @@ def _stream_memory(make: Callable[[], Any], motion: Motion, total: int) -> dict[
             base = tracemalloc.get_traced_memory()[0]
         if seq > warmup and seq % 12_000 == 0:
             samples.append((seq, tracemalloc.get_traced_memory()[0] / 2**20))
+            if seq % 48_000 == 0:
+                spent = time.perf_counter() - t0
+                say(f"bench online: memory stream {seq:,}/{total:,} frames, about "
+                    f"{spent * (total - seq) / seq:.0f} s left")
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     return {"stream_frames": total, "warmup_frames": warmup,

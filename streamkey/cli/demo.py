@@ -9,7 +9,7 @@ from typing import Any
 from .common import dashboard
 from .options import add_dashboard_options
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "compile_in_background"]
 
 
 def add_parser(sub: Any) -> None:
@@ -36,3 +36,28 @@ def run(args: argparse.Namespace) -> int:
                          0.0 if args.fast else None, loop=True, stream="demo")
     return int(run_demo(seconds=args.seconds, offline=args.offline, fast=args.fast,
                         out=sys.stdout))
+
+
+def compile_in_background() -> None:
+    """Compile the kernels of every online keyframer but the preview's into numba's on-disk
+    cache (`demo`'s background process on a cold cache), with progress lines on stderr."""
+    from importlib import import_module
+
+    from .. import jit
+    from ..demo import PREVIEW_METHOD
+    from ..methods import ONLINE_METHODS, online_class
+    from ..online import Pipeline
+    from ..replay.demo import demo_motion
+    from ..streaming import make_keyframers
+    from .compiling import report_compilation
+
+    report_compilation(prefix="background: ")
+    others = [m for m in ONLINE_METHODS if m != PREVIEW_METHOD]
+    for name in others:  # imports the methods' modules (their warmers register)
+        online_class(name)
+    import_module("streamkey.segments")
+    front = {"streamkey.kinematics", "streamkey.signal", "streamkey.filters"}
+    # the methods' own kernels first: the preview compiles the front end's meanwhile
+    jit.warm_up(*[w for w in jit._WARMERS if w.__module__ not in front])
+    Pipeline(make_keyframers(demo_motion(0.1), others, {}))  # the rest, by now in the cache
+    jit.warm_up()

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .common import progress
+from .common import Heartbeat, progress
 
 __all__ = ["add_parser", "run"]
 
@@ -28,8 +28,12 @@ def run(args: argparse.Namespace) -> int:
 
     paths = find_motion_files([args.folder])
     errors: list[str] = []
-    written = evaluate_files(paths, Path(args.output), progress=progress(args.quiet),
-                             errors=errors)
+    beat = Heartbeat(args.quiet)
+    try:
+        written = evaluate_files(paths, Path(args.output), progress=progress(args.quiet, beat),
+                                 errors=errors)
+    finally:
+        beat.stop()
     for p in written:
         print(f"wrote {p}")
     for line in errors:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from .common import progress, write
+from .common import Heartbeat, progress, write
 from .options import (
     add_method_options,
     add_playable_options,
@@ -70,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     if args.online:
         check_online_params(methods, params)
     results: list[Any]
+    beat = Heartbeat(args.quiet)
     if args.engine != "local" or args.address:  # a cluster engine: same files, same JSON
         from ..cluster.engines import extract_with_engine
 
@@ -78,8 +79,11 @@ def run(args: argparse.Namespace) -> int:
                                       args.online)
     else:
         extract = extract_files_online if args.online else extract_files
-        results = list(extract(paths, methods, params, progress=progress(args.quiet),
-                               roles=roles_of(args)))
+        try:
+            results = list(extract(paths, methods, params, progress=progress(args.quiet, beat),
+                                   roles=roles_of(args)))
+        finally:
+            beat.stop()
     write(results_json(results) if args.format == "json" else results_csv(results), args.output)
     _export(results, args)
     failed = [r for r in results if r.error]

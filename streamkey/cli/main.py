@@ -6,14 +6,25 @@ Every input error becomes one `error: ...` line on stderr and exit code 2, never
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from collections.abc import Sequence
 
 from .. import __version__
 from ..errors import StreamkeyError
 from . import bench, cluster, demo, eval, extract, figures, replay, run
+from .compiling import report_compilation
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "busy_port"]
+
+_BUSY = re.compile(r"(cannot listen on \S+?:\d+): .*\bin use\b.*$", re.I | re.S)
+BUSY_HINT = "the port is in use (give another port, or 0 for a free one)"
+
+
+def busy_port(message: str) -> str:
+    """One wording for a busy port, whichever listener (OSC, WebSocket, ZeroMQ, dashboard)
+    and library said it."""
+    return _BUSY.sub(lambda m: f"{m.group(1)}: {BUSY_HINT}", message)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,12 +46,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code (2 for input and usage errors)."""
     args = build_parser().parse_args(argv)
+    report_compilation()  # a cold kernel cache: progress lines, not a silent minute
     try:
         return int(args.func(args))
     except StreamkeyError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {busy_port(str(exc))}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # live commands stop on Ctrl-C themselves (exit 0)
+        print(f"interrupted: {args.command} stopped by Ctrl-C before it finished",
+              file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0

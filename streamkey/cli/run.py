@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from .common import dashboard, read
+from .input_watch import InputWatch
 from .options import (
     add_dashboard_options,
     add_method_options,
@@ -55,6 +56,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",
                    help="stop once frames have flowed and then none came for SECONDS "
                         "(default: run until Ctrl-C / SIGTERM)")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no warnings about refused input while running (still counted in "
+                        "the summary)")
     p.add_argument("--realtime", action="store_true",
                    help="run ahead of ordinary processes (SCHED_RR 10 where allowed, else "
                         "nice -10), so frames do not wait for a busy machine's other work")
@@ -70,6 +74,7 @@ def _source(args: argparse.Namespace, methods: list[str], skeleton: Any) -> Any:
     (with the `--skeleton` motion, if given)."""
     from ..adapters import make_source, parse_address
 
+    _check_source_address(args.source)
     if Path(args.source).suffix.lower() in (".bvh", ".amc"):
         motion = read(args.source, args)
         _check_keyframers(motion, methods, args)
@@ -86,7 +91,6 @@ def run(args: argparse.Namespace) -> int:
 
     from ..adapters.osc import with_layout
     from ..amc import bvh_equivalent, read_motion
-    from ..live import run_live
     from ..methods import parse_methods
     from ..streaming import check_online_params
 
@@ -106,19 +110,71 @@ def run(args: argparse.Namespace) -> int:
         return dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                          stream=args.stream)
     _check_streams(args)
-    summary = asyncio.run(run_live(source, methods, args.to or ["-"], online_params(args),
-                                   None, args.listen, args.stream,
-                                   rate=0.0 if args.fast else None,
-                                   idle_exit=args.idle_exit,
-                                   reset_on_gap=args.reset_on_gap, max_streams=args.max_streams,
-                                   stream_idle=args.stream_idle))
+    watch = InputWatch(quiet=args.quiet)
+    summary = asyncio.run(_run_watched(args, source, methods, watch))
     print(summary.text(), file=sys.stderr)
+    if (problems := watch.summary_line()) is not None:
+        print(problems, file=sys.stderr)
     if args.summary:
-        Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
+        Path(args.summary).write_text(json.dumps(
+            {**summary.as_dict(), "input_problems": dict(watch.counts)}, indent=1) + "\n")
     if summary.source_error:  # the source died: say so and fail, never idle on
         print(f"error: {args.source}: {summary.source_error}", file=sys.stderr)
         return 2
     return 0
+
+
+def _ready(line: str) -> None:
+    """The engine's status lines on stderr, but its one-line compile notice: the progress
+    lines (`cli/compiling.py`) say when kernels really compile, and how far along."""
+    if not line.startswith("compiling the numba kernels"):
+        print(line, file=sys.stderr, flush=True)
+
+
+async def _run_watched(args: argparse.Namespace, source: Any, methods: list[str],
+                       watch: InputWatch) -> Any:
+    """The engine (as `run_live` builds it) with `watch` reading its counters meanwhile."""
+    import asyncio
+
+    from ..adapters import make_sink, parse_address
+    from ..live import build_engine, run_engine
+
+    sinks = [make_sink(parse_address(a), args.listen) for a in args.to or ["-"]]
+    engine = build_engine(source, methods, sinks, online_params(args), None, args.stream,
+                          rate=0.0 if args.fast else None, idle_exit=args.idle_exit,
+                          on_frame=watch.on_frame, reset_on_gap=args.reset_on_gap,
+                          max_streams=args.max_streams, stream_idle=args.stream_idle,
+                          freeze_gc=True, on_ready=_ready)
+    watch.engine = engine
+    task = asyncio.create_task(watch.watch())
+    try:
+        return await run_engine(engine)
+    finally:
+        task.cancel()
+        watch.check(final=True)
+
+
+LIVE_SOURCES = ("osc://HOST:PORT, zmq+tcp://HOST:PORT, zmq+ipc://PATH, axis+tcp://HOST:PORT, "
+                "vmc://HOST:PORT or - (JSON Lines on stdin)")
+
+
+def _check_source_address(source: str) -> None:
+    """A `--from` that is neither a BVH/AMC file nor an address gets told what would be:
+    a file of another kind, or an address with one slash."""
+    import re
+
+    from ..errors import UsageError
+
+    if source == "-" or "://" in source:
+        return
+    if (m := re.match(r"([a-z][a-z0-9+]*):/?([^/].*)", source)) and not Path(source).exists():
+        raise UsageError(f"run --from {source}: an address needs two slashes: "
+                         f"{m.group(1)}://{m.group(2)}")
+    if Path(source).suffix.lower() not in (".bvh", ".amc"):
+        what = ("not a BVH (.bvh) or AMC (.amc) file" if Path(source).exists()
+                else "neither a file nor an address")
+        raise UsageError(f"run --from {source}: {what}; run replays a BVH or AMC file, or "
+                         f"listens on a live source: {LIVE_SOURCES}")
 
 
 def _check_streams(args: argparse.Namespace) -> None:

@@ -6,12 +6,16 @@ const MAX_KEYS_SHOWN = 24;   // recent method keyposes listed (annotated and man
 const MAX_NOTES_SHOWN = 200; // annotations listed
 const GROUP_PX = 11;         // markers of one lane within this width merge into one block
 const GUIDES_UP_TO = 15;     // a lane with more marks (blocks) draws no guide lines
+const SEGMENT_COLORS = {     // session segments drawn as shaded spans behind the curves
+  calibration: "rgba(255, 193, 7, 0.16)", still: "rgba(96, 125, 139, 0.12)",
+  take: "rgba(76, 175, 80, 0.06)",
+};
 
 const state = {
   methods: [], colors: {}, bones: null, sides: null, sideColors: {}, fps: 120,
   frame: null, time: null, pose: null, signals: [], saliency: [], keys: [],
   provisional: new Map(), pending: [], hold: false, hidden: new Set(), lookahead: {},
-  notes: new Map(), view2: "side", ws: null, nextId: 1, dirty: true,
+  notes: new Map(), view2: "side", ws: null, nextId: 1, dirty: true, segments: new Map(),
   drawn: {},  // per method lane of the last chart: keys, marks (blocks), guides, minGap (px)
 };
 
@@ -87,8 +91,9 @@ const HANDLERS = {
     state.sides = m.sides || null;
     state.sideColors = m.side_colors || {};
     state.fps = m.fps || state.fps;
-    $("stream").textContent = `stream ${m.stream}`;
+    // the take's name, and the stream's only when it says something more
     $("take").textContent = m.take || m.stream;
+    $("stream").textContent = m.take && m.take !== m.stream ? `stream ${m.stream}` : "";
     buildLegend();
     state.signals = m.signals || [];
     state.saliency = m.saliency || [];
@@ -96,6 +101,13 @@ const HANDLERS = {
     state.keys = m.keys || [];  // the chart's window (the cards get the recent ones below)
     for (const k of m.recent) addKey(k);
     for (const a of m.annotations) applyAnnotation(a);
+    for (const seg of m.segments || []) HANDLERS.segment(seg);
+  },
+  segment(m) {
+    // a session state (calibration hold, still stretch, take), open while `end` is null
+    state.segments.set(`${m.kind}/${m.start}`, { kind: m.kind, start: m.start, end: m.end });
+    while (state.segments.size > 50) state.segments.delete(state.segments.keys().next().value);
+    state.dirty = true;
   },
   pose(m) {
     state.frame = m.frame;
@@ -131,6 +143,7 @@ const HANDLERS = {
   cancel(m) { state.provisional.delete(`${m.method}/${m.pid}`); state.dirty = true; },
   gap(m) { note(`gap: frames ${m.first}..${m.last} missing${m.bridged ? " (bridged)" : ""}`); },
   status(m) { note(`status: ${m.status}`); },
+  input(m) { note(m.text); },  // refused input, explained (what arrived, what was expected)
   stats(m) {
     $("c-frames").textContent = m.frames;
     $("c-drops").textContent = m.drops;
@@ -443,6 +456,17 @@ function drawChart() {
     ctx.fillText(timecode(s).slice(3, 8), x, h - 4);
   }
   ctx.stroke();
+  // session segments: shaded spans under the curves, an open one up to now
+  ctx.textAlign = "left";
+  for (const seg of state.segments.values()) {
+    const a = Math.max(X(seg.start), 5), b = Math.min(X(seg.end ?? state.frame), now);
+    if (b <= a) continue;
+    ctx.fillStyle = SEGMENT_COLORS[seg.kind] || "rgba(0, 0, 0, 0.05)";
+    ctx.fillRect(a, 0, b - a, plotH);
+    ctx.fillStyle = "#607d8b";
+    ctx.fillText(seg.kind, a + 3, plotH - 4);
+  }
+  ctx.textAlign = "center";
   // the undecided band: frames a method may still key (its lookahead before now)
   const maxLa = Math.max(0, ...rows.map((m) => state.lookahead[m] || 0));
   if (maxLa) {
@@ -453,14 +477,13 @@ function drawChart() {
     ctx.fillText("undecided", now - 3, 11);
   }
   const trace = (points, color, floor) => {
-    // scaled to the visible window's 98th percentile, so a single spike does not flatten it
-    const values = points.map((p) => p[1]).sort((a, b) => a - b);
-    const max = Math.max(floor, values[Math.floor(0.98 * (values.length - 1))] || 0) * 1.1;
+    // scaled to the visible window's largest value (with headroom): no peak is cut off
+    const max = points.reduce((m, p) => Math.max(m, p[1]), floor) * 1.1;
     ctx.strokeStyle = color;
     ctx.lineWidth = 1.5;
     ctx.beginPath();
     points.forEach(([f, v], i) => {
-      const y = plotH - Math.min(v / max, 1.05) * (plotH - 6);
+      const y = plotH - (v / max) * (plotH - 6);
       if (i === 0) ctx.moveTo(X(f), y); else ctx.lineTo(X(f), y);
     });
     ctx.stroke();
@@ -555,7 +578,8 @@ document.addEventListener("keydown", (e) => {
 $("view2-mode").addEventListener("click", (e) => {
   state.view2 = state.view2 === "side" ? "top" : "side";
   e.target.dataset.mode = state.view2;
-  e.target.textContent = `${state.view2} view`;
+  // the button names what it does: show the other view
+  e.target.textContent = `show ${state.view2 === "side" ? "top" : "side"} view`;
   state.dirty = true;
 });
 $("keys").addEventListener("mouseenter", () => holdKeys(true));
