@@ -599,7 +599,8 @@ async def test_the_websocket_event_sink_applies_the_dashboards_origin_host_and_t
             async with asyncio.timeout(10 * MS):
                 while not sink.clients:  # noqa: ASYNC110 (the server registers it next)
                     await asyncio.sleep(0.005)
-            sink.offer(KeyframeEvent("s", "speed", 5, 0.1, 1.0, 9, 4, "p"))
+            sink.offer(KeyframeEvent(stream="s", method="speed", frame=5, time=0.1, score=1.0,
+                                     decided_at=9, lookahead=4, params="p"))
             assert json.loads(await asyncio.wait_for(ws.recv(), 10 * MS))["frame"] == 5
     finally:
         await sink.close()

@@ -440,7 +440,8 @@ async def test_kernel_receive_drops_are_read_and_every_datagram_is_accounted_for
 async def test_zmq_event_sink_says_which_drops_it_cannot_see_and_counts_them_with_nodrop():
     from streamkey.keyframes import KeyframeEvent
 
-    event = KeyframeEvent("s", "speed", 5, 0.1, 1.0, 9, 4, "p")
+    event = KeyframeEvent(stream="s", method="speed", frame=5, time=0.1, score=1.0, decided_at=9,
+                          lookahead=4, params="p")
     for option in ("", "?nodrop=1"):
         port = free_port(socket.SOCK_STREAM)
         sink = make_sink(parse_address(f"zmq+tcp://127.0.0.1:{port}{option}"))
