@@ -56,7 +56,10 @@ def stage(dest: Path, platforms: list[str], deps: bool) -> list[str]:
     shutil.copytree(ADDON, dest, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     wheels = dest / "wheels"
     wheels.mkdir()
-    _pip("wheel", "--no-deps", "-w", str(wheels), str(ROOT))
+    try:  # the environment's setuptools first: no build environment to download
+        _pip("wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT))
+    except subprocess.CalledProcessError:
+        _pip("wheel", "--no-deps", "-w", str(wheels), str(ROOT))
     if deps:
         for platform in platforms:
             tags = [a for tag in PLATFORMS[platform] for a in ("--platform", tag)]
@@ -96,7 +99,7 @@ def build(out: Path, platforms: list[str], deps: bool = True) -> list[Path]:
 def main(argv: list[str] | None = None) -> int:
     """Command line."""
     parser = argparse.ArgumentParser(prog="blender/build.py")
-    parser.add_argument("--out", type=Path, default=ROOT / "dist")
+    parser.add_argument("--out", type=Path, default=HERE / "dist")
     parser.add_argument("--platforms", default=",".join(PLATFORMS))
     parser.add_argument("--no-deps", action="store_true", help="bundle streamkey's wheel only")
     args = parser.parse_args(argv)
