@@ -24,9 +24,9 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bpy  # noqa: E402
+from streamkey_blender import keys, measure, rig  # noqa: E402
 
 from streamkey.evaluate import error_e, reconstruct  # noqa: E402
-from streamkey_blender import keys, measure, rig  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "cmu"

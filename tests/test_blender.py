@@ -217,9 +217,10 @@ def test_osc_events_become_markers() -> None:
     """The OSC receiver decodes streamkey's numeric layout (the codec's own encoding)."""
     import socket
 
+    from streamkey_blender import live
+
     from streamkey.adapters.codec import osc_messages
     from streamkey.keyframes import KeyframeEvent, ProvisionalEvent
-    from streamkey_blender import live
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     port = free_port()

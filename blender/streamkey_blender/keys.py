@@ -104,7 +104,8 @@ def _sparse_keys(dense: np.ndarray, keys: np.ndarray, tolerance: float) -> np.nd
     while i < len(kept) - 1:
         a, b = kept[i - 1], kept[i + 1]
         c1, c2 = fit_span(dense[a : b + 1])
-        if np.max(np.abs(_bezier(dense[a], c1, c2, dense[b], b - a) - dense[a : b + 1])) <= tolerance:
+        fitted = _bezier(dense[a], c1, c2, dense[b], b - a)
+        if np.max(np.abs(fitted - dense[a : b + 1])) <= tolerance:
             del kept[i]
         else:
             i += 1
