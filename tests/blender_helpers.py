@@ -27,11 +27,12 @@ def require_bpy() -> Any:
     return bpy
 
 
-def import_clip(bpy: Any, name: str) -> Any:
-    """A fresh empty scene with one clip imported by Blender's BVH importer (start frame 1)."""
+def import_clip(bpy: Any, name: str, rotate_mode: str = "NATIVE") -> Any:
+    """A fresh empty scene with one clip imported by Blender's BVH importer (start frame 1;
+    rotations as the file's Euler order, or as quaternions)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_anim.bvh(filepath=str(DATA / f"{name}.bvh"), update_scene_fps=True,
-                            update_scene_duration=True)
+                            update_scene_duration=True, rotate_mode=rotate_mode)
     return bpy.context.active_object
 
 
