@@ -42,7 +42,7 @@ def _default(context: Any, name: str, fallback: Any) -> Any:
     return getattr(prefs, name, fallback) if prefs else fallback
 
 
-class StreamkeyPreferences(bpy.types.AddonPreferences):
+class StreamkeyPreferences(bpy.types.AddonPreferences):  # type: ignore[misc]
     """Where to listen, and the defaults of the operators."""
 
     bl_idname = __package__
@@ -92,7 +92,7 @@ class _KeyOperator:
         return obj, motion, found, start
 
 
-class STREAMKEY_OT_mark_keyposes(_KeyOperator, bpy.types.Operator):
+class STREAMKEY_OT_mark_keyposes(_KeyOperator, bpy.types.Operator):  # type: ignore[misc]
     """Timeline markers at the keyposes streamkey finds in the active armature's action"""
 
     bl_idname = "streamkey.mark_keyposes"
@@ -118,7 +118,7 @@ class STREAMKEY_OT_mark_keyposes(_KeyOperator, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class STREAMKEY_OT_reduce_keys(_KeyOperator, bpy.types.Operator):
+class STREAMKEY_OT_reduce_keys(_KeyOperator, bpy.types.Operator):  # type: ignore[misc]
     """A new action keyed only on the keypose frames; the original action is kept"""
 
     bl_idname = "streamkey.reduce_keys"
@@ -198,7 +198,7 @@ class _Listening:
 LISTENING = _Listening()
 
 
-class STREAMKEY_OT_listen(bpy.types.Operator):
+class STREAMKEY_OT_listen(bpy.types.Operator):  # type: ignore[misc]
     """Place markers at the keyposes a running `streamkey run` sends"""
 
     bl_idname = "streamkey.listen"
@@ -226,7 +226,7 @@ class STREAMKEY_OT_listen(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class STREAMKEY_OT_listen_stop(bpy.types.Operator):
+class STREAMKEY_OT_listen_stop(bpy.types.Operator):  # type: ignore[misc]
     """Stop listening (the confirmed markers stay)"""
 
     bl_idname = "streamkey.listen_stop"
@@ -243,7 +243,7 @@ class STREAMKEY_OT_listen_stop(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class STREAMKEY_PT_panel(bpy.types.Panel):
+class STREAMKEY_PT_panel(bpy.types.Panel):  # type: ignore[misc]
     """The sidebar panel."""
 
     bl_label = "streamkey"

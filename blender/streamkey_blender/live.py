@@ -93,7 +93,7 @@ class ZmqReceiver:
             raise ListenError(f"nothing listening at {address} ({exc.strerror or exc}): start"
                               f" `streamkey run ... --to zmq+tcp://{host}:{port}` first") from exc
         self.address = address
-        self.socket = zmq.Context.instance().socket(zmq.SUB)
+        self.socket: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.SUB)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.SUBSCRIBE, b"event")
         self.socket.connect(f"tcp://{host}:{port}")
@@ -128,7 +128,7 @@ class OscReceiver:
     def __init__(self, address: str) -> None:
         host, port = _host_port(address, ("osc", "udp"))
         self.address = address
-        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.socket: socket.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.socket.bind((host, port))
         except OSError as exc:

@@ -33,7 +33,8 @@ class Reference:
 
     @staticmethod
     def _relative(p: np.ndarray) -> np.ndarray:
-        return p - p[:, :1]
+        out: np.ndarray = p - p[:, :1]
+        return out
 
 
 def blender_error(context: Any, obj: Any, action: Any, ref: Reference) -> float:
