@@ -126,6 +126,12 @@ class STREAMKEY_OT_reduce_keys(_KeyOperator, bpy.types.Operator):  # type: ignor
     bl_options = {"REGISTER", "UNDO"}
 
     interpolation: EnumProperty(name="Interpolation", items=_MODES, default="FIT")  # type: ignore[valid-type]
+    sparse: BoolProperty(name="Sparse", default=False,  # type: ignore[valid-type]
+                         description="FIT: leave a channel unkeyed at a pose frame where its"
+                                     " fitted curve stays within the key tolerance")
+    key_tolerance: FloatProperty(name="Key tolerance", default=0.01, min=0.0,  # type: ignore[valid-type]
+                                 description="Sparse: largest change of a channel's curve"
+                                             " (degrees or scene units) a dropped key may make")
     report_error: BoolProperty(name="Report error", default=True,  # type: ignore[valid-type]
                                description="Evaluate both actions and report the error")
 
@@ -139,7 +145,9 @@ class STREAMKEY_OT_reduce_keys(_KeyOperator, bpy.types.Operator):  # type: ignor
         original = obj.animation_data.action
         original.use_fake_user = True
         reduced = keys.reduce_action(original, [start + int(f) for f in found.frames],
-                                     self.interpolation, name=f"{original.name}.{self.method}")
+                                     self.interpolation, sparse=self.sparse,
+                                     tolerance=self.key_tolerance,
+                                     name=f"{original.name}.{self.method}")
         text = (f"{self.method}: {len(reduced.frames)} pose frames, {reduced.points} keys"
                 f" ({self.interpolation.lower()}); original kept as {original.name!r}")
         if self.report_error:
