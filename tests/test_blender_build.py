@@ -4,6 +4,7 @@ Blender's validator, installed into Blender (bpy) by its extension installer, an
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
 import tomllib
@@ -13,6 +14,7 @@ from pathlib import Path
 import pytest
 from blender_helpers import clip_path, require_bpy
 from cmu import ROOT
+from live_helpers import free_port
 
 require_bpy()
 
@@ -29,6 +31,13 @@ assert "/extensions/" in streamkey.__file__, streamkey.__file__  # the bundled w
 bpy.ops.import_anim.bvh(filepath=clip)
 assert bpy.ops.streamkey.mark_keyposes(method="optimal", count=8) == {"FINISHED"}
 print("markers", sorted(m.frame for m in bpy.context.scene.timeline_markers))
+prefs = bpy.context.preferences.addons["bl_ext.user_default.streamkey_blender"].preferences
+assert prefs.address == "zmq+tcp://127.0.0.1:5556" and prefs.method == "optimal"
+prefs.address = "zmq+tcp://127.0.0.1:" + sys.argv[3]  # nothing listens there
+try:
+    bpy.ops.streamkey.listen()
+except RuntimeError as exc:
+    print("listen", exc)
 """
 
 
@@ -64,12 +73,15 @@ def test_extension_builds_installs_into_blender_and_runs(tmp_path: Path) -> None
     assert [z.name for z in zips] == ["streamkey_blender-0.1.0.zip"]
     _check_layout(zips[0])
     env = {**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "blender-user")}
+    port = free_port(socket.SOCK_STREAM)
     run = subprocess.run([sys.executable, "-P", "-c", INSTALL_AND_RUN, str(zips[0]),
-                          str(clip_path("07_01"))], capture_output=True, text=True, env=env,
-                         timeout=600, cwd=tmp_path)
+                          str(clip_path("07_01")), str(port)], capture_output=True, text=True,
+                         env=env, timeout=600, cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
     markers = [line for line in run.stdout.splitlines() if line.startswith("markers")]
     assert markers and len(eval(markers[0].split(" ", 1)[1])) == 8
+    # the preferences' address is the operator's default
+    assert f"listen Error: nothing listening at zmq+tcp://127.0.0.1:{port}" in run.stdout
 
 
 @pytest.mark.slow
