@@ -18,8 +18,8 @@ from scipy.spatial.transform import Rotation
 
 from streamkey.motion import Motion, Skeleton, detect_reference_frame
 
-__all__ = ["armature_motion", "ordered_bones", "world_joint_positions", "ArmatureError",
-           "Y_UP", "action_frames"]
+__all__ = ["armature_motion", "active_armature", "ordered_bones", "world_joint_positions",
+           "ArmatureError", "Y_UP", "action_frames"]
 
 # Blender (x, y, z) -> BVH (x, z, -y): the inverse of the BVH importer's axis conversion.
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
