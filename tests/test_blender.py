@@ -5,6 +5,7 @@ live markers from a real `streamkey run`, and the marker example."""
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 import sys
 import time
@@ -181,7 +182,7 @@ def test_bad_input_is_reported_in_blenders_report_area() -> None:
     bpy.context.view_layer.objects.active = arm
     with pytest.raises(RuntimeError, match="armature 'rig' has no action"):
         bpy.ops.streamkey.reduce_keys()
-    port = free_port(kind=0x1)  # SOCK_STREAM
+    port = free_port(socket.SOCK_STREAM)
     with pytest.raises(RuntimeError, match=f"nothing listening at zmq\\+tcp://127.0.0.1:{port}"):
         bpy.ops.streamkey.listen(address=f"zmq+tcp://127.0.0.1:{port}")
     with pytest.raises(RuntimeError, match="expected zmq\\+tcp://HOST:PORT or osc://HOST:PORT"):
@@ -199,7 +200,7 @@ def test_listens_live_to_a_real_streamkey_run(tmp_path: Path) -> None:
     listener places provisional markers, replaces them by the confirmed keys and stops
     cleanly: at the end exactly one marker per keyframe event, at 1 + its frame."""
     import_clip(bpy, CLIP)
-    frames_port, events_port = free_port(0x1), free_port(0x1)
+    frames_port, events_port = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
     log = tmp_path / "events.jsonl"
     run = _streamkey("run", "--from", f"zmq+tcp://127.0.0.1:{frames_port}", "--method",
                      "optimal", "--provisional", "--idle-exit", "2", "--to",
@@ -241,8 +242,6 @@ def test_listens_live_to_a_real_streamkey_run(tmp_path: Path) -> None:
 
 def test_osc_events_become_markers() -> None:
     """The OSC receiver decodes streamkey's numeric layout (the codec's own encoding)."""
-    import socket
-
     from streamkey_blender import live
 
     from streamkey.adapters.codec import osc_messages
