@@ -216,7 +216,7 @@ def test_listens_live_to_a_real_streamkey_run(tmp_path: Path) -> None:
                 assert run.poll() is None and time.monotonic() < deadline, "run never listened"
                 time.sleep(0.2)
         replay = _streamkey("replay", str(clip_path(CLIP)), "--to",
-                            f"zmq+tcp://127.0.0.1:{frames_port}", "--wait", "60", "--speed", "4",
+                            f"zmq+tcp://127.0.0.1:{frames_port}", "--wait", "60", "--speed", "2",
                             cwd=tmp_path)
         seen_provisional = 0
         while run.poll() is None and time.monotonic() < deadline + 120:
