@@ -1,7 +1,7 @@
 """Reduce keys against Blender's own tools, measured inside Blender (bpy as a module).
 
     .venv/bin/python -P blender/bench.py [--clips 07_01,09_06] [--counts 16,32]
-        [--out blender/BENCH.md]
+        [--out results/blender.md]
 
 For every clip (imported with Blender's BVH importer) and pose count K: streamkey `optimal`
 picks K pose frames; the reduced action (LINEAR, AUTO-clamped Bezier, FIT Bezier) is
@@ -31,7 +31,8 @@ from streamkey.evaluate import error_e, reconstruct  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "cmu"
 SHORT_CLIPS = ["02_01", "02_03", "03_01", "06_06", "06_08", "06_15", "07_01", "07_05",
-               "07_12", "08_01", "09_01", "09_06", "16_11", "05_11"]
+               "07_12", "08_01", "09_01", "09_06", "16_11", "05_11"]  # <= 600 frames
+MID_CLIPS = ["06_02", "05_06", "131_01", "05_13", "05_02", "131_03", "06_12"]  # 600-1,300
 
 
 def import_clip(path: Path) -> Any:
@@ -136,7 +137,9 @@ def table(rows: list[dict[str, Any]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Measure the clips and write the table."""
     parser = argparse.ArgumentParser(prog="blender/bench.py")
-    parser.add_argument("--clips", default=",".join(SHORT_CLIPS))
+    parser.add_argument("--clips", default=",".join(SHORT_CLIPS),
+                        help="comma-separated clip names (default: the 14 of <= 600 frames;"
+                             f" the README's second group: {','.join(MID_CLIPS)})")
     parser.add_argument("--counts", default="16,32")
     parser.add_argument("--out", type=Path)
     args = parser.parse_args(argv)
@@ -145,6 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     text = table(rows)
     print(text)
     if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(text, encoding="utf-8")
         args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1), encoding="utf-8")
     return 0
