@@ -9,16 +9,21 @@ Run inside Blender after importing the clip's BVH (File > Import > Motion Captur
 `--export-bvh`). Blender's BVH importer puts BVH frame i at scene frame `start + i`
 (its "Start Frame" option, default 1), reference frame included, so a keyframe numbered in
 the file's own numbering lands on marker frame `start + frame`; with the importer's "Scale
-FPS" option use `--scale-fps` to rescale by scene fps / file fps. One marker per keyframe,
-named `<method> <frame>`. Existing markers of the same name are replaced.
+FPS" option use `--scale-fps` to rescale by scene fps / file fps.
+
+The markers are placed by the streamkey Blender extension (`blender/streamkey_blender`, its
+`keys.set_markers`): one per keyframe, named `<method> <strength>`, the method's earlier
+markers replaced. Installed, the extension's "Mark Keyposes" operator finds the keys inside
+Blender without a JSON file; this script is for keys found elsewhere.
 
 The module imports without Blender (bpy is imported only in `main`), so `markers_from_json`
-can be tested and the file syntax-checked anywhere.
+(`(<method> <frame>, scene frame)` pairs) can be tested and the file syntax-checked anywhere.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 from pathlib import Path
@@ -53,9 +58,38 @@ def _file_fps(data: dict[str, Any]) -> float | None:
     return float(fps[0]) if fps else None
 
 
+def _extension_keys() -> Any:
+    """The extension's `keys` module: installed in Blender, else from this checkout."""
+    for name in ("bl_ext.user_default.streamkey_blender.keys", "streamkey_blender.keys"):
+        try:
+            return importlib.import_module(name)
+        except ImportError:
+            continue
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "blender"))
+    return importlib.import_module("streamkey_blender.keys")
+
+
+def _strengths(data: dict[str, Any], method: str | None,
+               file: str | None) -> dict[str, list[float]]:
+    """Each method's key strengths in key order (0.5 where the JSON has none)."""
+    if "files" not in data and "frames" in data:
+        return {data.get("method") or "key": [0.5] * len(data["frames"])}
+    out: dict[str, list[float]] = {}
+    for entry in data.get("files", []):
+        if "methods" not in entry or (file is not None and Path(entry["file"]).stem != file):
+            continue
+        for name, result in entry["methods"].items():
+            if method is None or name == method:
+                out.setdefault(name, []).extend(
+                    result.get("strength") or [0.5] * len(result["keyframes"]))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Add the markers to the current Blender scene."""
+    """Add the markers to the current Blender scene, through the extension."""
     import bpy  # only inside Blender
+
+    from streamkey.keyframes import Keyframes
 
     if argv is None:
         argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
@@ -73,11 +107,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.scale_fps and _file_fps(data):
         scale = scene.render.fps / scene.render.fps_base / _file_fps(data)
     markers = markers_from_json(data, args.method, args.file, args.start, scale)
-    names = {name for name, _ in markers}
-    for marker in [m for m in scene.timeline_markers if m.name in names]:
-        scene.timeline_markers.remove(marker)
-    for name, frame in markers:
-        scene.timeline_markers.new(name, frame=frame)
+    keys = _extension_keys()
+    strengths = _strengths(data, args.method, args.file)
+    for name, strength in strengths.items():
+        frames = [f - args.start for n, f in markers if n.split(" ")[0] == name]
+        found = Keyframes(name, frames, [0.0] * len(frames), {}, 0, strength=strength)
+        keys.set_markers(scene, found, args.start)
     print(f"blender_markers: added {len(markers)} markers")
     return 0
 
