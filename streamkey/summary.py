@@ -89,6 +89,7 @@ class RunSummary:
     due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
     frame_wait: LatencyHistogram = field(default_factory=LatencyHistogram)
     untimed_events: int = 0  # keyframes decided by a stream's end, not by a frame
+    scheduler: dict[str, float | int] = field(default_factory=dict)  # `TurnStats.as_dict()`
 
     def latency_percentiles(self) -> dict[str, float | None]:
         """p50 / p99 / max of the wall latency (ms), None before the first event."""
@@ -123,6 +124,7 @@ class RunSummary:
                 "frame_wait_ms": self.frame_wait.summary(),
                 "keyframes_at_stream_end": self.untimed_events,
                 "streams": {n: st.as_dict() for n, st in self.streams.items()},
+                "scheduler": self.scheduler,
                 "max_streams": self.max_streams, "refused_streams": self.refused_streams,
                 "refused_frames": self.refused_frames, "waiting_at_stop": self.waiting_at_stop}
 
@@ -166,10 +168,13 @@ class RunSummary:
             lines.append(f"streams: {len(self.streams)} served, {self.refused_streams} refused "
                          f"({self.refused_frames} frames; --max-streams {self.max_streams})")
             for name, ss in list(self.streams.items())[:16]:
+                due = ss.due_latency.summary()
                 lines.append(f"stream {name}: frames in {ss.frames_in}, events "
                              + (", ".join(f"{k} {v}" for k, v in sorted(ss.events.items()))
                                 or "none")
                              + f", gaps {ss.guard.get('gaps', 0)}, sessions {ss.sessions}"
+                             + (f", due p99 {due['p99']:.2f} ms, max {due['max']:.2f} ms"
+                                if due["p99"] is not None else "")
                              + (f", {ss.waiting_drops} dropped waiting for its skeleton"
                                 if ss.waiting_drops else ""))
             if len(self.streams) > 16:
