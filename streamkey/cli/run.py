@@ -55,6 +55,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--idle-exit", type=float, metavar="SECONDS",
                    help="stop once frames have flowed and then none came for SECONDS "
                         "(default: run until Ctrl-C / SIGTERM)")
+    p.add_argument("--workers", type=_workers, default=1, metavar="N",
+                   help="spread the streams over N worker processes (auto: one per core; "
+                        "network sources; default 1: this process)")
     p.add_argument("--realtime", action="store_true",
                    help="run ahead of ordinary processes (SCHED_RR 10 where allowed, else "
                         "nice -10), so frames do not wait for a busy machine's other work")
@@ -88,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
     from ..amc import bvh_equivalent, read_motion
     from ..live import run_live
     from ..methods import parse_methods
+    from ..motion import Motion
     from ..streaming import check_online_params
 
     args.to = with_layout(args.to or [], args.osc_layout) or None
@@ -106,12 +110,20 @@ def run(args: argparse.Namespace) -> int:
         return dashboard(args, source, methods, args.to or [], 0.0 if args.fast else None,
                          stream=args.stream)
     _check_streams(args)
-    summary = asyncio.run(run_live(source, methods, args.to or ["-"], online_params(args),
-                                   None, args.listen, args.stream,
-                                   rate=0.0 if args.fast else None,
-                                   idle_exit=args.idle_exit,
-                                   reset_on_gap=args.reset_on_gap, max_streams=args.max_streams,
-                                   stream_idle=args.stream_idle))
+    if args.workers > 1 and not isinstance(source, Motion):
+        from ..workers import run_workers
+
+        summary = asyncio.run(run_workers(
+            source, methods, args.to or ["-"], args.workers, online_params(args), None,
+            args.listen, args.stream, idle_exit=args.idle_exit, reset_on_gap=args.reset_on_gap,
+            max_streams=args.max_streams, stream_idle=args.stream_idle))
+    else:
+        summary = asyncio.run(run_live(source, methods, args.to or ["-"], online_params(args),
+                                       None, args.listen, args.stream,
+                                       rate=0.0 if args.fast else None,
+                                       idle_exit=args.idle_exit, reset_on_gap=args.reset_on_gap,
+                                       max_streams=args.max_streams,
+                                       stream_idle=args.stream_idle))
     print(summary.text(), file=sys.stderr)
     if args.summary:
         Path(args.summary).write_text(json.dumps(summary.as_dict(), indent=1) + "\n")
@@ -119,6 +131,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: {args.source}: {summary.source_error}", file=sys.stderr)
         return 2
     return 0
+
+
+def _workers(text: str) -> int:
+    """`--workers N|auto`: 1..256 worker processes (auto: the machine's cores)."""
+    if text == "auto":
+        from ..workers import default_workers
+
+        return default_workers()
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or auto, got {text!r}") from None
+    if not 1 <= value <= 256:
+        raise argparse.ArgumentTypeError(f"expected 1..256 workers, got {value}")
+    return value
 
 
 def _check_streams(args: argparse.Namespace) -> None:
