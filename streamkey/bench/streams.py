@@ -327,7 +327,7 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
     with tempfile.TemporaryDirectory() as tmp:
         summary_path, sent_path = Path(tmp) / "summary.json", Path(tmp) / "sent.npy"
         run = subprocess.Popen(
-            [python or sys.executable, "-m", "streamkey", "run", "--from",
+            [python or sys.executable, "-P", "-m", "streamkey", "run", "--from",
              f"osc://127.0.0.1:{port}", "--method", "all", "--to",
              f"zmq+tcp://127.0.0.1:{events_port}", "--max-streams", str(max(streams, 1)),
              *(["--workers", str(workers)] if workers > 1 else []),
