@@ -302,11 +302,15 @@ def sender_main() -> None:
 
 
 def external_row(streams: int, workers: int, seconds: float, clip: Path,
-                 phases: str = "spread", python: str | None = None) -> dict[str, Any]:
+                 phases: str = "spread", python: str | None = None,
+                 realtime: bool = False) -> dict[str, Any]:
     """One measurement with three processes: the sender (`sender_main`), `streamkey run`
     (OSC in, all methods, ZeroMQ events out, `--workers` if more than one), and this one, the
     receiver: each keyframe event's latency is its arrival here minus its deciding frame's
-    send time. `python`: the interpreter of the run (another checkout's, to compare)."""
+    send time. `python`: the interpreter of the run (another checkout's, to compare).
+    `realtime`: the run with `--realtime`, the sender and the receiving thread at the same
+    SCHED_RR priority (where granted): on a machine busy with other work, what the three
+    processes can do when they get the CPU they ask for."""
     import json
     import socket
     import subprocess
@@ -331,6 +335,7 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
              f"osc://127.0.0.1:{port}", "--method", "all", "--to",
              f"zmq+tcp://127.0.0.1:{events_port}", "--max-streams", str(max(streams, 1)),
              *(["--workers", str(workers)] if workers > 1 else []),
+             *(["--realtime"] if realtime else []),
              "--idle-exit", "3", "--summary", str(summary_path)],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         assert run.stderr is not None
@@ -344,6 +349,8 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
         sub.connect(f"tcp://127.0.0.1:{events_port}")
 
         def receive() -> None:
+            if realtime:
+                _realtime(0)
             while not stop.is_set():
                 if sub.poll(100):
                     parts = sub.recv_multipart()
@@ -356,12 +363,15 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
         reader.start()
         time.sleep(0.5)  # the subscription reaches the publisher
         load = os.getloadavg()[0]
-        sender = subprocess.run(
+        sender = subprocess.Popen(
             [sys.executable, "-c", _SENDER, str(port), str(streams), str(seconds), phases,
-             str(clip), str(sent_path)], capture_output=True, text=True,
-            timeout=seconds * 4 + 120)
+             str(clip), str(sent_path)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True)
+        if realtime:
+            _realtime(sender.pid)
+        _, sender_err = sender.communicate(timeout=seconds * 4 + 120)
         if sender.returncode:
-            raise RuntimeError(f"sender failed: {sender.stderr[-500:]}")
+            raise RuntimeError(f"sender failed: {sender_err[-500:]}")
         load_after = os.getloadavg()[0]
         _, err = run.communicate(timeout=seconds * 4 + 120)
         stop.set()
@@ -384,6 +394,7 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
     lost = frames_sent - own["frames_in"]
     p99 = round(float(np.percentile(lat, 99)), 3) if len(lat) else None
     return {"streams": streams, "workers": workers, "phases": phases, "seconds": seconds,
+            "realtime": realtime,
             "frames_sent": frames_sent, "frames_in": own["frames_in"], "frames_lost": lost,
             "kernel_drops": source.get("kernel_drops"), "queue_drops": source["queue_drops"],
             "events": len(lat), "p50_ms": round(float(np.percentile(lat, 50)), 3)
@@ -395,6 +406,16 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
             "met": p99 is not None and p99 <= TARGET_P99_MS and lost == 0,
             "load_1min_before": round(load, 2), "load_1min_after": round(load_after, 2),
             "run_exit": run.returncode, "run_error": err[-300:] if run.returncode else ""}
+
+
+def _realtime(pid: int) -> None:
+    """SCHED_RR at `run --realtime`'s priority for a process or this thread (0), if granted."""
+    import contextlib
+
+    from ..live import REALTIME_PRIORITY
+
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setscheduler(pid, os.SCHED_RR, os.sched_param(REALTIME_PRIORITY))
 
 
 def capacity(rows: list[dict[str, Any]], workers: int) -> dict[str, Any]:
