@@ -72,3 +72,15 @@ def test_summaries_of_several_workers_merge_into_one():
     h = LatencyHistogram()
     h.merge(merged.due_latency)
     assert h.percentile(50) == merged.due_latency.percentile(50)
+
+
+def test_workers_out_of_range_is_a_usage_error_not_a_traceback():
+    import subprocess
+    import sys
+
+    for bad in ("0", "many", "300"):
+        result = subprocess.run([sys.executable, "-P", "-m", "streamkey", "run", "--from",
+                                 "osc://127.0.0.1:9", "--workers", bad],
+                                capture_output=True, text=True, timeout=60 * MS)
+        assert result.returncode == 2 and "--workers" in result.stderr, result.stderr
+        assert "Traceback" not in result.stderr
