@@ -370,6 +370,7 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
         if realtime:
             _realtime(sender.pid)
         _, sender_err = sender.communicate(timeout=seconds * 4 + 120)
+        sent_until = time.monotonic_ns()  # later events: the flush at the run's idle exit
         if sender.returncode:
             raise RuntimeError(f"sender failed: {sender_err[-500:]}")
         load_after = os.getloadavg()[0]
@@ -382,6 +383,7 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
         own = json.loads(summary_path.read_text())
     index = {f"s{i:02d}": i for i in range(streams)}
     # events decided by frames sent (not by a stream's end at the idle exit)
+    got = [(s, d, t) for s, d, t in got if t < sent_until]
     lat = np.array([(t - sent[index[s], d]) / 1e6 for s, d, t in got
                     if s in index and 0 < d < sent.shape[1] and sent[index[s], d]])
     frames_sent = int((sent > 0).sum())
