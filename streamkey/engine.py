@@ -10,8 +10,9 @@ The path is one-way, as between `websockets`' sans-I/O protocol and its connecti
   every stream, oldest arrival first, before any stream's deferred `idle`), so one stream's
   re-analysis burst does not delay another stream's due event; a stream's own order (and so
   its events) is unchanged; and work runs in turns of `turn_budget_ms`, between which the
-  sources read their sockets, so frames wait in the engine's queue (counted, stamped with
-  their kernel arrival) rather than overflow the kernel's receive buffer.
+  sources read their sockets while the engine keeps up (its queue under half full), so
+  frames wait in the engine's queue (stamped with their kernel arrival) rather than
+  overflow the kernel's receive buffer.
 
 - Frames come from the source's bounded queue (network sources drop the oldest frame when
   the engine falls behind, and count it), each stamped with its arrival time (the kernel's
@@ -326,7 +327,7 @@ class Engine:
         queue, sched = self.source.frames, self.scheduler
         while True:
             now = time.monotonic_ns()
-            if sched.should_drain(now):
+            if sched.should_drain(now) and self._keeping_up(queue):
                 sched.drained(now)
                 await _let_sources_read()
             if queue.empty():
@@ -357,6 +358,13 @@ class Engine:
                         self._open(name, tag, frame=False)
                 case SourceEnded():
                     return
+
+    @staticmethod
+    def _keeping_up(queue: Any) -> bool:
+        """True while the queue is under half full: then the sockets are read between
+        turns. Behind that (no CPU to spare), reading would decode frames only for the full
+        queue to drop them: the kernel's buffer holds the backlog, its drops counted."""
+        return not queue.maxsize or 2 * len(queue) < queue.maxsize
 
     async def _wait(self) -> QueueItem | object:
         """The next queue item, or `_TIMEOUT` when a stream may be due for retirement or

@@ -97,8 +97,8 @@ class RunSummary:
     due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
     frame_wait: LatencyHistogram = field(default_factory=LatencyHistogram)
     untimed_events: int = 0  # keyframes decided by a stream's end, not by a frame
-    scheduler: dict[str, float | int] = field(default_factory=dict)  # `TurnStats.as_dict()`
-    workers: list[dict[str, Any]] = field(default_factory=list)  # `run --workers`: each one's
+    # `TurnStats.as_dict()`; with `run --workers`, "workers": each worker's counters
+    scheduler: dict[str, Any] = field(default_factory=dict)
 
     def latency_percentiles(self) -> dict[str, float | None]:
         """p50 / p99 / max of the wall latency (ms), None before the first event."""
@@ -133,7 +133,7 @@ class RunSummary:
                 "frame_wait_ms": self.frame_wait.summary(),
                 "keyframes_at_stream_end": self.untimed_events,
                 "streams": {n: st.as_dict() for n, st in self.streams.items()},
-                "scheduler": self.scheduler, "workers": self.workers,
+                "scheduler": self.scheduler,
                 "max_streams": self.max_streams, "refused_streams": self.refused_streams,
                 "refused_frames": self.refused_frames, "waiting_at_stop": self.waiting_at_stop}
 
@@ -188,7 +188,7 @@ class RunSummary:
                                 if ss.waiting_drops else ""))
             if len(self.streams) > 16:
                 lines.append(f"... {len(self.streams) - 16} more streams (see --summary)")
-        for i, w in enumerate(self.workers):
+        for i, w in enumerate(self.scheduler.get("workers", [])):
             due = w["due_latency_ms"]
             lines.append(f"worker {i} (pid {w['pid']}): {w['streams_placed']} streams placed, "
                          f"frames in {w['frames_in']}, CPU {w['cpu_seconds']:.1f} s"

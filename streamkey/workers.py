@@ -392,11 +392,11 @@ class WorkerPool:
         out.refused_frames += self.refused_frames
         out.max_streams = self.cfg.max_streams
         out.sinks = self.sinks.stats()
-        out.workers = [{"pid": w.process.pid, "streams_placed": w.placed,
-                        "frames_in": p.frames_in,
-                        "cpu_seconds": p.scheduler.get("cpu_seconds", 0.0),
-                        "due_latency_ms": p.due_latency.summary()}
-                       for w, p in zip(self.workers, parts, strict=True)]
+        out.scheduler["workers"] = [
+            {"pid": w.process.pid, "streams_placed": w.placed, "frames_in": p.frames_in,
+             "cpu_seconds": p.scheduler.get("cpu_seconds", 0.0),
+             "due_latency_ms": p.due_latency.summary()}
+            for w, p in zip(self.workers, parts, strict=True)]
         return out
 
 
@@ -424,6 +424,8 @@ def merge_summaries(parts: list[RunSummary]) -> RunSummary:
         out.waiting_at_stop += p.waiting_at_stop
         out.untimed_events += p.untimed_events
         for key, value in p.scheduler.items():
+            if not isinstance(value, (int, float)):
+                continue
             if key == "longest_turn_ms":
                 out.scheduler[key] = max(out.scheduler.get(key, 0.0), value)
             else:

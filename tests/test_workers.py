@@ -46,8 +46,9 @@ def test_four_osc_streams_over_two_workers_give_their_single_stream_events(tmp_p
         frames += len(motion.frames())
         expected = single_stream(motion, ["speed", "simplify"], float32=True)
         assert rounded(got[name]) == rounded(expected), (name, err)
-    assert sorted(w["streams_placed"] for w in doc["workers"]) == [2, 2]
-    assert len({w["pid"] for w in doc["workers"]}) == 2
+    workers = doc["scheduler"]["workers"]
+    assert sorted(w["streams_placed"] for w in workers) == [2, 2]
+    assert len({w["pid"] for w in workers}) == 2
     assert doc["frames_in"] == frames and doc["accounting"]["processed"] == frames
     assert doc["source"]["received"] == frames
     assert doc["events"]["speed"] == sum(1 for e in read_jsonl(log) if e.get("method") ==

@@ -301,6 +301,55 @@ def sender_main() -> None:
     np.save(out, sent)
 
 
+class _EventReceiver:
+    """Keyframe events from the run's ZeroMQ publisher, stamped on arrival, on a thread:
+    (stream, decided_at, arrival ns)."""
+
+    def __init__(self, endpoint: str, realtime: bool) -> None:
+        import threading
+
+        import zmq
+
+        self.got: list[tuple[str, int, int]] = []
+        self.realtime = realtime
+        self.stop = threading.Event()
+        self.ctx = zmq.Context()
+        self.sub = self.ctx.socket(zmq.SUB)
+        self.sub.setsockopt(zmq.SUBSCRIBE, b"event")
+        self.sub.setsockopt(zmq.RCVHWM, 1_000_000)
+        self.sub.connect(endpoint)
+        self.thread = threading.Thread(target=self._receive, daemon=True)
+        self.thread.start()
+
+    def _receive(self) -> None:
+        import json
+
+        if self.realtime:
+            _realtime(0)
+        while not self.stop.is_set():
+            if self.sub.poll(100):
+                parts = self.sub.recv_multipart()
+                stamp = time.monotonic_ns()
+                e = json.loads(parts[1])
+                if e.get("type") == "keyframe":
+                    self.got.append((e["stream"], int(e["decided_at"]), stamp))
+
+    def close(self) -> None:
+        """Stop receiving and release the socket."""
+        self.stop.set()
+        self.thread.join(5)
+        self.sub.close(linger=0)
+        self.ctx.term()
+
+
+def _free_port(kind: int) -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
 def external_row(streams: int, workers: int, seconds: float, clip: Path,
                  phases: str = "spread", python: str | None = None,
                  realtime: bool = False) -> dict[str, Any]:
@@ -316,18 +365,8 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
     import subprocess
     import sys
     import tempfile
-    import threading
 
-    import zmq
-
-    def free(kind: int) -> int:
-        with socket.socket(socket.AF_INET, kind) as s:
-            s.bind(("127.0.0.1", 0))
-            return int(s.getsockname()[1])
-
-    port, events_port = free(socket.SOCK_DGRAM), free(socket.SOCK_STREAM)
-    got: list[tuple[str, int, int]] = []
-    stop = threading.Event()
+    port, events_port = _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_STREAM)
     with tempfile.TemporaryDirectory() as tmp:
         summary_path, sent_path = Path(tmp) / "summary.json", Path(tmp) / "sent.npy"
         run = subprocess.Popen(
@@ -342,25 +381,7 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
         for line in run.stderr:
             if "listening on" in line:
                 break
-        ctx = zmq.Context()
-        sub = ctx.socket(zmq.SUB)
-        sub.setsockopt(zmq.SUBSCRIBE, b"event")
-        sub.setsockopt(zmq.RCVHWM, 1_000_000)
-        sub.connect(f"tcp://127.0.0.1:{events_port}")
-
-        def receive() -> None:
-            if realtime:
-                _realtime(0)
-            while not stop.is_set():
-                if sub.poll(100):
-                    parts = sub.recv_multipart()
-                    stamp = time.monotonic_ns()
-                    e = json.loads(parts[1])
-                    if e.get("type") == "keyframe":
-                        got.append((e["stream"], int(e["decided_at"]), stamp))
-
-        reader = threading.Thread(target=receive, daemon=True)
-        reader.start()
+        receiver = _EventReceiver(f"tcp://127.0.0.1:{events_port}", realtime)
         time.sleep(0.5)  # the subscription reaches the publisher
         load = os.getloadavg()[0]
         sender = subprocess.Popen(
@@ -375,39 +396,44 @@ def external_row(streams: int, workers: int, seconds: float, clip: Path,
             raise RuntimeError(f"sender failed: {sender_err[-500:]}")
         load_after = os.getloadavg()[0]
         _, err = run.communicate(timeout=seconds * 4 + 120)
-        stop.set()
-        reader.join(5)
-        sub.close(linger=0)
-        ctx.term()
+        receiver.close()
         sent = np.load(sent_path)
         own = json.loads(summary_path.read_text())
-    index = {f"s{i:02d}": i for i in range(streams)}
-    # events decided by frames sent (not by a stream's end at the idle exit)
-    got = [(s, d, t) for s, d, t in got if t < sent_until]
-    lat = np.array([(t - sent[index[s], d]) / 1e6 for s, d, t in got
-                    if s in index and 0 < d < sent.shape[1] and sent[index[s], d]])
-    frames_sent = int((sent > 0).sum())
+    got = [(s, d, t) for s, d, t in receiver.got if t < sent_until]
+    return {"streams": streams, "workers": workers, "phases": phases, "seconds": seconds,
+            "realtime": realtime, **_latencies(got, sent, own),
+            "load_1min_before": round(load, 2), "load_1min_after": round(load_after, 2),
+            "run_exit": run.returncode, "run_error": err[-300:] if run.returncode else ""}
+
+
+def _latencies(got: list[tuple[str, int, int]], sent: np.ndarray,
+               own: dict[str, Any]) -> dict[str, Any]:
+    """A row's numbers: event latencies from their deciding frame's send (events decided by
+    a stream's end are not timed), frames lost, the run's own view."""
+    index = {f"s{i:02d}": i for i in range(len(sent))}
     by_stream: dict[str, list[float]] = {}
     for s, d, t in got:
         if s in index and 0 < d < sent.shape[1] and sent[index[s], d]:
             by_stream.setdefault(s, []).append((t - sent[index[s], d]) / 1e6)
-    per_stream = [float(np.percentile(v, 99)) for v in by_stream.values()]
-    source = own["source"]
+    lat = np.array([v for values in by_stream.values() for v in values])
+    frames_sent = int((sent > 0).sum())
     lost = frames_sent - own["frames_in"]
-    p99 = round(float(np.percentile(lat, 99)), 3) if len(lat) else None
-    return {"streams": streams, "workers": workers, "phases": phases, "seconds": seconds,
-            "realtime": realtime,
-            "frames_sent": frames_sent, "frames_in": own["frames_in"], "frames_lost": lost,
-            "kernel_drops": source.get("kernel_drops"), "queue_drops": source["queue_drops"],
-            "events": len(lat), "p50_ms": round(float(np.percentile(lat, 50)), 3)
-            if len(lat) else None, "p99_ms": p99,
+
+    def pct(q: float) -> float | None:
+        return round(float(np.percentile(lat, q)), 3) if len(lat) else None
+
+    p99 = pct(99)
+    return {"frames_sent": frames_sent, "frames_in": own["frames_in"], "frames_lost": lost,
+            "kernel_drops": own["source"].get("kernel_drops"),
+            "queue_drops": own["source"]["queue_drops"], "events": len(lat),
+            "p50_ms": pct(50), "p99_ms": p99,
             "max_ms": round(float(lat.max()), 3) if len(lat) else None,
-            "worst_stream_p99_ms": round(max(per_stream), 3) if per_stream else None,
+            "worst_stream_p99_ms": round(max(float(np.percentile(v, 99))
+                                             for v in by_stream.values()), 3)
+            if by_stream else None,
             "run_due_p99_ms": own["due_latency_ms"]["p99"],
             "run_scheduler": own.get("scheduler"),
-            "met": p99 is not None and p99 <= TARGET_P99_MS and lost == 0,
-            "load_1min_before": round(load, 2), "load_1min_after": round(load_after, 2),
-            "run_exit": run.returncode, "run_error": err[-300:] if run.returncode else ""}
+            "met": p99 is not None and p99 <= TARGET_P99_MS and lost == 0}
 
 
 def _realtime(pid: int) -> None:
