@@ -456,18 +456,20 @@ def capacity(rows: list[dict[str, Any]], workers: int) -> dict[str, Any]:
 
 def bench_streams_external(data: Path | None, quick: bool = False,
                            counts: tuple[int, ...] = EXTERNAL_COUNTS,
-                           workers: tuple[int, ...] | None = None) -> dict[str, Any]:
+                           workers: tuple[int, ...] | None = None,
+                           realtime: bool = False) -> dict[str, Any]:
     """Due-event latency measured outside the run (sender, run, receiver: three processes)
     for every stream count, one worker and one per core; the capacity at p99 <= 5 ms with
     no frame lost. Counts above the first that misses are still measured (a shared machine
-    is noisy)."""
+    is noisy). `realtime`: see `external_row`."""
     seconds = 10.0 if quick else 60.0
     clip = (data / "01_06.bvh") if data is not None and (data / "01_06.bvh").exists() else None
     if clip is None:
         raise FileNotFoundError("bench --streams needs --data with 01_06.bvh")
     cores = os.cpu_count() or 1
     workers = workers or tuple(sorted({1, cores}))
-    rows = [external_row(n, w, seconds, clip) for w in workers for n in counts]
+    rows = [external_row(n, w, seconds, clip, realtime=realtime)
+            for w in workers for n in counts]
     return {"external_rows": rows, "capacity": [capacity(rows, w) for w in workers],
             "target_p99_ms": TARGET_P99_MS, "cores": cores, "methods": "all",
             "note": "sender, run and receiver are separate processes on this machine; the "
