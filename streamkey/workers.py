@@ -7,8 +7,8 @@ spread over N worker processes (every core of the machine, not one).
     this process: the sinks, the merged summary
 
 This process reads the source (its sockets, its queue and counters as in a one-process run)
-and places each stream id on the worker serving the fewest streams (ties: the one that spent
-the least CPU so far); a stream keeps its worker until it is retired, so its frames stay in
+and places each stream id on the worker serving the fewest streams (ties: the one given the
+fewest so far, then the first); a stream keeps its worker until it is retired, so its frames stay in
 order and its events are exactly a one-process run's. Frames go to their worker in one
 message per batch read from the queue, stamped with their arrival time (the monotonic clock
 is the machine's, shared by the processes). Each worker is an ordinary `Engine` (its own

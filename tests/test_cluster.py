@@ -45,7 +45,8 @@ def test_a_worker_that_dies_mid_stream_resumes_from_snapshot_and_log(redis_serve
     nothing flushed); frames 300..500 arrive with no worker at all (only the logger has
     them); worker B starts, restores the snapshot, replays the log, takes the rest. The
     de-duplicated events equal the uninterrupted run's."""
-    cfg = _config(publisher, redis_server, "solo", shards=1)
+    # no idle retirement between the workers: on a loaded machine seconds may pass there
+    cfg = _config(publisher, redis_server, "solo", shards=1, stream_idle=600.0)
     clip = Clip(CLIPS[0], "solo-stream", publisher)
     logger = FrameLogger(cfg)
     logger.start()

@@ -85,3 +85,47 @@ def test_workers_out_of_range_is_a_usage_error_not_a_traceback():
                                 capture_output=True, text=True, timeout=60 * MS)
         assert result.returncode == 2 and "--workers" in result.stderr, result.stderr
         assert "Traceback" not in result.stderr
+
+
+def test_ctrl_c_ends_the_workers_cleanly_and_loses_no_event(tmp_path):
+    """SIGINT mid-stream (the terminal sends it to the whole group, workers included): the
+    parent ends the workers in order, every stream is flushed, every event the workers
+    sent reaches the sink before it closes, the workers are gone, exit 0."""
+    import os
+    import signal
+    import time
+
+    port = free_port()
+    log, summary = tmp_path / "events.jsonl", tmp_path / "summary.json"
+    run = streamkey("run", "--from", f"osc://127.0.0.1:{port}", "--method", "speed,simplify",
+                    "--to", f"jsonl:{log}", "--summary", str(summary), "--workers", "2",
+                    start_new_session=True)  # its own process group, as in a terminal
+    replays = []
+    try:
+        wait_ready(run, "listening on", timeout=300)
+        replays = [streamkey("replay", str(DATA / clip), "--stream", name, "--loop", "--to",
+                             f"osc://127.0.0.1:{port}") for name, clip in list(CLIPS.items())[:2]]
+        deadline = time.monotonic() + 120 * MS
+        while not (log.exists() and len(read_jsonl(log)) >= 20):  # both workers at work
+            assert time.monotonic() < deadline, "no events"
+            time.sleep(0.1)
+        os.killpg(run.pid, signal.SIGINT)  # Ctrl-C: the parent and its workers
+        _, err = run.communicate(timeout=120 * MS)
+    finally:
+        for r in replays:
+            r.kill()
+            r.communicate()
+        interrupt_if_running(run)
+    assert run.returncode == 0, err
+    assert "Traceback" not in err
+    doc = json.loads(summary.read_text())
+    events = read_jsonl(log)
+    keyframes = sum(1 for e in events if e["type"] == "keyframe")
+    assert keyframes == sum(doc["events"].get(m, 0) for m in ("speed", "simplify"))
+    assert doc["keyframes_at_stream_end"] > 0  # the flush at the end came through
+    for w in doc["scheduler"]["workers"]:
+        try:
+            os.kill(w["pid"], 0)
+        except ProcessLookupError:
+            continue
+        raise AssertionError(f"worker {w['pid']} still running")
