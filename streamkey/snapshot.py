@@ -16,9 +16,10 @@ Derived caches are not stored: speed's `HPBank` pickles as its lambdas only (its
 factors live in a module-level cache shared by every stream with the same parameters and are
 re-derived on first use, bit-identical), so restored keyframers decide exactly as the
 original. Preallocated buffers are not stored whole: an array's index slices (rows,
-columns, ...) whose bytes are all zero are left out and restored as zeros (`_Pickler`), so
-a ring's spare capacity and a feature matrix's unused channels cost nothing (the default
-four-method pipeline after 30 s: 10.4 MiB as plain pickles, 7.7 MiB so).
+columns, ...) whose bytes are all zero are left out and restored as zeros, and big boolean
+arrays are packed to bits (`_Pickler`), so a ring's spare capacity and a feature matrix's
+unused channels cost nothing (the default four-method pipeline after 30 s: 10.4 MiB as
+plain pickles, 7.7 MiB so).
 Determinism contract (tested): the same frames give the same events after any snapshot /
 restore point.
 
@@ -119,9 +120,12 @@ class _Reader:
 
 
 def zero_filled(shape: tuple[int, ...], dtype: str, index: tuple[np.ndarray, ...],
-                part: np.ndarray) -> np.ndarray:
+                part: np.ndarray, bits: tuple[int, ...] | None = None) -> np.ndarray:
     """An array of zeros of `shape` with `part` at the index slices `index` (one index array
-    per axis): the inverse of the pickler's trimming, bit for bit."""
+    per axis): the inverse of the pickler's trimming, bit for bit. `bits`: `part` is a
+    boolean array of that shape packed eight to a byte."""
+    if bits is not None:
+        part = np.unpackbits(part, count=int(np.prod(bits))).reshape(bits).astype(bool)
     out = np.zeros(shape, dtype)
     out[np.ix_(*index)] = part
     return out
@@ -137,8 +141,9 @@ def _nonzero_index(arr: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 class _Pickler(pickle.Pickler):
-    """The payload's pickler: big arrays without their all-zero slices (`zero_filled`);
-    derived caches leave themselves out (`HPBank.__reduce__`)."""
+    """The payload's pickler: big arrays without their all-zero slices, big boolean ones
+    packed to bits (`zero_filled`); derived caches leave themselves out
+    (`HPBank.__reduce__`)."""
 
     def reducer_override(self, obj: Any) -> Any:
         """Trim a plain C-ordered numeric array of at least `MIN_TRIMMED_BYTES` when that
@@ -147,6 +152,10 @@ class _Pickler(pickle.Pickler):
                 or obj.dtype.kind not in "biufc" or not obj.flags.c_contiguous):
             return NotImplemented
         index = _nonzero_index(obj)
+        if obj.dtype.kind == "b":  # flags: packed eight to a byte
+            part = obj[np.ix_(*index)]
+            return zero_filled, (obj.shape, obj.dtype.str, index, np.packbits(part),
+                                 part.shape)
         if int(np.prod([len(i) for i in index])) == obj.size:
             return NotImplemented
         return zero_filled, (obj.shape, obj.dtype.str, index, obj[np.ix_(*index)])
