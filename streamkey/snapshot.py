@@ -131,10 +131,18 @@ def zero_filled(shape: tuple[int, ...], dtype: str, index: tuple[np.ndarray, ...
     return out
 
 
+_WORDS: dict[int, type[np.unsignedinteger[Any]]] = {
+    1: np.uint8, 2: np.uint16, 4: np.uint32, 8: np.uint64}
+
+
 def _nonzero_index(arr: np.ndarray) -> tuple[np.ndarray, ...]:
     """Per axis, the indices of the slices holding a nonzero byte (-0.0 is nonzero)."""
-    nonzero = np.asarray(arr.view(np.uint8).reshape(
-        arr.shape + (arr.dtype.itemsize,)).any(axis=-1))
+    word = _WORDS.get(arr.dtype.itemsize)
+    if word is not None:  # one comparison per element: its bytes as one unsigned word
+        nonzero = np.asarray(arr.view(word) != 0)
+    else:
+        nonzero = np.asarray(arr.view(np.uint8).reshape(
+            arr.shape + (arr.dtype.itemsize,)).any(axis=-1))
     axes = range(arr.ndim)
     return tuple(np.flatnonzero(nonzero.any(axis=tuple(a for a in axes if a != axis))
                                 ).astype(np.int32) for axis in axes)
