@@ -5,10 +5,14 @@ The path is one-way, as between `websockets`' sans-I/O protocol and its connecti
 - Frames carry a stream tag; each stream gets its own `Pipeline`, built from its skeleton,
   up to `max_streams` (more are refused and counted), retired after `stream_idle` seconds
   without a frame: the `StreamTable` (`streamkey.streamtable`, sans-I/O) keeps that state,
-  this module is the asyncio around it. Due decisions first: every queued frame's `push`,
-  of every stream, runs before any stream's deferred `idle`, so one stream's re-analysis
-  burst does not delay another stream's due event; a stream's own order (and so its events)
-  is unchanged.
+  this module is the asyncio around it. The order of work is the `Scheduler`'s
+  (`streamkey.scheduler`, sans-I/O): due decisions first (every queued frame's `push`, of
+  every stream, oldest arrival first, before any stream's deferred `idle`), so one stream's
+  re-analysis burst does not delay another stream's due event; a stream's own order (and so
+  its events) is unchanged; and work runs in turns of `turn_budget_ms`, between which the
+  sources read their sockets while the engine keeps up (its queue under half full), so
+  frames wait in the engine's queue (stamped with their kernel arrival) rather than
+  overflow the kernel's receive buffer.
 
 - Frames come from the source's bounded queue (network sources drop the oldest frame when
   the engine falls behind, and count it), each stamped with its arrival time (the kernel's
@@ -49,6 +53,7 @@ from .io import DEFAULT_MAX_STREAMS, Sink, Source, StreamSpec
 from .keyframes import Event, KeyframeEvent
 from .motion import Frame, Skeleton
 from .online import GuardCounters, OnlineKeyframer, Pipeline
+from .scheduler import Scheduler
 from .streamtable import LiveStream, StreamTable
 from .summary import (
     MAX_ERRORS_KEPT,
@@ -77,7 +82,8 @@ class EngineConfig:
     many seconds without a frame once frames have flowed. `reset_on_gap`: a gap too long to
     bridge forgets the methods' running statistics too. `due_first`: the deferred
     re-analysis of every stream waits until no frame is queued. `freeze_gc`: freeze the heap
-    loaded at start-up out of the garbage collector for the run (the CLI's `run`)."""
+    loaded at start-up out of the garbage collector for the run (the CLI's `run`).
+    `turn_budget_ms`: work between two passes of the event loop (the sources' reads)."""
 
     stream: str = "default"
     on_ready: Callable[[str], None] | None = None
@@ -89,6 +95,7 @@ class EngineConfig:
     stream_idle: float | None = None
     due_first: bool = True
     freeze_gc: bool = False
+    turn_budget_ms: float = 1.0
 
 
 class Engine:
@@ -110,7 +117,7 @@ class Engine:
         source.max_streams = cfg.max_streams
         self.summary = RunSummary(max_streams=cfg.max_streams)
         self.table = StreamTable(self.summary.streams, cfg.max_streams, cfg.stream_idle)
-        self._deferred: dict[str, LiveStream] = {}  # streams whose re-analysis is pending
+        self.scheduler: Scheduler[LiveStream] = Scheduler(int(cfg.turn_budget_ms * 1e6))
         self._warm = False
         self._prebuilt: tuple[tuple[Skeleton, float], Pipeline] | None = None
         self._last_frame = time.monotonic()
@@ -235,7 +242,7 @@ class Engine:
 
     def _retire(self, state: LiveStream) -> None:
         """End a stream: flush its pipeline, keep its counters, free its place."""
-        self._deferred.pop(state.name, None)
+        self.scheduler.drop(state.name)
         self._deliver(self.table.step(state, None, state.pipeline.flush), time.monotonic_ns(),
                       state, due=False, timed=False)
         self.table.close(state)
@@ -308,24 +315,29 @@ class Engine:
         """Serve stream `name` from a snapshot from now on (a worker taking over a stream);
         a live pipeline of that name is replaced unflushed. `SnapshotError` if it does not
         fit (`params`: the digest it must carry)."""
-        self._deferred.pop(name, None)
+        self.scheduler.drop(name)
         tag = None if name == self.config.stream else name
         state = self.table.restore(name, tag, data, time.monotonic(), params)
         if state.pipeline._idle_due:  # the re-analysis of its last frame had not run yet
-            self._deferred[name] = state
+            self.scheduler.defer(name, state)
 
     # ------------------------------------------------------------------ the loop
 
     async def _loop(self) -> None:
-        queue = self.source.frames
+        queue, sched = self.source.frames, self.scheduler
         while True:
+            now = time.monotonic_ns()
+            if sched.should_drain(now) and self._keeping_up(queue):
+                sched.drained(now)
+                await _let_sources_read()
             if queue.empty():
-                if self._deferred:  # every due decision is out: one stream's re-analysis
-                    state = self._deferred.pop(next(iter(self._deferred)))
+                state = sched.next_deferred()
+                if state is not None:  # every due decision is out: one stream's re-analysis
+                    sched.begin(time.monotonic_ns())
                     self._deliver(self.table.step(state, state.seq, state.pipeline.idle),
                                   state.last_arrival_ns, state, due=False)
-                    await asyncio.sleep(0)  # let the sources queue what came meanwhile
                     continue
+                sched.waiting()
                 item = await self._wait()
                 if item is _TIMEOUT:
                     idle_exit = self.config.idle_exit
@@ -336,6 +348,7 @@ class Engine:
                     continue
             else:
                 item = queue.get_nowait()
+            sched.begin(time.monotonic_ns())
             match item:
                 case FrameArrived(frame=frame, arrival_ns=arrival_ns, stream=tag):
                     self._handle(frame, arrival_ns, tag)
@@ -345,6 +358,13 @@ class Engine:
                         self._open(name, tag, frame=False)
                 case SourceEnded():
                     return
+
+    @staticmethod
+    def _keeping_up(queue: Any) -> bool:
+        """True while the queue is under half full: then the sockets are read between
+        turns. Behind that (no CPU to spare), reading would decode frames only for the full
+        queue to drop them: the kernel's buffer holds the backlog, its drops counted."""
+        return not queue.maxsize or 2 * len(queue) < queue.maxsize
 
     async def _wait(self) -> QueueItem | object:
         """The next queue item, or `_TIMEOUT` when a stream may be due for retirement or
@@ -381,7 +401,7 @@ class Engine:
         """One frame of a stream: the pending re-analysis of its previous frame first (the
         stream's own order), then the due decisions; this frame's re-analysis is deferred."""
         step = self.table.step
-        if self._deferred.pop(state.name, None) is not None:
+        if self.scheduler.take(state.name) is not None:
             self._deliver(step(state, state.seq, state.pipeline.idle),
                           state.last_arrival_ns, state, due=False)
         state.stats.frames_in += 1
@@ -390,7 +410,7 @@ class Engine:
         self._deliver(step(state, frame.seq, state.pipeline.push, frame), arrival_ns,
                       state, due=True)
         if self.config.due_first:
-            self._deferred[state.name] = state
+            self.scheduler.defer(state.name, state)
         else:
             self._deliver(step(state, frame.seq, state.pipeline.idle), arrival_ns,
                           state, due=False)
@@ -446,6 +466,15 @@ class Engine:
         self.summary.errors = list(self.table.faults.messages)
         self.summary.error_count = self.table.faults.count
         self.summary.sinks.update(self.sinks.stats())
+        self.summary.scheduler = self.scheduler.stats.as_dict()
+
+
+async def _let_sources_read() -> None:
+    """One pass of the event loop for the sources' socket readers before more work: the
+    first yield puts this task in the ready queue ahead of the readers the next select
+    finds, the second behind them."""
+    await asyncio.sleep(0)
+    await asyncio.sleep(0)
 
 
 _TIMEOUT = object()

@@ -15,7 +15,11 @@ payload, a different params digest than the caller expects, or a snapshot of ano
 Derived caches are not stored: speed's `HPBank` pickles as its lambdas only (its Cholesky
 factors live in a module-level cache shared by every stream with the same parameters and are
 re-derived on first use, bit-identical), so restored keyframers decide exactly as the
-original.
+original. Preallocated buffers are not stored whole: an array's index slices (rows,
+columns, ...) whose bytes are all zero are left out and restored as zeros, and big boolean
+arrays are packed to bits (`_Pickler`), so a ring's spare capacity and a feature matrix's
+unused channels cost nothing (the default four-method pipeline after 30 s: 10.4 MiB as
+plain pickles, 7.7 MiB so).
 Determinism contract (tested): the same frames give the same events after any snapshot /
 restore point.
 
@@ -31,6 +35,8 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from .errors import StreamkeyError
 from .keyframes import params_digest
 
@@ -38,7 +44,8 @@ __all__ = ["SnapshotError", "SnapshotHeader", "snapshot", "restore", "read_heade
            "SNAPSHOT_VERSION", "MAGIC"]
 
 MAGIC = b"SKSNAP"
-SNAPSHOT_VERSION = 3  # 3: the feature stage holds the noise filter (FrontEnd)
+SNAPSHOT_VERSION = 4  # 4: arrays stored without their all-zero slices
+MIN_TRIMMED_BYTES = 4096  # arrays this big or bigger are stored without their zero slices
 _PREFIX = struct.Struct(">6sBI")
 MAX_HEADER_BYTES = 1 << 16
 
@@ -112,8 +119,54 @@ class _Reader:
         return self.read(-1 if end < 0 else end + 1 - self.pos)
 
 
+def zero_filled(shape: tuple[int, ...], dtype: str, index: tuple[np.ndarray, ...],
+                part: np.ndarray, bits: tuple[int, ...] | None = None) -> np.ndarray:
+    """An array of zeros of `shape` with `part` at the index slices `index` (one index array
+    per axis): the inverse of the pickler's trimming, bit for bit. `bits`: `part` is a
+    boolean array of that shape packed eight to a byte."""
+    if bits is not None:
+        part = np.unpackbits(part, count=int(np.prod(bits))).reshape(bits).astype(bool)
+    out = np.zeros(shape, dtype)
+    out[np.ix_(*index)] = part
+    return out
+
+
+_WORDS: dict[int, type[np.unsignedinteger[Any]]] = {
+    1: np.uint8, 2: np.uint16, 4: np.uint32, 8: np.uint64}
+
+
+def _nonzero_index(arr: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per axis, the indices of the slices holding a nonzero byte (-0.0 is nonzero)."""
+    word = _WORDS.get(arr.dtype.itemsize)
+    if word is not None:  # one comparison per element: its bytes as one unsigned word
+        nonzero = np.asarray(arr.view(word) != 0)
+    else:
+        nonzero = np.asarray(arr.view(np.uint8).reshape(
+            arr.shape + (arr.dtype.itemsize,)).any(axis=-1))
+    axes = range(arr.ndim)
+    return tuple(np.flatnonzero(nonzero.any(axis=tuple(a for a in axes if a != axis))
+                                ).astype(np.int32) for axis in axes)
+
+
 class _Pickler(pickle.Pickler):
-    """The payload's pickler (derived caches leave themselves out: `HPBank.__reduce__`)."""
+    """The payload's pickler: big arrays without their all-zero slices, big boolean ones
+    packed to bits (`zero_filled`); derived caches leave themselves out
+    (`HPBank.__reduce__`)."""
+
+    def reducer_override(self, obj: Any) -> Any:
+        """Trim a plain C-ordered numeric array of at least `MIN_TRIMMED_BYTES` when that
+        saves anything; everything else pickles as usual."""
+        if (type(obj) is not np.ndarray or obj.nbytes < MIN_TRIMMED_BYTES
+                or obj.dtype.kind not in "biufc" or not obj.flags.c_contiguous):
+            return NotImplemented
+        index = _nonzero_index(obj)
+        if obj.dtype.kind == "b":  # flags: packed eight to a byte
+            part = obj[np.ix_(*index)]
+            return zero_filled, (obj.shape, obj.dtype.str, index, np.packbits(part),
+                                 part.shape)
+        if int(np.prod([len(i) for i in index])) == obj.size:
+            return NotImplemented
+        return zero_filled, (obj.shape, obj.dtype.str, index, obj[np.ix_(*index)])
 
 
 class _Unpickler(pickle.Unpickler):

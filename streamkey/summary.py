@@ -59,6 +59,14 @@ class LatencyHistogram:
         centre = self.low * math.exp((index - 0.5) * self.step)
         return min(centre, self.max)
 
+    def merge(self, other: LatencyHistogram) -> None:
+        """Count `other`'s values too (same bins: another process's histogram)."""
+        if other.n_bins != self.n_bins or other.step != self.step or other.low != self.low:
+            raise ValueError("latency histograms of different bins cannot be merged")
+        self.counts += other.counts
+        self.count += other.count
+        self.max = max(self.max, other.max)
+
     def summary(self) -> dict[str, float | None]:
         """p50 / p99 / max (ms), None before the first value."""
         return {"p50": self.percentile(50), "p99": self.percentile(99),
@@ -89,6 +97,8 @@ class RunSummary:
     due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
     frame_wait: LatencyHistogram = field(default_factory=LatencyHistogram)
     untimed_events: int = 0  # keyframes decided by a stream's end, not by a frame
+    # `TurnStats.as_dict()`; with `run --workers`, "workers": each worker's counters
+    scheduler: dict[str, Any] = field(default_factory=dict)
 
     def latency_percentiles(self) -> dict[str, float | None]:
         """p50 / p99 / max of the wall latency (ms), None before the first event."""
@@ -123,6 +133,7 @@ class RunSummary:
                 "frame_wait_ms": self.frame_wait.summary(),
                 "keyframes_at_stream_end": self.untimed_events,
                 "streams": {n: st.as_dict() for n, st in self.streams.items()},
+                "scheduler": self.scheduler,
                 "max_streams": self.max_streams, "refused_streams": self.refused_streams,
                 "refused_frames": self.refused_frames, "waiting_at_stop": self.waiting_at_stop}
 
@@ -166,14 +177,23 @@ class RunSummary:
             lines.append(f"streams: {len(self.streams)} served, {self.refused_streams} refused "
                          f"({self.refused_frames} frames; --max-streams {self.max_streams})")
             for name, ss in list(self.streams.items())[:16]:
+                due = ss.due_latency.summary()
                 lines.append(f"stream {name}: frames in {ss.frames_in}, events "
                              + (", ".join(f"{k} {v}" for k, v in sorted(ss.events.items()))
                                 or "none")
                              + f", gaps {ss.guard.get('gaps', 0)}, sessions {ss.sessions}"
+                             + (f", due p99 {due['p99']:.2f} ms, max {due['max']:.2f} ms"
+                                if due["p99"] is not None else "")
                              + (f", {ss.waiting_drops} dropped waiting for its skeleton"
                                 if ss.waiting_drops else ""))
             if len(self.streams) > 16:
                 lines.append(f"... {len(self.streams) - 16} more streams (see --summary)")
+        for i, w in enumerate(self.scheduler.get("workers", [])):
+            due = w["due_latency_ms"]
+            lines.append(f"worker {i} (pid {w['pid']}): {w['streams_placed']} streams placed, "
+                         f"frames in {w['frames_in']}, CPU {w['cpu_seconds']:.1f} s"
+                         + (f", due p99 {due['p99']:.2f} ms, max {due['max']:.2f} ms"
+                            if due["p99"] is not None else ""))
         for error in self.errors[:5]:
             lines.append(f"keyframer error (window restarted): {error}")
         if self.error_count > 5:
@@ -202,6 +222,16 @@ class StreamStats:
     events: Counter[str] = field(default_factory=Counter)
     guard: Counter[str] = field(default_factory=Counter)
     due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
+
+    def merge(self, other: StreamStats) -> None:
+        """Add `other`'s counters (the same stream id served by another process)."""
+        self.frames_in += other.frames_in
+        self.sessions += other.sessions
+        self.retired += other.retired
+        self.waiting_drops += other.waiting_drops
+        self.events.update(other.events)
+        self.guard.update(other.guard)
+        self.due_latency.merge(other.due_latency)
 
     def as_dict(self) -> dict[str, Any]:
         """Counters as a plain dict (latency: the due events' p50 / p99 / max, ms)."""

@@ -21,7 +21,7 @@ from live_helpers import MS, free_port
 from streamkey.adapters.osc import skeleton_header
 from streamkey.adapters.zmq import decode_frame_parts, encode_frame_parts
 from streamkey.batch import load_motion
-from streamkey.cluster.live import parse_skeleton_message, shard_of, stream_topic
+from streamkey.cluster.live import parse_skeleton_message, stream_topic
 from streamkey.motion import Frame, Motion
 from streamkey.online import Pipeline
 from streamkey.streaming import make_keyframers
@@ -98,14 +98,9 @@ class Publisher:
 
 
 def stream_names(shards: int) -> list[str]:
-    """One stream id per shard (the first names that hash to shard 0, 1, ...)."""
-    names: dict[int, str] = {}
-    i = 0
-    while len(names) < shards:
-        name = f"performer-{i}"
-        names.setdefault(shard_of(name, shards), name)
-        i += 1
-    return [names[s] for s in range(shards)]
+    """One stream id per shard: ids are placed round robin in the order they are first
+    seen, so the i-th id published first lands on shard i."""
+    return [f"performer-{i}" for i in range(shards)]
 
 
 class Clip:

@@ -16,3 +16,22 @@ def test_the_simulated_worker_puts_every_streams_due_work_before_any_re_analysis
     np.testing.assert_allclose(first, [0.2, 0.2])  # b's push right after a's push
     np.testing.assert_allclose(old, [5.2, 0.2])    # b's push waited for a's re-analysis
     assert busy == (0.4 + 5) * ms / (2 * 1e9 / 120)
+
+
+def test_an_external_row_measures_a_real_run_from_outside():
+    """Sender, `streamkey run` and receiver as three processes over loopback: every frame
+    sent is either taken in by the run or counted lost, every event is timed from its
+    deciding frame's send, the run ends by itself (--idle-exit)."""
+    from pathlib import Path
+
+    from cmu import DATA
+
+    from streamkey.bench.streams import capacity, external_row
+
+    row = external_row(2, 1, 2.0, Path(DATA / "01_06.bvh").resolve())
+    assert row["run_exit"] == 0, row["run_error"]
+    assert row["frames_sent"] == 2 * 240
+    assert row["frames_in"] + row["frames_lost"] == row["frames_sent"]
+    assert row["events"] > 0 and 0 < row["p50_ms"] <= row["p99_ms"] <= row["max_ms"]
+    assert row["met"] == (row["p99_ms"] <= 5.0 and row["frames_lost"] == 0)
+    assert capacity([row], 1)["streams"] == (2 if row["met"] else 0)

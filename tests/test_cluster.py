@@ -4,6 +4,7 @@ and snapshots, de-duplicated events; restarts by Ray (worker SIGKILL, node loss)
 from __future__ import annotations
 
 import random
+from collections import Counter
 
 import cluster_helpers
 import pytest
@@ -20,6 +21,8 @@ from cluster_helpers import (
 from streamkey.cluster.live import (
     ClusterConfig,
     FrameLogger,
+    Placement,
+    RedisKeys,
     ShardWorker,
     split_topic,
     stream_topic,
@@ -42,7 +45,8 @@ def test_a_worker_that_dies_mid_stream_resumes_from_snapshot_and_log(redis_serve
     nothing flushed); frames 300..500 arrive with no worker at all (only the logger has
     them); worker B starts, restores the snapshot, replays the log, takes the rest. The
     de-duplicated events equal the uninterrupted run's."""
-    cfg = _config(publisher, redis_server, "solo", shards=1)
+    # no idle retirement between the workers: on a loaded machine seconds may pass there
+    cfg = _config(publisher, redis_server, "solo", shards=1, stream_idle=600.0)
     clip = Clip(CLIPS[0], "solo-stream", publisher)
     logger = FrameLogger(cfg)
     logger.start()
@@ -75,6 +79,11 @@ def test_a_worker_that_dies_mid_stream_resumes_from_snapshot_and_log(redis_serve
     assert got == want
     assert sum(e["type"] == "keyframe" for e in got.values()) > 20
     assert status["counters"]["snapshot_bytes"] <= 16_000_000
+    # the run's counts span both workers: every frame once, every event once
+    assert status["totals"] == {"frames": len(clip.frames), "events": len(want),
+                                "duplicates_dropped": status["totals"]["duplicates_dropped"]}
+    assert status["totals"]["duplicates_dropped"] > 0  # B replayed what A had sent
+    assert status["counters"]["frames"] == len(clip.frames)
 
 
 def test_holes_in_the_live_stream_are_filled_from_the_log(redis_server, publisher):
@@ -181,3 +190,60 @@ def test_a_keyframer_fault_in_a_shard_is_reported_and_the_windows_restart(redis_
     status = worker.status()
     assert status["keyframer_errors"] == 1 and "injected" in status["keyframer_faults"][0]
     assert worker.rejects == {}  # a fault is not a rejected message
+
+
+def test_stream_ids_are_placed_balanced_and_stably(redis_server):
+    """`s00`..`s07` over 2 shards: 4 + 4 in the order first seen, whatever their hashes; an
+    id keeps its shard in every process (a restarted worker, the logger)."""
+    client = redis_server.client()
+    first = Placement(client, RedisKeys("place"), 2)
+    ids = [f"s{i:02d}" for i in range(8)]
+    shards = first.place(ids)
+    assert shards == [0, 1] * 4
+    other = Placement(redis_server.client(), RedisKeys("place"), 2)  # another process
+    assert [other.shard(s) for s in reversed(ids)] == shards[::-1]
+    assert other.shard("late") == 0 and first.shard("later") == 1
+    three = Placement(client, RedisKeys("place3"), 3)
+    assert sorted(Counter(three.place([f"performer-{i}" for i in range(9)])).values()) == [
+        3, 3, 3]
+
+
+def test_the_shards_count_every_frame_and_event_across_a_worker_restart(redis_server,
+                                                                        publisher):
+    """Four streams `s00`..`s03` over 2 shards (2 + 2); worker 0 dies mid-stream without a
+    word and a new one takes over: the shards' totals count every frame and every event
+    once (the restarted shard's frames come from its snapshots, its replays and after)."""
+    cfg = _config(publisher, redis_server, "counts", shards=2, stream_idle=60.0)
+    clips = [Clip(CLIPS[i % 2], f"s{i:02d}", publisher) for i in range(4)]
+    logger = FrameLogger(cfg)
+    logger.start()
+    workers = [ShardWorker(cfg, 0), ShardWorker(cfg, 1)]
+    for w in workers:
+        w.start()
+        assert w.ready.wait(30)
+    publisher.wait_subscribers(3)
+    for c in clips:
+        publisher.send(c.stream, c.skeleton)
+    play(publisher, clips, 0, 300, period=0.001)
+    wait_for(lambda: all(workers[0].status()["streams"].get(c.stream, {}).get("last_seq")
+                         == 300 for c in clips[0::2]), "shard 0 at frame 300")
+    assert sorted(workers[0].status()["streams"]) == ["s00", "s02"]
+    workers[0]._stop.set()  # dies: no flush, no goodbye
+    workers[0]._thread.join(10)
+    workers[0] = ShardWorker(cfg, 0)
+    workers[0].start()
+    assert workers[0].ready.wait(60) and workers[0].starts == 2
+    publisher.wait_subscribers(4)
+    play(publisher, clips, 300, None, period=0.001)
+    total = sum(len(c.frames) for c in clips)
+    wait_for(lambda: logger.logged >= total, "every frame logged")
+    wait_for(lambda: sum(w.status()["totals"]["frames"] for w in workers) >= total,
+             "every frame pushed")
+    shards = [w.stop() for w in workers]
+    logger.stop()
+    got = list(redis_events(redis_server.client(), "counts"))
+    want = sum(len(c.reference(METHODS)) for c in clips)
+    assert len(got) == len({e["id"] for e in got}) == want
+    assert [sorted(s["retired"]) for s in shards] == [["s00", "s02"], ["s01", "s03"]]
+    assert sum(s["counters"]["frames"] for s in shards) == total
+    assert sum(s["counters"]["events"] for s in shards) == want

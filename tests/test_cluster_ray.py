@@ -95,6 +95,11 @@ def test_worker_sigkill_mid_stream_gives_the_uninterrupted_events(cluster, redis
                         lambda victim: os.kill(victim["pid"], signal.SIGKILL))
     assert status[0]["starts"] == 2 and status[1]["starts"] == 1
     assert status[0]["counters"]["replayed"] > 0
+    # the summary counts every frame and event across the restart
+    clips = _clips(publisher)
+    events = list(redis_events(redis_server.client(), "sigkill"))
+    assert sum(s["counters"]["frames"] for s in status) == sum(len(c.frames) for c in clips)
+    assert sum(s["counters"]["events"] for s in status) == len(events)
 
 
 def test_node_loss_mid_stream_gives_the_uninterrupted_events(cluster, redis_server,

@@ -322,3 +322,75 @@ async def test_an_engine_takes_over_a_stream_from_another_engines_snapshot():
     unique = {event_id(e): e for e in first + two_events if e["type"] == "keyframe"}
     got = per_stream(list(unique.values()))["take"]
     assert rounded(got) == rounded(single_stream(m))
+
+
+async def test_the_sockets_are_read_between_turns_while_a_backlog_is_computed():
+    """Drain before compute: 300 frames of stream a queued, each push made 0.5 ms dearer
+    (a busy wait in the real keyframer); a datagram sent when the 10th is pushed is read
+    within a turn (1 ms of work, two or three pushes), not after the whole backlog."""
+    import socket
+
+    from streamkey.methods import speed
+
+    m = read_bvh(DATA / "07_01.bvh")
+
+    class Dear(speed.Online):
+        def process(self, block):
+            until_ns = time.thread_time_ns() + 500_000
+            while time.thread_time_ns() < until_ns:
+                pass
+            return super().process(block)
+
+    port = free_port()
+    source = OscSource(parse_address(f"osc://127.0.0.1:{port}"), None, m.skeleton, m.fps)
+    source.frames = FrameQueue(source.stats, maxsize=0)
+    for f in m.frames()[:300]:
+        source.frames.put(f, None, "a")
+    source.frames.put(None)
+    out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    read_at: list[int] = []
+    receive = source.receive
+
+    def received(data, arrival_ns=None, depth=0):  # type: ignore[no-untyped-def]
+        read_at.append(engine.summary.frames_in)
+        receive(data, arrival_ns, depth)
+
+    source.receive = received  # type: ignore[method-assign]
+    f0 = m.frames()[0]
+
+    def on_frame(frame):  # type: ignore[no-untyped-def]
+        if engine.summary.frames_in == 10:
+            out.sendto(encode_frame(f0.seq, f0.time, f0.channels, stream_address("frame", "b")),
+                       ("127.0.0.1", port))
+
+    engine = Engine(source, lambda spec: [Dear(spec.skeleton, spec.fps, stream=spec.stream)],
+                    [], on_frame=on_frame)
+    try:
+        summary = await engine.run()
+    finally:
+        out.close()
+    assert summary.frames_in == 300 and read_at, "the datagram was never read"
+    assert read_at[0] <= 10 + 4, f"read after {read_at[0]} frames, sent after 10"
+    assert summary.scheduler["turns"] >= 300 * 0.5 / 1.0 / 2
+    stats = summary.streams["a"].as_dict()["due_latency_ms"]  # measured per stream
+    assert stats["max"] is not None and stats["p99"] <= stats["max"]
+
+
+def test_the_scheduler_puts_due_work_first_and_deferred_work_oldest_first():
+    from streamkey.scheduler import Scheduler
+
+    s: Scheduler[str] = Scheduler(budget_ns=1000)
+    s.defer("a", "a1")
+    s.defer("b", "b1")
+    s.defer("a", "a2")  # a's newer work goes behind b's
+    assert len(s) == 2 and "a" in s
+    assert s.take("b") == "b1" and s.take("b") is None  # before b's next push
+    s.defer("c", "c1")
+    assert [s.next_deferred(), s.next_deferred(), s.next_deferred()] == ["a2", "c1", None]
+    s.begin(10)
+    s.begin(500)  # the same turn
+    assert not s.should_drain(1009) and s.should_drain(1010)
+    s.drained(1500)
+    assert not s.should_drain(10**9)  # no turn open
+    assert s.stats.turns == 1 and s.stats.longest_turn_ms == 1490 / 1e6
+    assert s.stats.deferred_in_order == 1 and s.stats.deferred_idle == 2

@@ -1,5 +1,12 @@
-"""`streamkey bench --streams`: due-event latency against the number of streams one process
-serves, with and without due-first scheduling.
+"""`streamkey bench --streams`: the capacity of a run, measured from outside, and the
+scheduling model behind it.
+
+The capacity (`bench_streams_external`): a sender process plays 1, 4, 8, 16, 24 and 32
+streams at 120 Hz over OSC (each its own stream id, frame phases spread as independent
+devices'), `streamkey run` keyframes them with every method (one worker, then one per core)
+and publishes the events on ZeroMQ, and this process receives them: latency = an event's
+arrival minus its deciding frame's send. A stream count is met when p99 <= 5 ms and no frame
+was lost; the result names the largest met count per worker setting (and per core).
 
 A stage: one capture system, N performers, every stream ticking at 120 Hz on the same clock
 (frame i of every stream arrives at t0 + i / 120 s). Each stream replays its own shared
@@ -182,13 +189,15 @@ def _simulated_rows(motions: list[Motion], seconds: float) -> list[dict[str, Any
 
 
 def bench_streams(data: Path | None, quick: bool = False) -> dict[str, Any]:
-    """Due-event p50 / p99 for 1, 2, 4, 8, 16 streams, due-first on and off."""
+    """The capacity measured outside the run (`bench_streams_external`: 1-32 streams, one
+    worker and one per core), and the scheduling model's due-event p50 / p99 for 1-16
+    streams, due-first on and off."""
     seconds = 8.0 if quick else 20.0
     motions = _clips(data, max(STREAM_COUNTS))
     load = os.getloadavg()[0]
+    external = bench_streams_external(data, quick)
     rows = _simulated_rows(motions, seconds)
-    live = [_one(motions[:n], flag, seconds) for n in STREAM_COUNTS for flag in (True, False)]
-    return {"rows": rows, "live_rows": live, "seconds_per_row": seconds, "rate_hz": RATE,
+    return {**external, "rows": rows, "seconds_per_row": seconds, "rate_hz": RATE,
             "methods": METHODS,
             "cores": os.cpu_count(), "load_average_before": round(load, 2),
             "load_average_after": round(os.getloadavg()[0], 2),
@@ -197,7 +206,23 @@ def bench_streams(data: Path | None, quick: bool = False) -> dict[str, Any]:
 
 
 def readme_table(result: dict[str, Any]) -> str:
-    """The README's table of a `bench_streams` result (due-first against the old order)."""
+    """The README's tables of a `bench_streams` result: the capacity measured outside the
+    run, then the scheduling model (due-first against the old order)."""
+    lines = ["| streams | workers | due p50 / p99 / max (ms, external receiver) | frames lost "
+             "| kernel drops | load before / after |", "|---|---|---|---|---|---|"]
+    for r in result.get("external_rows", []):
+        lines.append(f"| {r['streams']} | {r['workers']} | {r['p50_ms']} / {r['p99_ms']} / "
+                     f"{r['max_ms']} | {r['frames_lost']} | {r['kernel_drops']} | "
+                     f"{r['load_1min_before']} / {r['load_1min_after']} |")
+    for c in result.get("capacity", []):
+        lines.append(f"\n{c['workers']} worker(s): {c['streams']} streams at due p99 <= "
+                     f"{TARGET_P99_MS:g} ms with no frame lost ({c['streams_per_core']} per "
+                     "core)")
+    return "\n".join(lines) + "\n\n" + _model_table(result)
+
+
+def _model_table(result: dict[str, Any]) -> str:
+    """The scheduling model's table (due-first against the old order)."""
     def ms(v: float) -> str:
         return f"{v:,.0f}" if v >= 100 else f"{v:.2f}" if v < 10 else f"{v:.1f}"
 
@@ -208,18 +233,244 @@ def readme_table(result: dict[str, Any]) -> str:
         return a, b
 
     lines = ["| streams | staggered starts: due-first p50 / p99 | old order p50 / p99 | "
-             "same-tick starts: due-first p50 / p99 | old order p50 / p99 | worker busy | "
-             "live here: due-first p50 / p99 | old order p50 / p99 | CPU it got |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "same-tick starts: due-first p50 / p99 | old order p50 / p99 | worker busy |",
+             "|---|---|---|---|---|---|"]
     for n in sorted({r["streams"] for r in result["rows"]}):
         cells = []
-        for rows, starts in ((result["rows"], "staggered"), (result["rows"], "together"),
-                             (result["live_rows"], None)):
+        for rows, starts in ((result["rows"], "staggered"), (result["rows"], "together")):
             a, b = pair(rows, n, starts)
             cells += [f"{ms(a['due_p50_ms'])} / {ms(a['due_p99_ms'])}",
                       f"{ms(b['due_p50_ms'])} / {ms(b['due_p99_ms'])}"]
             if starts == "together":
                 cells.append(f"{a['worker_busy']:.0%}")
-        cpu = pair(result["live_rows"], n)[0]["cpu_per_wall"]
-        lines.append(f"| {n} | " + " | ".join(cells) + f" | {cpu:.2f} core |")
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------- external processes
+
+EXTERNAL_COUNTS = (1, 4, 8, 16, 24, 32)
+TARGET_P99_MS = 5.0
+_SENDER = "from streamkey.bench.streams import sender_main; sender_main()"
+
+
+def sender_main() -> None:
+    """The sender process of `external_row` (argv: port, streams, seconds, phases, clip,
+    out.npy): N streams at `RATE` over OSC, each its own stream id; phases `spread` (stream
+    s shifted by s / N of a period, as independent devices) or `together` (one tick); each
+    frame's send time (monotonic ns) saved per stream and seq."""
+    import socket
+    import sys
+
+    from ..adapters.osc import encode_frame, encode_skeleton, stream_address
+
+    port, n, seconds = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
+    phases, clip, out = sys.argv[4], Path(sys.argv[5]), sys.argv[6]
+    motion = read_bvh(clip)
+    channels = motion.channels.astype(np.float32)
+    names = [f"s{i:02d}" for i in range(n)]
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+    target = ("127.0.0.1", port)
+    skeletons = [encode_skeleton(motion.skeleton, RATE, stream_address("skeleton", s))
+                 for s in names]
+    addresses = [stream_address("frame", s) for s in names]
+    frames = int(seconds * RATE)
+    sent = np.zeros((n, frames + 1), dtype=np.int64)
+    for message in skeletons:
+        sock.sendto(message, target)
+    time.sleep(1.0)  # every stream's pipeline built before its first frame
+    period = 1e9 / RATE
+    offsets = [int(s * period / n) if phases == "spread" else 0 for s in range(n)]
+    schedule = sorted((offsets[s], s) for s in range(n))
+    t0 = time.monotonic_ns() + 20_000_000
+    for i in range(frames):
+        if i % int(RATE) == 0 and i:
+            for message in skeletons:
+                sock.sendto(message, target)
+        for offset, s in schedule:
+            due = t0 + int(i * period) + offset
+            wait = due - time.monotonic_ns()
+            if wait > 200_000:
+                time.sleep((wait - 100_000) / 1e9)
+            while time.monotonic_ns() < due:
+                pass
+            row = channels[(i + 97 * s) % len(channels)]
+            sock.sendto(encode_frame(i + 1, i / RATE, row, addresses[s]), target)
+            sent[s, i + 1] = time.monotonic_ns()
+    np.save(out, sent)
+
+
+class _EventReceiver:
+    """Keyframe events from the run's ZeroMQ publisher, stamped on arrival, on a thread:
+    (stream, decided_at, arrival ns)."""
+
+    def __init__(self, endpoint: str, realtime: bool) -> None:
+        import threading
+
+        import zmq
+
+        self.got: list[tuple[str, int, int]] = []
+        self.realtime = realtime
+        self.stop = threading.Event()
+        self.ctx = zmq.Context()
+        self.sub = self.ctx.socket(zmq.SUB)
+        self.sub.setsockopt(zmq.SUBSCRIBE, b"event")
+        self.sub.setsockopt(zmq.RCVHWM, 1_000_000)
+        self.sub.connect(endpoint)
+        self.thread = threading.Thread(target=self._receive, daemon=True)
+        self.thread.start()
+
+    def _receive(self) -> None:
+        import json
+
+        if self.realtime:
+            _realtime(0)
+        while not self.stop.is_set():
+            if self.sub.poll(100):
+                parts = self.sub.recv_multipart()
+                stamp = time.monotonic_ns()
+                e = json.loads(parts[1])
+                if e.get("type") == "keyframe":
+                    self.got.append((e["stream"], int(e["decided_at"]), stamp))
+
+    def close(self) -> None:
+        """Stop receiving and release the socket."""
+        self.stop.set()
+        self.thread.join(5)
+        self.sub.close(linger=0)
+        self.ctx.term()
+
+
+def _free_port(kind: int) -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def external_row(streams: int, workers: int, seconds: float, clip: Path,
+                 phases: str = "spread", python: str | None = None,
+                 realtime: bool = False) -> dict[str, Any]:
+    """One measurement with three processes: the sender (`sender_main`), `streamkey run`
+    (OSC in, all methods, ZeroMQ events out, `--workers` if more than one), and this one, the
+    receiver: each keyframe event's latency is its arrival here minus its deciding frame's
+    send time. `python`: the interpreter of the run (another checkout's, to compare).
+    `realtime`: the run with `--realtime`, the sender and the receiving thread at the same
+    SCHED_RR priority (where granted): on a machine busy with other work, what the three
+    processes can do when they get the CPU they ask for."""
+    import json
+    import socket
+    import subprocess
+    import sys
+    import tempfile
+
+    port, events_port = _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_STREAM)
+    with tempfile.TemporaryDirectory() as tmp:
+        summary_path, sent_path = Path(tmp) / "summary.json", Path(tmp) / "sent.npy"
+        run = subprocess.Popen(
+            [python or sys.executable, "-P", "-m", "streamkey", "run", "--from",
+             f"osc://127.0.0.1:{port}", "--method", "all", "--to",
+             f"zmq+tcp://127.0.0.1:{events_port}", "--max-streams", str(max(streams, 1)),
+             *(["--workers", str(workers)] if workers > 1 else []),
+             *(["--realtime"] if realtime else []),
+             "--idle-exit", "3", "--summary", str(summary_path)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        assert run.stderr is not None
+        for line in run.stderr:
+            if "listening on" in line:
+                break
+        receiver = _EventReceiver(f"tcp://127.0.0.1:{events_port}", realtime)
+        time.sleep(0.5)  # the subscription reaches the publisher
+        load = os.getloadavg()[0]
+        sender = subprocess.Popen(
+            [sys.executable, "-c", _SENDER, str(port), str(streams), str(seconds), phases,
+             str(clip), str(sent_path)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True)
+        if realtime:
+            _realtime(sender.pid)
+        _, sender_err = sender.communicate(timeout=seconds * 4 + 120)
+        sent_until = time.monotonic_ns()  # later events: the flush at the run's idle exit
+        if sender.returncode:
+            raise RuntimeError(f"sender failed: {sender_err[-500:]}")
+        load_after = os.getloadavg()[0]
+        _, err = run.communicate(timeout=seconds * 4 + 120)
+        receiver.close()
+        sent = np.load(sent_path)
+        own = json.loads(summary_path.read_text())
+    got = [(s, d, t) for s, d, t in receiver.got if t < sent_until]
+    return {"streams": streams, "workers": workers, "phases": phases, "seconds": seconds,
+            "realtime": realtime, **_latencies(got, sent, own),
+            "load_1min_before": round(load, 2), "load_1min_after": round(load_after, 2),
+            "run_exit": run.returncode, "run_error": err[-300:] if run.returncode else ""}
+
+
+def _latencies(got: list[tuple[str, int, int]], sent: np.ndarray,
+               own: dict[str, Any]) -> dict[str, Any]:
+    """A row's numbers: event latencies from their deciding frame's send (events decided by
+    a stream's end are not timed), frames lost, the run's own view."""
+    index = {f"s{i:02d}": i for i in range(len(sent))}
+    by_stream: dict[str, list[float]] = {}
+    for s, d, t in got:
+        if s in index and 0 < d < sent.shape[1] and sent[index[s], d]:
+            by_stream.setdefault(s, []).append((t - sent[index[s], d]) / 1e6)
+    lat = np.array([v for values in by_stream.values() for v in values])
+    frames_sent = int((sent > 0).sum())
+    lost = frames_sent - own["frames_in"]
+
+    def pct(q: float) -> float | None:
+        return round(float(np.percentile(lat, q)), 3) if len(lat) else None
+
+    p99 = pct(99)
+    return {"frames_sent": frames_sent, "frames_in": own["frames_in"], "frames_lost": lost,
+            "kernel_drops": own["source"].get("kernel_drops"),
+            "queue_drops": own["source"]["queue_drops"], "events": len(lat),
+            "p50_ms": pct(50), "p99_ms": p99,
+            "max_ms": round(float(lat.max()), 3) if len(lat) else None,
+            "worst_stream_p99_ms": round(max(float(np.percentile(v, 99))
+                                             for v in by_stream.values()), 3)
+            if by_stream else None,
+            "run_due_p99_ms": own["due_latency_ms"]["p99"],
+            "run_scheduler": own.get("scheduler"),
+            "met": p99 is not None and p99 <= TARGET_P99_MS and lost == 0}
+
+
+def _realtime(pid: int) -> None:
+    """SCHED_RR at `run --realtime`'s priority for a process or this thread (0), if granted."""
+    import contextlib
+
+    from ..live import REALTIME_PRIORITY
+
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setscheduler(pid, os.SCHED_RR, os.sched_param(REALTIME_PRIORITY))
+
+
+def capacity(rows: list[dict[str, Any]], workers: int) -> dict[str, Any]:
+    """The largest stream count that met the target with `workers`, and per core."""
+    met = [r["streams"] for r in rows if r["workers"] == workers and r["met"]]
+    best = max(met, default=0)
+    cores = min(workers, os.cpu_count() or 1)
+    return {"workers": workers, "streams": best, "streams_per_core": round(best / cores, 1)}
+
+
+def bench_streams_external(data: Path | None, quick: bool = False,
+                           counts: tuple[int, ...] = EXTERNAL_COUNTS,
+                           workers: tuple[int, ...] | None = None,
+                           realtime: bool = False) -> dict[str, Any]:
+    """Due-event latency measured outside the run (sender, run, receiver: three processes)
+    for every stream count, one worker and one per core; the capacity at p99 <= 5 ms with
+    no frame lost. Counts above the first that misses are still measured (a shared machine
+    is noisy). `realtime`: see `external_row`."""
+    seconds = 10.0 if quick else 60.0
+    clip = (data / "01_06.bvh") if data is not None and (data / "01_06.bvh").exists() else None
+    if clip is None:
+        raise FileNotFoundError("bench --streams needs --data with 01_06.bvh")
+    cores = os.cpu_count() or 1
+    workers = workers or tuple(sorted({1, cores}))
+    rows = [external_row(n, w, seconds, clip, realtime=realtime)
+            for w in workers for n in counts]
+    return {"external_rows": rows, "capacity": [capacity(rows, w) for w in workers],
+            "target_p99_ms": TARGET_P99_MS, "cores": cores, "methods": "all",
+            "note": "sender, run and receiver are separate processes on this machine; the "
+                    "load average before and after each row says what else ran"}

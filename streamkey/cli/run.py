@@ -59,6 +59,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("-q", "--quiet", action="store_true",
                    help="no warnings about refused input while running (still counted in "
                         "the summary)")
+    p.add_argument("--workers", type=_workers, default=1, metavar="N",
+                   help="spread the streams over N worker processes (auto: one per core; "
+                        "network sources; default 1: this process)")
     p.add_argument("--realtime", action="store_true",
                    help="run ahead of ordinary processes (SCHED_RR 10 where allowed, else "
                         "nice -10), so frames do not wait for a busy machine's other work")
@@ -92,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from ..adapters.osc import with_layout
     from ..amc import bvh_equivalent, read_motion
     from ..methods import parse_methods
+    from ..motion import Motion
     from ..streaming import check_online_params
 
     args.to = with_layout(args.to or [], args.osc_layout) or None
@@ -111,7 +115,15 @@ def run(args: argparse.Namespace) -> int:
                          stream=args.stream)
     _check_streams(args)
     watch = InputWatch(quiet=args.quiet)
-    summary = asyncio.run(_run_watched(args, source, methods, watch))
+    if args.workers > 1 and not isinstance(source, Motion):
+        from ..workers import run_workers
+
+        summary = asyncio.run(run_workers(
+            source, methods, args.to or ["-"], args.workers, online_params(args), None,
+            args.listen, args.stream, idle_exit=args.idle_exit, reset_on_gap=args.reset_on_gap,
+            max_streams=args.max_streams, stream_idle=args.stream_idle))
+    else:
+        summary = asyncio.run(_run_watched(args, source, methods, watch))
     print(summary.text(), file=sys.stderr)
     if (problems := watch.summary_line()) is not None:
         print(problems, file=sys.stderr)
@@ -175,6 +187,21 @@ def _check_source_address(source: str) -> None:
                 else "neither a file nor an address")
         raise UsageError(f"run --from {source}: {what}; run replays a BVH or AMC file, or "
                          f"listens on a live source: {LIVE_SOURCES}")
+
+
+def _workers(text: str) -> int:
+    """`--workers N|auto`: 1..256 worker processes (auto: the machine's cores)."""
+    if text == "auto":
+        from ..workers import default_workers
+
+        return default_workers()
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or auto, got {text!r}") from None
+    if not 1 <= value <= 256:
+        raise argparse.ArgumentTypeError(f"expected 1..256 workers, got {value}")
+    return value
 
 
 def _check_streams(args: argparse.Namespace) -> None:

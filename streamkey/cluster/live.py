@@ -3,7 +3,7 @@ log and snapshot store, event ids and the de-duplicating event sink, the per-sha
 
 Data path (Ray is never on it)::
 
-    capture -> ZeroMQ PUB, topic = stream id -> ShardWorker (owns the ids that hash to it)
+    capture -> ZeroMQ PUB, topic = stream id -> ShardWorker (owns the ids placed on it)
                        |                              | Pipeline per stream (online.py)
                        v                              v
                FrameLogger -> Redis Stream per     events -> Redis Stream `events`
@@ -15,6 +15,18 @@ A worker that starts (first time, restarted by Ray, or re-created on another nod
 each of its streams from its last snapshot and replays the logged frames after it; a hole in
 the live stream (frames the worker did not receive) is filled from the log the same way. The
 events this replays again carry the ids they had the first time, and the sink drops them.
+
+Placement (`Placement`): a stream id is placed on the shard that has the fewest stream ids
+placed so far (ties: the lowest shard), once, atomically in Redis, by whichever process sees
+it first (the logger or a worker); it keeps that shard for the whole run, restarts included.
+So ids are balanced whatever their names (8 ids over 2 shards: 4 + 4), and `--streams A,B,..`
+places its ids in the order given (round robin) before any frame flows.
+
+Counts survive restarts: the events a shard appended are counted in Redis by the same atomic
+step that appends them (`RedisKeys.totals`), a stream's frame count is stored with its
+snapshot (a restored stream counts on from there; the frames it replays are the ones the
+snapshot does not cover), and a retired stream's frames move to the shard's totals in the same
+transaction that forgets the stream.
 """
 
 from __future__ import annotations
@@ -23,7 +35,6 @@ import json
 import math
 import threading
 import time
-import zlib
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
@@ -38,8 +49,9 @@ from ..keyframes import Event
 from ..motion import Frame, Skeleton
 from ..online import Pipeline
 from ..streamtable import LiveStream, StreamTable, keyframers_for
+from .placement import Placement, RedisKeys
 
-__all__ = ["ClusterConfig", "ShardWorker", "FrameLogger", "shard_of", "split_topic",
+__all__ = ["ClusterConfig", "ShardWorker", "FrameLogger", "Placement", "split_topic",
            "stream_topic", "snapshot_pipeline", "restore_pipeline", "RedisKeys"]
 
 _LOG_BATCH = 512  # log entries per Redis round trip when replaying
@@ -62,11 +74,6 @@ class ClusterConfig:
     streams: list[str] | None = None  # subscribe to these topics only (else all, filtered)
     skeleton: Skeleton | None = None  # --skeleton FILE: one skeleton for every stream
     skeleton_fps: float = 120.0
-
-
-def shard_of(stream: str, shards: int) -> int:
-    """The shard that owns `stream` (stable across processes and machines)."""
-    return zlib.crc32(stream.encode("utf-8", "surrogateescape")) % shards
 
 
 def split_topic(parts: list[bytes]) -> tuple[str, list[bytes]]:
@@ -110,36 +117,7 @@ def restore_pipeline(data: bytes) -> Pipeline:
     return Pipeline.restore(data)
 
 
-class RedisKeys:
-    """Key names of one cluster run (`--run NAME` keeps several runs apart in one Redis)."""
-
-    def __init__(self, run: str) -> None:
-        self.prefix = f"streamkey:{run}"
-        self.events = f"{self.prefix}:events"
-        self.event_ids = f"{self.prefix}:event-ids"
-
-    def log(self, stream: str) -> str:
-        """Redis Stream of the stream's frames."""
-        return f"{self.prefix}:log:{stream}"
-
-    def snapshot(self, stream: str) -> str:
-        """Hash {data, seq} of the stream's last snapshot."""
-        return f"{self.prefix}:snap:{stream}"
-
-    def skeleton(self, stream: str) -> str:
-        """Hash {bvh, fps} of the stream's skeleton."""
-        return f"{self.prefix}:skel:{stream}"
-
-    def shard(self, shard: int) -> str:
-        """Set of the stream ids of one shard."""
-        return f"{self.prefix}:shard:{shard}"
-
-    def starts(self, shard: int) -> str:
-        """How often the shard's worker started (1 + restarts)."""
-        return f"{self.prefix}:starts:{shard}"
-
-
-# Atomic "append unless seen": a worker killed between the two steps loses nothing.
+# Atomic "append unless seen, and count": a worker killed between the steps loses nothing.
 _EMIT = """
 local added = 0
 for i = 1, #ARGV, 2 do
@@ -148,9 +126,10 @@ for i = 1, #ARGV, 2 do
     added = added + 1
   end
 end
+redis.call('HINCRBY', KEYS[3], 'events', added)
+redis.call('HINCRBY', KEYS[3], 'duplicates', #ARGV / 2 - added)
 return added
 """
-
 
 def _redis(url: str) -> Any:
     import redis
@@ -175,7 +154,7 @@ class _Stream:
 
     live: LiveStream
     since_snapshot: int = 0
-    frames: int = 0                 # frames pushed in this session (live and replayed)
+    frames: int = 0                 # frames pushed, each once (restored from its snapshot)
     replayed_to: int | None = None  # live frames up to this seq came from the log already
 
     @property
@@ -185,7 +164,7 @@ class _Stream:
 
 
 class ShardWorker:
-    """One shard: the streams whose id hashes to `shard`, one `Pipeline` each, fed from the
+    """One shard: the streams placed on `shard`, one `Pipeline` each, fed from the
     ZeroMQ publisher directly, snapshotted to Redis, events to the Redis sink.
 
     Its streams live in a `StreamTable` (idle streams retired after `stream_idle`), under the
@@ -201,6 +180,7 @@ class ShardWorker:
         self.keys = RedisKeys(config.run)
         self.redis = _redis(config.redis_url)
         self._emit = self.redis.register_script(_EMIT)
+        self.placement = Placement(self.redis, self.keys, config.shards)
         self.starts = int(self.redis.incr(self.keys.starts(shard)))
         self.table = StreamTable(idle=config.stream_idle)
         self.streams: dict[str, _Stream] = {}
@@ -226,7 +206,7 @@ class ShardWorker:
         sock = ctx.socket(zmq.SUB)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVHWM, 100_000)  # frames wait here while the log is replayed
-        wanted = [s for s in self.cfg.streams or [] if shard_of(s, self.cfg.shards) == self.shard]
+        wanted = [s for s in self.cfg.streams or [] if self.placement.shard(s) == self.shard]
         for prefix in subscriptions(wanted) if self.cfg.streams else [b""]:
             sock.setsockopt(zmq.SUBSCRIBE, prefix)
         sock.connect(self.cfg.endpoint)
@@ -265,15 +245,30 @@ class ShardWorker:
         return self.status()
 
     def status(self) -> dict[str, Any]:
-        """Counters, streams and restarts of this shard (plain data)."""
+        """Counters, streams and restarts of this shard (plain data). `counters` are this
+        worker's since it started, except `frames`, `events` and `duplicates_dropped`: the
+        shard's over the whole run (`totals()`, restarts included)."""
         with self.lock:
+            totals = self.totals()
             streams = {s: {"frames": st.frames, "last_seq": _last_seq(st.pipeline)}
                        for s, st in self.streams.items()}
             return {"shard": self.shard, "starts": self.starts, "streams": streams,
-                    "retired": list(self.retired), "counters": dict(self.counters),
+                    "totals": totals,
+                    "retired": list(self.retired), "counters": {**self.counters, **totals},
                     "rejects": dict(self.rejects), "errors": list(self.errors),
                     "keyframer_errors": self.table.faults.count,
                     "keyframer_faults": list(self.table.faults.messages)}
+
+    def totals(self) -> dict[str, int]:
+        """Frames and events of this shard over the whole run, restarts included: frames of
+        its retired streams plus its live streams' (each frame once, replays included once),
+        events appended and duplicates dropped (counted in Redis as they are appended)."""
+        stored = {k.decode(): int(v) for k, v in
+                  self.redis.hgetall(self.keys.totals(self.shard)).items()}
+        return {"frames": stored.get("frames", 0) + sum(st.frames for st in
+                                                         self.streams.values()),
+                "events": stored.get("events", 0),
+                "duplicates_dropped": stored.get("duplicates", 0)}
 
     # -- messages --------------------------------------------------------------------------
     def handle(self, parts: list[bytes]) -> None:
@@ -281,17 +276,23 @@ class ShardWorker:
         self.counters["messages"] += 1
         try:
             stream, body = split_topic(parts)
-            if shard_of(stream, self.cfg.shards) != self.shard:
+            owner = self.placement.known(stream)
+            if owner is not None and owner != self.shard:
                 self.counters["other_shards"] += 1  # subscribed to all topics: not ours
                 return
             if body[0] == b"skeleton":
                 skeleton, fps, _ = parse_skeleton_message(body)
-                if stream not in self.streams:
+                if self.placement.shard(stream) != self.shard:
+                    self.counters["other_shards"] += 1
+                elif stream not in self.streams:
                     self._create(stream, skeleton, fps)
                 return
             if body[0] != b"frame":
                 raise LookupError(f"unknown message kind {body[0][:32]!r}")
             frame = decode_frame_parts(body)
+            if owner is None and self.placement.shard(stream) != self.shard:
+                self.counters["other_shards"] += 1  # a valid frame: its id is placed now
+                return
         except LookupError as exc:
             self._reject("topic", exc)
             return
@@ -374,7 +375,7 @@ class ShardWorker:
         """(Re)start: every stream of this shard from its snapshot, then the log after it."""
         for raw in sorted(self.redis.smembers(self.keys.shard(self.shard))):
             stream = raw.decode("utf-8")
-            snap = self.redis.hget(self.keys.snapshot(stream), "data")
+            snap, frames = self.redis.hmget(self.keys.snapshot(stream), "data", "frames")
             try:
                 if snap:
                     pipeline = restore_pipeline(snap)
@@ -386,7 +387,7 @@ class ShardWorker:
             except Exception as exc:  # a snapshot this version cannot read: start over
                 self._reject("snapshot", exc)
                 continue
-            self._open(stream, pipeline)
+            self._open(stream, pipeline).frames = int(frames or 0) if snap else 0
             self.counters["restored"] += 1
             self.catch_up(stream, None)
 
@@ -432,7 +433,7 @@ class ShardWorker:
         events = self.table.step(st.live, frame.seq, st.pipeline.push, frame)
         events.extend(self.table.step(st.live, frame.seq, st.pipeline.idle))
         st.frames += 1
-        self.counters["frames"] += 1
+        self.counters["pushed"] += 1  # replays of frames a dead worker had pushed included
         self.emit(events)
         st.since_snapshot += 1
         if st.since_snapshot >= self.cfg.snapshot_every:
@@ -442,7 +443,8 @@ class ShardWorker:
         data = snapshot_pipeline(st.pipeline)
         last = _last_seq(st.pipeline)
         self.redis.hset(self.keys.snapshot(stream),
-                        mapping={"data": data, "seq": "" if last is None else str(last)})
+                        mapping={"data": data, "seq": "" if last is None else str(last),
+                                 "frames": st.frames})
         st.since_snapshot = 0
         self.counters["snapshots"] += 1
         self.counters["snapshot_bytes"] = len(data)
@@ -454,9 +456,8 @@ class ShardWorker:
         args: list[str] = []
         for e in events:
             args += [e.id, event_json(e, compact=False)]
-        added = int(self._emit(keys=[self.keys.events, self.keys.event_ids], args=args))
-        self.counters["events"] += added
-        self.counters["duplicates_dropped"] += len(events) - added
+        self._emit(keys=[self.keys.events, self.keys.event_ids, self.keys.totals(self.shard)],
+                   args=args)
 
     def retire_idle(self) -> None:
         """Flush and forget the streams that sent nothing for `stream_idle` seconds."""
@@ -468,9 +469,11 @@ class ShardWorker:
         st = self.streams[stream]
         self.catch_up(stream, None)
         self.emit(self.table.step(st.live, None, st.pipeline.flush))
-        self.redis.delete(self.keys.snapshot(stream), self.keys.log(stream),
-                          self.keys.skeleton(stream))
-        self.redis.srem(self.keys.shard(self.shard), stream)
+        done = self.redis.pipeline(transaction=True)  # counted once, or restored and redone
+        done.delete(self.keys.snapshot(stream), self.keys.log(stream), self.keys.skeleton(stream))
+        done.srem(self.keys.shard(self.shard), stream)
+        done.hincrby(self.keys.totals(self.shard), "frames", st.frames)
+        done.execute()
         self.table.close(st.live)
         del self.streams[stream]
         self.retired.append(stream)
@@ -491,6 +494,7 @@ class FrameLogger:
         self.cfg = config
         self.keys = RedisKeys(config.run)
         self.redis = _redis(config.redis_url)
+        self.placement = Placement(self.redis, self.keys, config.shards)
         self.logged = 0
         self.rejects: Counter[str] = Counter()
         self.last_frame_at: float | None = None
@@ -507,7 +511,8 @@ class FrameLogger:
         return self.cfg.snapshot_every + math.ceil(self.cfg.failover_seconds * fps)
 
     def start(self) -> None:
-        """Start logging on a thread."""
+        """Place `--streams` ids (in their order), then start logging on a thread."""
+        self.placement.place(self.cfg.streams or [])
         self._thread.start()
         self.subscribed.wait(10.0)
 
@@ -551,7 +556,7 @@ class FrameLogger:
                 _, fps, bvh = parse_skeleton_message(body)
                 self._fps[stream] = fps
                 pipe.hset(self.keys.skeleton(stream), mapping={"bvh": bvh, "fps": repr(fps)})
-                pipe.sadd(self.keys.shard(shard_of(stream, self.cfg.shards)), stream)
+                pipe.sadd(self.keys.shard(self.placement.shard(stream)), stream)
                 return
             if body[0] != b"frame":
                 self.rejects["topic"] += 1
