@@ -18,7 +18,7 @@ from streamkey.errors import UsageError
 from streamkey.evaluate import Evaluator, reconstruct
 from streamkey.keyframes import KeyframeEvent
 from streamkey.kinematics import forward_kinematics
-from streamkey.methods import baselines, optimal, saliency
+from streamkey.methods import baselines, optimal, optimal_offline, saliency
 from streamkey.methods import optimal_math as om
 from streamkey.motion import Frame
 
@@ -96,7 +96,8 @@ def test_pricing_frame_by_frame_is_bit_identical_to_chunks_and_to_the_whole_take
     kf = optimal.Online(m.skeleton, m.fps)  # default lookahead: its buffer slides
     kf.push_block(m.frames())
     s = kf.solver
-    assert s.base > 0 and np.array_equal(s.costs[: s.n - s.base], om.band_costs(x, 240)[s.base :])
+    assert s.base > 0 and np.array_equal(s.rows.costs[: s.n - s.base],
+                                         om.band_costs(x, 240)[s.base :])
 
 
 @pytest.mark.numeric
@@ -151,7 +152,7 @@ def test_count_mode_is_the_exact_k_key_optimum_on_a_small_curve():
     for k in (3, 4, 5):
         best = min(baselines.reconstruction_sse(x, np.array([0, *c, n - 1]))
                    for c in itertools.combinations(range(1, n - 1), k - 2))
-        keys, info = optimal._count_keys(x, k, n)
+        keys, info = optimal_offline.count_keys(x, k, n)
         assert info["solver"] == "exact" and len(keys) == k
         assert baselines.reconstruction_sse(x, keys) == pytest.approx(best, rel=1e-9)
 
@@ -302,7 +303,7 @@ def test_online_memory_stays_bounded_on_a_long_stream():
         peak = max(peak, kf.solver.n - kf.solver.base, kf.solver.pricer.n - kf.solver.pricer.o)
         assert all(e.latency_frames <= kf.lookahead for e in out
                    if isinstance(e, KeyframeEvent))
-    assert peak <= 2 * bound and len(kf.seq) <= 2 * bound and events > 100
+    assert peak <= 2 * bound and len(kf.frames) <= 2 * bound and events > 100
 
 
 # --- --max-gap ------------------------------------------------------------------------------
