@@ -58,11 +58,18 @@ time, times min(1, mean squared departure of its key-spaced segment from a strai
 straight line over 1/R s — a calibration hold, stillness after the take, a held pose —
 needs no keys and adds nothing to the mean, so it neither earns keys nor drags λ down and
 spends keys in the take (a zero cost weighed in fully would pull λ towards the log floor).
-Recorded CMU holds move more (their stillest 1/6 s stretches depart ≥ 1.6·10⁻⁴ body
-heights RMS) and count as motion, so λ on the shared clips is today's except where a
-recording holds exactly still (06_02). At stream start λ is the prior; the data takes over
-as the stream goes on, which keeps λ steady on short takes (a moving λ spends keys
-unevenly).
+Recorded holds move more (the stillest 1/6 s stretches of the CMU clips depart ≥ 1.6·10⁻⁴
+body heights RMS), so the session segments decide too: frames of a calibration hold or a
+still stretch (`streamkey.segments`: the body's speed below 0.07 body heights a second for
+0.5 s) weigh nothing (`optimal_solver.MotionFrames`). Online a keyframer-owned
+`SegmentDetector` reads the same feature blocks; a frame's status is final
+`settle_frames` later (0.5 s + 0.2 s), and the controller counts a chunk of frames once
+all of them are final, chunk after chunk, so its sums are offline's bit for bit; until
+then the chunk counts provisionally, as motion unless inside a hold already found. (49_18,
+balancing on one leg, holds still for 6 of its 9 s: λ 1.44·10⁻³ instead of 4.6·10⁻⁴,
+14 keys instead of 21, and online keeps the offline count.) At stream start λ is the
+prior; the data takes over as the stream goes on, which keeps λ steady on short takes (a
+moving λ spends keys unevenly).
 Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
 solved again with it; since λ still moves, converged chains are not final in rate mode and
 keys are decided at the deadline. Offline, λ is the estimate after the whole take (one
@@ -89,6 +96,7 @@ from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import KeyframeEvent, Keyframes
 from ..motion import Motion, Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
+from ..segments import SegmentDetector, SegmentEvent
 from ..units import Duration, DurationLike, whole_frames
 from . import optimal_math as om
 from .optimal_offline import count_keys, rate_keys, solve_all
@@ -107,7 +115,7 @@ from .ring import RingWindow
 __all__ = ["extract", "curve", "Solver", "Online", "MaxGap", "max_gap", "METHOD",
            "DEFAULT_LOOKAHEAD", "DEFAULT_MAX_SEGMENT", "DEFAULT_RATE", "DEFAULT_LAMBDA",
            "TICKS_PER_SECOND", "PRIOR_SECONDS", "RESOLVE", "RATE_FACTOR", "STILL_COST",
-           "motion_weights", "chunk_frames", "key_scores"]
+           "motion_weights", "chunk_frames", "key_scores", "holds"]
 
 METHOD = "optimal"
 DEFAULT_LOOKAHEAD = Duration.seconds(1.0)  # 120 frames at 120 Hz
@@ -212,12 +220,23 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
         err = om.pair_costs(x, rows[:-1], rows[1:])
     elif "rate" in mode:
         rows, err, info["lambda"] = rate_keys(x, max_len, mode["rate"] / motion.fps, ticks,
-                                               chunk_frames(motion.fps))
+                                              chunk_frames(motion.fps), holds(motion, features))
     else:
         rows, err = solve_all(x, max_len, ticks, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
     scores = key_scores(x, rows, ticks)
     return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
+
+
+def holds(motion: Motion, features: Features) -> list[tuple[int, int]]:
+    """The calibration holds and still stretches of `motion` (`streamkey.segments`) as (first,
+    last) rows of the curve: what the online keyframer's own `SegmentDetector` finds."""
+    det = SegmentDetector(motion.skeleton, motion.fps)
+    points = features.pelvis_points(det.points)[motion.first_frame :]
+    seq = np.arange(motion.first_frame, motion.n_frames)
+    events = det.push_points(seq, seq / motion.fps, points) + det.flush()
+    return [(e.start - motion.first_frame, e.end - motion.first_frame) for e in events
+            if e.end is not None and e.kind != "take"]
 
 
 def key_scores(x: np.ndarray, rows: np.ndarray, ticks: float = 1.0) -> np.ndarray:
@@ -261,6 +280,11 @@ class Online(OnlineKeyframer):
         self.root_translation = root_translation  # the root's position is a curve point
         self.scale = om.point_scale(skeleton.n_joints, self.features.body_height, self.weights,
                                     root_translation)
+        # rate mode: the session segments, whose holds stay out of λ (`RateController`)
+        self.segments = SegmentDetector(skeleton, fps, stream=stream, role_mapping=role_mapping)
+        # frames after which a frame's segment status is final: a still stretch is confirmed
+        # `min_still` after it starts, its speed known `half` frames after each frame
+        self.settle_frames = self.segments.min_still - 1 + self.segments.half
         self.reset()
 
     def reset(self) -> None:
@@ -269,6 +293,7 @@ class Online(OnlineKeyframer):
         self.solver = Solver(  # the DP over the stream
             self.max_len, keep_costs=True, ticks=self.ticks, chunk=chunk_frames(self.fps), **kw)
         self.solver.pricer.prepare(3 * len(self.scale))
+        self.segments.reset()
         # times of the newest frames, enough for every undecided one: a deadline leaves at
         # most lookahead + 1 frames undecided (`force` at each chunk end)
         self.frames = RingWindow(self.lookahead + 2 * self.solver.chunk + 2, 0)
@@ -282,6 +307,7 @@ class Online(OnlineKeyframer):
         rate = self.solver.rate
         self.reset()
         if keep_statistics and rate is not None:
+            rate.new_window()
             self.solver.rate = rate
             self.solver.lam = rate.estimate() / self.solver.ticks
 
@@ -304,9 +330,13 @@ class Online(OnlineKeyframer):
         events: list[KeyframeEvent] = []
         if s.n == 0 and len(block):
             self.seq0 = int(block.seq[0])
+        if s.rate is not None:  # a frame's status is the same whatever the block split
+            self._note(self.segments.process(block))
         no_values = np.empty((1, 0))
         for i in range(len(block)):
             self.frames.extend(int(block.seq[i]), no_values, block.time[i : i + 1])
+            if s.rate is not None:
+                s.rate.motion.known = max(s.rate.motion.known, s.n + 1 - self.settle_frames)
             if s.stale is not None:  # the frame after a chunk's: its decision's re-solve
                 s.settle()
             for end in s.add(rows[i : i + 1]):
@@ -327,9 +357,21 @@ class Online(OnlineKeyframer):
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: the chain from the last frame decides the rest."""
-        if self.solver.n == 0:
+        s = self.solver
+        if s.rate is not None:
+            self._note(self.segments.finish())
+            s.rate.motion.known = s.n
+        if s.n == 0:
             return []
-        return self._events(self.solver.finish(), self.seq0 + self.solver.n - 1)
+        return self._events(s.finish(), self.seq0 + s.n - 1)
+
+    def _note(self, events: list[SegmentEvent]) -> None:
+        """Calibration holds and still stretches to the rate controller."""
+        assert self.solver.rate is not None
+        for e in events:
+            if e.kind != "take":
+                end = None if e.end is None else e.end - self.seq0
+                self.solver.rate.motion.hold(e.start - self.seq0, end)
 
     def candidates(self) -> list[tuple[int, float, float]]:
         """Provisional hook: the keys after the decided part on the best chain of the newest

@@ -5,6 +5,7 @@ adjustment). Definitions: the module docstring of `streamkey.methods.optimal`.""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -36,18 +37,22 @@ def solve_all(x: np.ndarray, max_len: int, ticks: float,
     return keys, _segment_errors(solver.rows.f, keys - solver.base, lam)
 
 
-def rate_keys(x: np.ndarray, max_len: int, rate: float, ticks: float,
-               chunk: int) -> tuple[np.ndarray, np.ndarray, float]:
+def rate_keys(x: np.ndarray, max_len: int, rate: float, ticks: float, chunk: int,
+              holds: Sequence[tuple[int, int]] = ()) -> tuple[np.ndarray, np.ndarray, float]:
     """Offline rate: λ from every frame's cost (as the online controller ends up with), then
     one penalised pass (keys, segment costs as frame sums, λ in ticks x body heights²).
-    Same costs and chunks as `Solver`, so bit-identical to it."""
+    `holds`: the calibration holds and still stretches (first, last row), out of λ. Same
+    costs and chunks as `Solver`, so bit-identical to it."""
     solver = Solver(max_len, rate=rate, ticks=ticks, chunk=chunk)
     assert solver.rate is not None
+    solver.rate.motion.known = len(x)
+    for first, last in holds:
+        solver.rate.motion.hold(first, last)
     band = np.empty((len(x), max_len))
     for b0 in range(0, len(x), chunk):
         b1 = min(len(x), b0 + chunk)
         band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
-        lam = solver.rate.observe(band[b0:b1])
+        lam = solver.rate.observe(band[b0:b1], b0)
     keys, f = _penalised(band, lam)
     return keys, _segment_errors(f, keys, lam), solver.rate.estimate()
 

@@ -6,13 +6,14 @@ docstring of `streamkey.methods.optimal`. No I/O, no clocks."""
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 
 from . import optimal_math as om
 
 __all__ = ["DEFAULT_LAMBDA", "TICKS_PER_SECOND", "PRIOR_SECONDS", "RESOLVE", "RATE_FACTOR",
-           "STILL_COST", "DPRows", "RateController", "Solver", "motion_weights"]
+           "STILL_COST", "DPRows", "MotionFrames", "RateController", "Solver", "motion_weights"]
 
 DEFAULT_LAMBDA = 3.5e-3  # ticks x body heights^2 (a tick: 1/120 s)
 TICKS_PER_SECOND = 120.0  # the time unit of costs and lambda: 1/120 s, a frame at 120 Hz
@@ -32,9 +33,46 @@ def motion_weights(costs: np.ndarray, span: int, ticks: float) -> np.ndarray:
     return ticks * np.minimum(1.0, costs / (span * STILL_COST))
 
 
+class MotionFrames:
+    """Which frames of the stream are motion (inside a take), as opposed to a calibration
+    hold or a still stretch (`streamkey.segments`), as far as that is final."""
+
+    def __init__(self) -> None:
+        self.known = 0  # frames (stream indices) before this have their final status
+        self.holds: list[tuple[int, int]] = []  # non-motion stretches [start, end]
+
+    def hold(self, start: int, end: int | None) -> None:
+        """A calibration hold or still stretch from `start` to `end` (inclusive; None: open,
+        lasting at least up to the frames known); replaces the one with the same start."""
+        stretch = (start, _OPEN if end is None else end)
+        for i, (s, _) in enumerate(self.holds):
+            if s == start:
+                self.holds[i] = stretch
+                return
+        self.holds.append(stretch)
+
+    def moving(self, lo: int, hi: int) -> np.ndarray:
+        """True for the motion frames among lo .. hi − 1 (all below `known`)."""
+        out = np.ones(hi - lo, dtype=bool)
+        for s, e in self.holds:
+            if s < hi and e >= lo:
+                out[max(s, lo) - lo : min(e + 1, hi) - lo] = False
+        return out
+
+    def forget_before(self, frame: int) -> None:
+        """Drop the stretches that end before `frame` (no longer asked about)."""
+        self.holds = [h for h in self.holds if h[1] >= frame]
+
+
+_OPEN = 2**62  # end of a stretch not closed yet
+
+
 class RateController:
     """Rate mode's λ: 3.2 × the geometric mean cost of key-spaced segments over the motion
-    priced so far, shrunk towards the prior (module docstring of `optimal`)."""
+    priced so far, shrunk towards the prior (module docstring of `optimal`). A chunk's frames
+    count once their segment status is final (`motion`), chunk after chunk in order, so the
+    sums are the same bits online and offline; calibration holds and still stretches add
+    nothing."""
 
     def __init__(self, rate: float, max_len: int, ticks: float) -> None:
         self.rate = rate  # keys per frame
@@ -43,28 +81,62 @@ class RateController:
         self.ticks = ticks  # ticks per frame
         self.log_sum = 0.0  # Σ w log cost(b − span, b), w the motion ticks of frame b
         self.log_n = 0.0  # Σ w: motion ticks seen
+        self.motion = MotionFrames()  # which frames are motion
+        self.pending: deque[tuple[int, np.ndarray]] = deque()  # chunks not counted yet
+        self.ahead = 0.0, 0.0  # the pending chunks' provisional (log_sum, log_n)
 
-    def observe(self, costs: np.ndarray) -> float:
-        """Take in the band rows of newly priced frames; the DP's λ (per key, frame sums)."""
-        c = costs[:, self.column]
-        c = c[np.isfinite(c)]
-        if len(c):
-            logs = np.log(c * self.ticks + _LOG_FLOOR)
-            if c.min() >= self.span * STILL_COST:  # all moving (the usual chunk): full weight
-                self.log_sum += self.ticks * float(np.sum(logs))
-                self.log_n += self.ticks * len(c)
-            else:
-                w = motion_weights(c, self.span, self.ticks)
-                self.log_sum += float(np.sum(w * logs))
-                self.log_n += float(np.sum(w))
+    def new_window(self) -> None:
+        """A new window of the stream (indices from 0 again): keep the sums."""
+        self.motion = MotionFrames()
+        self.pending.clear()
+        self.ahead = 0.0, 0.0
+
+    def observe(self, costs: np.ndarray, start: int) -> float:
+        """Take in the band rows of the newly priced frames start, start + 1, ..; count every
+        chunk whose frames' status is final; the DP's λ (per key, frame sums)."""
+        self.pending.append((start, costs[:, self.column].copy()))
+        return self.absorb()
+
+    def absorb(self) -> float:
+        """Count the pending chunks whose frames' status is final, in order; the DP's λ."""
+        while self.pending:
+            start, c = self.pending[0]
+            if start + len(c) > self.motion.known:
+                break
+            self.pending.popleft()
+            self.log_sum, self.log_n = self._count(c, self.motion.moving(start, start + len(c)),
+                                                   self.log_sum, self.log_n)
+            self.motion.forget_before(start + len(c))
+        ahead = 0.0, 0.0
+        for start, c in self.pending:  # as far as known: frames not in a hold are motion
+            ahead = self._count(c, self.motion.moving(start, start + len(c)), *ahead)
+        self.ahead = ahead
         return self.estimate() / self.ticks
 
+    def _count(self, c: np.ndarray, moving: np.ndarray, log_sum: float,
+               log_n: float) -> tuple[float, float]:
+        """(log_sum, log_n) with the chunk's frames added."""
+        finite = np.isfinite(c)
+        c, moving = c[finite], moving[finite]
+        if len(c):
+            logs = np.log(c * self.ticks + _LOG_FLOOR)
+            if moving.all() and c.min() >= self.span * STILL_COST:  # the usual chunk
+                log_sum += self.ticks * float(np.sum(logs))
+                log_n += self.ticks * len(c)
+            else:
+                w = motion_weights(c, self.span, self.ticks) * moving
+                log_sum += float(np.sum(w * logs))
+                log_n += float(np.sum(w))
+        return log_sum, log_n
+
     def estimate(self) -> float:
-        """λ (ticks x body heights²) from the costs seen so far, shrunk towards the prior."""
+        """λ (ticks x body heights²) from the costs counted so far and, provisionally, those
+        of the pending chunks, shrunk towards the prior."""
         prior_weight = PRIOR_SECONDS * TICKS_PER_SECOND
         prior = math.log(DEFAULT_LAMBDA / RATE_FACTOR * (self.span * self.ticks / 20.0) ** 5)
-        weight = prior_weight + self.log_n
-        mean = (prior_weight * prior + self.log_sum) / weight if weight else prior
+        log_sum, log_n = self.log_sum + self.ahead[0], self.log_n + self.ahead[1]
+        weight = prior_weight + log_n
+        mean = (prior_weight * prior + log_sum) / weight if weight else prior
         return RATE_FACTOR * math.exp(mean)
 
 
@@ -178,9 +250,9 @@ class Solver:
             start = 1
         om.dp_rows(costs, r.f, r.bp, r.keys, start, b1, self.lam, self.floor - r.base,
                    self.tolerance, c0=b0)
-        self.done = end
+        first, self.done = self.done, end
         if self.rate is not None:
-            lam = self.rate.observe(costs)
+            lam = self.rate.observe(costs, first)
             if self.keep_costs and abs(math.log(lam / self.lam)) > RESOLVE:
                 self.resolve(lam)
 
@@ -260,7 +332,7 @@ class Solver:
         if self.done < self.n:
             self._solve(self.n)
         if self.rate is not None and self.keep_costs:
-            lam = self.rate.estimate() / self.ticks
+            lam = self.rate.absorb()
             if lam != self.lam:
                 self.resolve(lam)
         r = self.rows
