@@ -95,7 +95,7 @@ MISSES = {
     ("05_02.bvh", "60 Hz", True): "keys 0.959x, E 1.151x",
     ("05_02.bvh", "30 Hz", False): "keys 1.0x, E 1.198x: as many keys, on every 4th clean frame",
     ("05_02.bvh", "30 Hz", True): "keys 1.0x, E 1.186x",
-    ("49_18.amc", "30 Hz", True): "13 keys for 14 (0.929), E 1.206x",
+    ("49_18.amc", "30 Hz", True): "13 keys for 14 (0.929), E 1.251x",
 }
 
 
@@ -135,13 +135,13 @@ def test_variant_gets_as_many_keys_on_every_clip(variant: str, online: bool) -> 
 ALL_MISSES = {
     ("60 Hz", False): "05_02 (1.0, 1.114), 09_06.amc (0.917, 1.375); count 0.92-1.03x on every "
                       "clip",
-    ("60 Hz", True): "01_06 (0.996, 1.106), 05_02 (0.959, 1.151), 08_01 (0.947, 1.232), "
-                     "09_06.amc (0.917, 1.375); count 0.92-1.08x",
+    ("60 Hz", True): "05_02 (0.959, 1.151), 08_01 (0.947, 1.232), 09_06.amc (0.917, 1.375); "
+                     "count 0.92-1.08x",
     ("30 Hz", False): "01_06 (1.0, 1.119), 02_03 (0.929, 1.448), 05_02 (1.0, 1.198), 05_06 "
                       "(1.0, 1.15), 06_08 (0.95, 1.258), 07_01 (0.95, 1.301); count 0.93-1.05x",
     ("30 Hz", True): "02_03 (0.929, 1.448), 02_10 (1.0, 1.277), 05_02 (1.0, 1.186), 05_06 "
-                     "(0.984, 1.255), 05_11.bvh (1.027, 1.138), 05_18 (0.987, 1.121), 06_12 "
-                     "(0.983, 1.107), 08_01 (0.947, 1.302), 49_18 (0.929, 1.206); "
+                     "(0.984, 1.255), 05_11.bvh (1.027, 1.138), 05_18 (0.987, 1.12), 06_12 "
+                     "(0.983, 1.107), 08_01 (0.947, 1.302), 49_18 (0.929, 1.251); "
                      "count 0.93-1.08x",
     ("calibration before", False): "01_14 (0.968, 1.147), 02_03 (0.929, 1.249), 05_18 (0.959, "
                                    "1.133), 06_12 (0.966, 1.125), 06_15 (0.963, 1.102), "
@@ -244,7 +244,7 @@ def test_at_120_hz_the_defaults_give_the_keys_they_gave_in_frames():
     # 49_18 holds still over frames 0-141 and 500-1101 (`streamkey.segments`): those frames
     # stay out of lambda now (1.44e-3 instead of 4.6e-4), so it gets 14 keys, not 16-21
     quiet = V.clean_take(load("49_18.amc")).motion
-    assert keys_of(quiet, True).tolist() == [0, 84, 146, 210, 279, 311, 375, 415, 458, 508, 578,
+    assert keys_of(quiet, True).tolist() == [0, 84, 146, 210, 263, 301, 358, 410, 457, 508, 578,
                                              810, 862, 1101]
 
 

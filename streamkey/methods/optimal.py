@@ -294,6 +294,7 @@ class Online(OnlineKeyframer):
             self.max_len, keep_costs=True, ticks=self.ticks, chunk=chunk_frames(self.fps), **kw)
         self.solver.pricer.prepare(3 * len(self.scale))
         self.segments.reset()
+        self.held_points: list[np.ndarray] = []  # pelvis-frame points not yet detected
         # times of the newest frames, enough for every undecided one: a deadline leaves at
         # most lookahead + 1 frames undecided (`force` at each chunk end)
         self.frames = RingWindow(self.lookahead + 2 * self.solver.chunk + 2, 0)
@@ -330,13 +331,14 @@ class Online(OnlineKeyframer):
         events: list[KeyframeEvent] = []
         if s.n == 0 and len(block):
             self.seq0 = int(block.seq[0])
-        if s.rate is not None:  # a frame's status is the same whatever the block split
-            self._note(self.segments.process(block))
+        points = block.pelvis_points(self.segments.points) if s.rate is not None else None
         no_values = np.empty((1, 0))
         for i in range(len(block)):
             self.frames.extend(int(block.seq[i]), no_values, block.time[i : i + 1])
-            if s.rate is not None:
-                s.rate.motion.known = max(s.rate.motion.known, s.n + 1 - self.settle_frames)
+            if points is not None:
+                self.held_points.append(points[i])
+                if (s.n + 1) % s.chunk == 0:  # the detector catches up once a chunk
+                    self._detect(s.n)
             if s.stale is not None:  # the frame after a chunk's: its decision's re-solve
                 s.settle()
             for end in s.add(rows[i : i + 1]):
@@ -359,11 +361,25 @@ class Online(OnlineKeyframer):
         """End of stream: the chain from the last frame decides the rest."""
         s = self.solver
         if s.rate is not None:
+            self._detect(s.n - 1)
             self._note(self.segments.finish())
             s.rate.motion.known = s.n
         if s.n == 0:
             return []
         return self._events(s.finish(), self.seq0 + s.n - 1)
+
+    def _detect(self, last: int) -> None:
+        """Feed the held frames (up to stream index `last`) to the segment detector, at
+        stream indices fixed by the chunks (so a frame's status is known at the same frame
+        whatever the block split); the frames `settle_frames` back have their final status."""
+        s = self.solver
+        assert s.rate is not None
+        if self.held_points:
+            seqs = np.arange(last + 1 - len(self.held_points), last + 1) + self.seq0
+            times = [self.frames.time(int(q)) for q in seqs]
+            self._note(self.segments.push_points(seqs, times, np.array(self.held_points)))
+            self.held_points.clear()
+            s.rate.motion.known = max(s.rate.motion.known, last + 1 - self.settle_frames)
 
     def _note(self, events: list[SegmentEvent]) -> None:
         """Calibration holds and still stretches to the rate controller."""
