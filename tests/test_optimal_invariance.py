@@ -261,3 +261,18 @@ def test_a_still_stretch_of_the_take_stays_out_of_lambda():
 def test_motion_weights_count_a_still_stretch_as_no_time():
     costs = np.array([0.0, 0.5e-8 * 20, 1e-8 * 20, 1e-3])
     assert optimal.motion_weights(costs, 20, 4.0).tolist() == [0.0, 2.0, 4.0, 4.0]
+
+
+def test_a_take_after_a_still_stretch_gets_the_same_keys_whatever_the_block_split():
+    """05_02 starts with 2.7 s of stillness: the segment status that keeps it out of λ is
+    known at the same frame whether the frames come one by one or in one block."""
+    m = load("05_02.bvh")
+    whole = keys_of(m, True)
+    kf = optimal.Online(m.skeleton, m.fps)
+    events = []
+    frames = m.frames()
+    for i in range(0, len(frames), 7):
+        events += kf.push_block(frames[i : i + 7])
+        events += kf.idle()
+    events += kf.flush()
+    assert [e.frame for e in events if isinstance(e, KeyframeEvent)] == whole.tolist()
