@@ -52,7 +52,7 @@ def state(pipeline: Pipeline) -> dict[str, object]:
     return {"moments": sal.out_mom.n, "window": sal.t + 1, "map_stats": sal.st.n,
             "basis": None if sal.basis is None else sal.basis.vectors.copy(),
             "cutoff_sample": len(speed._cutoff.values), "lam": opt.solver.lam,
-            "rate_frames": opt.solver.log_n}
+            "rate_frames": opt.solver.rate.log_n}
 
 
 @pytest.mark.parametrize("reset_on_gap", [False, True])
