@@ -105,7 +105,8 @@ SIMPLIFY = (
           unit="FRAMES", integer=True, online_only=True),
 )
 OPTIMAL = (
-    Param("rate", "number", "keys per second (default 6)", unit="KEYS_PER_S", default=6.0),
+    Param("rate", "number", "keys per second of motion (calibration holds and still "
+          "stretches excluded; default 6)", unit="KEYS_PER_S", default=6.0),
     Param("tolerance", "number", "instead: largest mean per-frame error between keys (body "
           "heights^2)", unit="ERR", flag="--optimal-tolerance"),
     Param("lam", "number", "instead: fixed cost per key (frames x body heights^2)",
