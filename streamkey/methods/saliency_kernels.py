@@ -21,11 +21,11 @@ __all__ = ["Clusterer", "pick_keyframe", "cuts", "itti_factors", "classify_terms
 _TIE = 1e-9  # keyframe distances within this are ties (the earlier frame wins)
 
 @compiled
-def cuts(run: int, length: float) -> bool:
-    """Whether a run's `run`-th candidate row (from 1) closes a cluster of `length` frames:
-    floor(run / length) > floor((run - 1) / length) (`run % length == 0` for a whole
-    length)."""
-    return math.floor(run / length) > math.floor((run - 1) / length)
+def cuts(row: int, length: float) -> bool:
+    """Whether `row` (frames from the stream's first) starts a new slot of the cluster grid
+    of `length` frames: floor(row / length) > floor((row - 1) / length) (`row % length == 0`
+    for a whole length)."""
+    return math.floor(row / length) > math.floor((row - 1) / length)
 
 
 def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
@@ -36,12 +36,12 @@ def pick_keyframe(rows: list[int], wrow: list[float], foot: list[bool]) -> int:
 
 
 class Clusterer:
-    """Sequential clustering of classified frames: runs cut every `cmax` frames (sec. 3.1.4,
-    `cuts`);
-    the open cluster's state, which `classify_block` advances over a block of rows.
+    """Sequential clustering of classified frames: runs cut on the stream's grid of `cmax`
+    frames (sec. 3.1.4, `cuts`); the open cluster's state, which `classify_block` advances
+    over a block of rows.
 
     `close()` may also be called early (an online decision deadline); the run then goes on
-    in a new cluster that still ends on the run's `cmax` grid, as offline.
+    in a new cluster that still ends on the `cmax` grid, as offline.
     """
 
     def __init__(self, cmax: float) -> None:
@@ -161,7 +161,8 @@ def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
                    ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, int, float, int,
                               int]:
     """`classify_terms` of the rows g0.. of maps `s`, fed to the clusterer in the same loop
-    (row by row, runs cut every `cmax` rows (`cuts`), stopping before the first row
+    (row by row, runs cut on the stream's grid of `cmax` rows (`cuts`), stopping before the
+    first row
     whose cluster would start after `stop`): the open cluster's rows / weights / foot flags
     in the buffers `rows`, `wrow`, `foot` (at least ceil(cmax) + 1 long, updated in place; its
     first n_open rows), its score, the last candidate row and the run length. Returns (rows
@@ -186,7 +187,7 @@ def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
             rows[n_open], wrow[n_open], foot[n_open] = row, wr[i], ft[i]
             n_open += 1
             score += term[i]
-            if cuts(run, cmax):
+            if cuts(row + 1, cmax):  # the next row starts a new slot of the grid
                 keys[nk], kscore[nk] = _pick(rows, wrow, foot, n_open), score
                 nk, n_open, score = nk + 1, 0, 0.0
     return n, level, keys, kscore, nk, n_open, score, last, run

@@ -60,9 +60,10 @@ def frames_at(duration: DurationLike, fps: float) -> float:
 
 
 def cluster_length(sigma: float) -> float:
-    """Cluster length, 2 sigma frames (Halit sec. 3.1.4), not rounded: a run is cut where its
-    candidate count crosses a multiple of it (`cuts`), so that clusters last 2 sigma of
-    motion on average at any rate (a whole number at 120 Hz with the presets)."""
+    """Cluster length, 2 sigma frames (Halit sec. 3.1.4), not rounded: runs are cut where the
+    frame number from the first frame crosses a multiple of it (`cuts`), a grid in seconds,
+    so that clusters are the same slots of the motion at any rate (a whole number of frames
+    at 120 Hz with the presets)."""
     return max(1.0, 2.0 * sigma)
 
 
@@ -318,9 +319,8 @@ def cluster_keyframes(cand: np.ndarray, weights: np.ndarray, foot: np.ndarray, c
         return {"start": e, "end": e, "key": e, "foot": e.astype(bool), "score": e * 0.0}
     new_run = np.ones(len(rows), dtype=bool)
     new_run[1:] = np.diff(rows) != 1
-    run_start = rows[np.flatnonzero(new_run)][np.cumsum(new_run) - 1]
-    i = (rows - run_start).astype(np.float64)
-    new_cl = new_run | (np.floor(i / cmax) > np.floor((i - 1.0) / cmax))  # `cuts`
+    i = rows.astype(np.float64)  # the grid starts at the first frame (`cuts`)
+    new_cl = new_run | (np.floor(i / cmax) > np.floor((i - 1.0) / cmax))
     cl = np.cumsum(new_cl) - 1
     c = cand[rows]
     w_row = c.astype(np.float64) @ weights
