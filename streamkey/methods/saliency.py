@@ -6,8 +6,15 @@ Offline: `extract(motion)`. Definitions this module settles (where they differ f
 
 - Input (thesis eq. 3.1): the unwrapped rotation channels of the captured frames (root
   position excluded), unwrapped from the first captured frame (as a stream starting there is).
-  Every column is standardised over the clip; columns with variance <= 1e-10 deg^2 are dropped.
-  Moments are taken after subtracting the first captured frame (less cancellation).
+  Every column is standardised over the clip's motion; columns with variance <= 1e-10 deg^2
+  are dropped. Moments are taken after subtracting the first captured frame (less
+  cancellation).
+- Motion: the frames inside takes (`streamkey.segments.detect_segments` / `motion_mask`;
+  every frame if the clip has no take). Calibration holds and still stretches are not
+  motion: they stay out of the moments (PCA) and of the map statistics (normalisation,
+  thresholds), and get no candidate, so the keys of a take do not depend on a calibration
+  pose before it or stillness after it. Curves, curvatures and maps are computed on every
+  frame (a map near a take's edge sees the frames around it).
 - PCA (eq. 3.2-3.3): eigen-decomposition of the correlation matrix (the covariance of the
   standardised columns, population normalisation), components by decreasing eigenvalue, each
   eigenvector signed so that its largest-magnitude entry is positive. k components; with
@@ -34,7 +41,8 @@ Offline: `extract(motion)`. Definitions this module settles (where they differ f
   v[f+1]) with one occurrence of M_i left out (0 if none is left). Map i rescaled to [0, H]
   and multiplied by (H - m_i H / M_i)^2, i.e. S_i * H^3 / M_i * (1 - m_i / M_i)^2; S = sum.
   Every statistic is a sum, a count or a maximum, so a running version is exact at the end.
-- Candidates (sec. 3.1.3): frames with S_j(f) > mean of S_j over the clip, per curve j.
+- Candidates (sec. 3.1.3): motion frames with S_j(f) > mean of S_j over the clip's motion,
+  per curve j.
 - Clusters (sec. 3.1.4): runs of consecutive frames that are a candidate on any curve, cut into
   pieces of at most 2 sigma frames on a grid counted from the first captured frame (a cut
   wherever the frame number crosses a multiple of 2 sigma, `saliency_kernels.cuts`). The
@@ -75,6 +83,7 @@ from ..errors import UsageError
 from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import Keyframes
 from ..motion import Motion
+from ..segments import detect_segments, motion_mask
 from ..units import DurationLike
 from .saliency_kernels import pick_keyframe
 from .saliency_math import (
@@ -155,8 +164,9 @@ def _rotations(motion: Motion, features: Features) -> np.ndarray:
 
 
 def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: bool,
-            variance_rule: bool, fps: float) -> _Curves:
-    basis = pca_basis(moments(xs), k, variance_rule)
+            variance_rule: bool, fps: float, moving: np.ndarray | None = None) -> _Curves:
+    """Curves and maps of the rows `xs`; the PCA from the `moving` rows (default: all)."""
+    basis = pca_basis(moments(xs if moving is None else xs[moving]), k, variance_rule)
     basis = fit_k(basis, k, contact)
     d = curves_of(basis, xs, feet, contact)
     s = maps_of(curvature(d, time_step(fps)), sigma, contact, frames_at(FOOT_SIGMA, fps))
@@ -193,10 +203,14 @@ def extract(motion: Motion, *, sigma: DurationLike | None = None, k: int | None 
     rot = _rotations(motion, features)
     xs = rot - rot[0]
     feet = features.foot_heights[first:] / features.body_height
-    cv = _curves(xs, feet, sigma, k, contact, variance_rule, fps)
-    a, thr = normalisation(map_stats(cv.s))
+    moving = motion_mask(detect_segments(motion, noise_cutoff_hz=noise_cutoff_hz),
+                         motion.n_frames, first)[first:]
+    if not moving.any():
+        moving[:] = True  # no take at all: every frame counts
+    cv = _curves(xs, feet, sigma, k, contact, variance_rule, fps, moving)
+    a, thr = normalisation(map_stats(cv.s[moving], local_max_mask(cv.s)[moving]))
     sal = combine(cv.s, a)
-    cand = sal > thr
+    cand = (sal > thr) & moving[:, None]
     rel = sal / np.where(thr > 0, thr, 1.0)
     res = cluster_keyframes(cand, cv.weights, cv.foot, cluster_length(sigma), rel)
     params["k_used"] = len(cv.weights)

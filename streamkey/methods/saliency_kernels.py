@@ -157,7 +157,8 @@ def _pick(rows: np.ndarray, wrow: np.ndarray, foot: np.ndarray, n: int) -> int:
 def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.ndarray,
                    weights: np.ndarray, footmask: np.ndarray, wsum: float, g0: int,
                    stop: int, cmax: float, rows: np.ndarray, wrow: np.ndarray,
-                   foot: np.ndarray, n_open: int, score: float, last: int, run: int
+                   foot: np.ndarray, n_open: int, score: float, last: int, run: int,
+                   moving: np.ndarray
                    ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, int, float, int,
                               int]:
     """`classify_terms` of the rows g0.. of maps `s`, fed to the clusterer in the same loop
@@ -167,7 +168,7 @@ def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
     in the buffers `rows`, `wrow`, `foot` (at least ceil(cmax) + 1 long, updated in place; its
     first n_open rows), its score, the last candidate row and the run length. Returns (rows
     classified, their trace levels, the keyframe rows and scores of the clusters closed, how
-    many, n_open, score, last, run)."""
+    many, n_open, score, last, run). `moving`: per row, whether it is motion (in a take)."""
     hit, wr, ft, term, level = classify_terms(s, a, thr, thr_safe, weights, footmask, wsum)
     n = len(hit)
     keys = np.empty(n + 1, dtype=np.int64)
@@ -177,7 +178,7 @@ def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
         row = g0 + i
         if (rows[0] if n_open > 0 else row) > stop:
             return i, level, keys, kscore, nk, n_open, score, last, run
-        h = hit[i]
+        h = hit[i] and moving[i]  # a calibration hold or still stretch has no candidate
         if n_open > 0 and (not h or row != rows[n_open - 1] + 1):
             keys[nk], kscore[nk] = _pick(rows, wrow, foot, n_open), score
             nk, n_open, score = nk + 1, 0, 0.0
@@ -224,12 +225,14 @@ def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarr
 @compiled
 def ring_maps_of(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int,
                  bank: np.ndarray, col: np.ndarray, total: np.ndarray, top: np.ndarray,
-                 lm_n: np.ndarray, lm_sum: np.ndarray, lm_top: np.ndarray) -> None:
+                 lm_n: np.ndarray, lm_sum: np.ndarray, lm_top: np.ndarray,
+                 moving: np.ndarray) -> None:
     """Maps S of ring rows f0..f1 from their curvatures `c`, and the running statistics in
     place (`MapStats` fields, frame by frame): S_i of curve j = |sum over the window of the
     curvatures times column col[j] + i of `bank`| ((2 R + 1, columns): the differences of
     the normalised Gaussian kernels of each sigma, summed in window order; the curves
-    sharing a sigma share columns), row f - 1's local-maximum flags once row f exists."""
+    sharing a sigma share columns), row f - 1's local-maximum flags once row f exists. Only
+    the rows that are motion (`moving`, in a take) enter the statistics."""
     k = c.shape[1]
     acc = np.empty((k, 4))
     for f in range(f0, f1 + 1):
@@ -244,13 +247,14 @@ def ring_maps_of(c: np.ndarray, s: np.ndarray, lm: np.ndarray, f0: int, f1: int,
             for i in range(4):
                 v = abs(acc[j, i])
                 s[f, j, i] = v
-                total[j, i] += v
-                if v > top[j, i]:
-                    top[j, i] = v
+                if moving[f]:
+                    total[j, i] += v
+                    if v > top[j, i]:
+                        top[j, i] = v
                 mid = s[f - 1, j, i]
                 flag = mid > s[f - 2, j, i] and mid >= v
                 lm[f - 1, j, i] = flag
-                if flag:
+                if flag and moving[f - 1]:
                     lm_n[j, i] += 1
                     lm_sum[j, i] += mid
                     if mid > lm_top[j, i]:
@@ -266,11 +270,11 @@ def _warm() -> None:
     z = np.zeros((3, 4))
     ring_maps_of(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
                  np.ones((3, 12)), 4 * np.arange(3), z, z.copy(),
-                 np.zeros((3, 4), dtype=np.int64), z.copy(), z.copy())
+                 np.zeros((3, 4), dtype=np.int64), z.copy(), z.copy(), np.ones(8, dtype=bool))
     pick_keyframe([4, 5], [1.0, 1.0], [False, True])
     a, thr, safe, _ = itti_factors(z, np.zeros(3), np.ones(3), z, 1,
                                    np.zeros((3, 4), dtype=np.int64), z, z)
     classify_terms(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0)
     classify_block(np.ones((2, 3, 4)), a, thr, safe, np.ones(3), np.ones(3, dtype=bool), 1.0,
                    0, 1, 2.0, np.zeros(3, dtype=np.int64), np.zeros(3), np.zeros(3, dtype=bool),
-                   0, 0.0, -2, 0)
+                   0, 0.0, -2, 0, np.ones(2, dtype=bool))

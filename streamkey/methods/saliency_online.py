@@ -35,6 +35,14 @@ makes the online result equal the offline one when every decision waits for `flu
   the basis they were computed with. Measured on the shared clips at sigma = 10 and the
   default lookahead: mean F1 against offline 0.877 with the lookahead-sized window only,
   0.894 with 10 s, 0.895 keeping the whole stream.
+- Motion (the offline `motion_mask`): the keyframer runs its own `streamkey.segments
+  .SegmentDetector` on its frames (the same detector as offline `detect_segments`), and
+  each segment event reaches `note_segment` before the frame that decided it. A frame is
+  labelled motion or not as it arrives (the open segment's kind) and relabelled when a
+  segment is decided; non-motion rows stay out of the moments and map statistics from then
+  on (rows already counted leave them at the next basis update, which recomputes the
+  window) and are no candidates. At `flush()` every segment is closed, so the final
+  statistics are the offline ones.
 - Clustering needs no global statistic: runs and 2 sigma cuts are decided frame by frame.
 - Below the support (lookahead < radius + 1 + 2 sigma): a frame whose deadline comes
   before its Gaussian windows are complete is classified from maps whose windows are cut at
@@ -61,6 +69,7 @@ from ..errors import UsageError
 from ..keyframes import KeyframeEvent
 from ..motion import Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock
+from ..segments import SegmentDetector, SegmentEvent
 from ..units import Duration, DurationLike, whole_frames
 from .saliency_kernels import Clusterer, classify_block, itti_factors
 from .saliency_math import (
@@ -174,6 +183,8 @@ class Online(WindowAnalysis):
         super().__init__(skeleton, fps, lookahead=look, stream=stream,
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
                          params=params)
+        # session segments (calibration holds, still stretches, takes) as offline
+        self.detector = SegmentDetector(skeleton, fps, stream=stream, role_mapping=role_mapping)
         self.reset()
 
     # the fixed parameters, in frames at the stream's rate
@@ -201,6 +212,8 @@ class Online(WindowAnalysis):
         self.trace: deque[tuple[int, float]] = deque(maxlen=TRACE_FRAMES)
         self.resume_at = 0  # after a restart with kept statistics: first frame to analyse
         self.deferred = False  # the newest frame's deferred work (`_deferred`) is pending
+        self.detector.reset()
+        self.label: tuple[bool, int | None] = (True, None)  # frames to come: motion, until seq
 
     def restart(self, keep_statistics: bool = True) -> None:
         """A new window after a long gap or a source restart (after `finish()`): the basis,
@@ -232,18 +245,44 @@ class Online(WindowAnalysis):
             self.seq0 = int(block.seq[0])
             if self.x0 is None:
                 self.x0 = block.rotations[0].copy()
+        points = block.pelvis_points(self.detector.points)
         xs = block.rotations - self.x0
         feet = block.foot_heights / self.features.body_height
         events: list[KeyframeEvent] = []
         for i in range(len(block)):
+            self._settle()  # (a staged basis switch takes the state: labels go on it)
+            # the detector frame by frame, so that a segment is decided by the same frame
+            # whatever the block split, and noted before that frame
+            for segment in self.detector.push_points(block.seq[i : i + 1],
+                                                     block.time[i : i + 1], points[i : i + 1]):
+                self.note_segment(segment)
             events.extend(self._advance(xs[i], feet[i], float(block.time[i])))
         return events
 
-    def _advance(self, x: np.ndarray, foot: np.ndarray, time: float) -> list[KeyframeEvent]:
-        if self.deferred:  # `idle()` was not called after the last frame
+    def note_segment(self, event: SegmentEvent) -> None:
+        """A session segment (`streamkey.segments`, as offline `detect_segments`): the frames
+        of a calibration hold or a still stretch are not motion, so they stay out of the
+        running statistics (moments, map statistics) and get no candidate; a take's are.
+        Applies to the frames so far in the segment and to the frames to come until its end
+        (open: until the next segment)."""
+        moving = event.kind == "take"
+        self.label = (moving, event.end)
+        ring = self.ring
+        lo = max(event.start - self.seq0, ring.base)
+        hi = self.t if event.end is None else min(event.end - self.seq0, self.t)
+        if hi >= lo:
+            ring.moving[lo - ring.base : hi - ring.base + 1] = moving
+
+    def _settle(self) -> None:
+        """The last frame's deferred work if `idle()` was not called, and a staged basis
+        switch (`_stage`) swapped in: the new basis decides from the next frame on."""
+        if self.deferred:
             self._deferred()
         if self.spread is not None and self.spread.staged is not None:
-            self.__dict__.update(self.spread.staged)  # the switch: the new basis decides
+            self.__dict__.update(self.spread.staged)
+
+    def _advance(self, x: np.ndarray, foot: np.ndarray, time: float) -> list[KeyframeEvent]:
+        self._settle()
         self.t += 1
         t = self.t
         if t - self.ring.base >= self.ring.cap:
@@ -254,6 +293,8 @@ class Online(WindowAnalysis):
         ring.rotations[r] = x
         ring.feet[r] = foot
         ring.times[r] = time
+        moving, until = self.label
+        ring.moving[r] = moving if until is None or self.seq0 + t <= until else True
         if self._update_due(t):  # the first basis; later ones below 3 frames (else made
             # early by `_deferred`)
             self._catch_up(t - 1)
@@ -370,10 +411,15 @@ class Online(WindowAnalysis):
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: final basis from every frame, then decide every pending frame."""
+        for event in self.detector.finish():
+            self.note_segment(event)
         if self.deferred:
             self._deferred(early=False)  # the final update comes next
         if self.t < 2:
             return []
+        ring = self.ring
+        if self.stats.folded_upto == 0 and not ring.moving[: self.t - ring.base + 1].any():
+            ring.moving[:] = True  # no take at all: every frame counts (as offline)
         self._catch_up(self.t)
         self._update(final=True)
         events = self._classify(self.n_class, self.t)
@@ -401,7 +447,8 @@ class Online(WindowAnalysis):
         """Rows g0.. of maps `s` classified with the current statistics and fed to `cl` in
         one compiled loop (`classify_block`), up to the first row whose cluster would start
         after `stop`; `cl` takes the open cluster's new state (new lists: a copy's lists
-        stay the original's). Returns (rows taken, their trace levels, clusters closed)."""
+        stay the original's); rows that are not motion are no candidates. Returns (rows
+        taken, their trace levels, clusters closed)."""
         m = self.setup.cmax + 1  # the open cluster, as `classify_block`'s buffers
         rows, wrow, foot = np.zeros(m, dtype=np.int64), np.zeros(m), np.zeros(m, dtype=bool)
         k = len(cl.rows)
@@ -410,7 +457,8 @@ class Online(WindowAnalysis):
         cv = self.curves
         n, level, keys, scores, nk, k, cl.score, cl.last, cl.run = classify_block(
             s, *self._normal(), cv.weights, cv.footmask, cv.wsum, g0, stop, self.setup.clen,
-            rows, wrow, foot, k, cl.score, cl.last, cl.run)
+            rows, wrow, foot, k, cl.score, cl.last, cl.run,
+            self.ring.moving[g0 - self.ring.base : g0 - self.ring.base + len(s)])
         cl.rows, cl.wrow, cl.foot = rows[:k].tolist(), wrow[:k].tolist(), foot[:k].tolist()
         return n, level, list(zip(keys[:nk].tolist(), scores[:nk].tolist(), strict=True))
 

@@ -66,6 +66,7 @@ class WindowBuffers:
         self.rotations = np.zeros((cap, columns))  # rotation channels minus the first frame's
         self.feet = np.zeros((cap, 2))  # foot heights / body height
         self.times = np.zeros(cap)  # frame times, s
+        self.moving = np.ones(cap, dtype=bool)  # in a take (not a calibration hold or still)
         self.curves = np.zeros((cap, 0))  # curve values D (PCA projections, foot heights)
         self.curvatures = np.zeros((cap, 0))  # curvature C of each curve
         self.maps = np.zeros((cap, 0, 4))  # scale maps S_i of each curve
@@ -91,7 +92,7 @@ class WindowBuffers:
     def move(self, lo: int, t: int, cap: int) -> None:
         """Rows of frames lo..t-1 to the front of arrays of `cap` rows: frame lo is row 0."""
         keep = t - lo
-        for name in ("rotations", "feet", "times", *self.PER_CURVE):
+        for name in ("rotations", "feet", "times", "moving", *self.PER_CURVE):
             arr = getattr(self, name)
             new = np.zeros((cap,) + arr.shape[1:], dtype=arr.dtype)
             new[:keep] = arr[lo - self.base : t - self.base]
@@ -168,6 +169,7 @@ class BasisUpdate:
     mom: Moments  # moments so far
     xs: np.ndarray  # rotation rows w0..u
     ft: np.ndarray  # foot rows lo..u
+    moving: np.ndarray  # which rows w0..u are motion (in a take)
     corr: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # correlation
     basis: Basis | None = None  # the new basis, matched
     perm: np.ndarray | None = None  # old curve each new curve continues

@@ -90,9 +90,10 @@ class WindowAnalysis(OnlineKeyframer):
         if upto <= st.folded_upto:
             return
         a, b = st.folded_upto - ring.base, upto - ring.base
-        st.folded_moments = st.folded_moments + moments(ring.rotations[a:b])
+        m = ring.moving[a:b]
+        st.folded_moments = st.folded_moments + moments(ring.rotations[a:b][m])
         if self.curves.basis is not None:
-            st.folded_maps = st.folded_maps + map_stats(ring.maps[a:b], ring.peaks[a:b])
+            st.folded_maps = st.folded_maps + map_stats(ring.maps[a:b][m], ring.peaks[a:b][m])
         st.folded_upto = upto
 
     # ------------------------------------------------------------------ incremental rows
@@ -117,10 +118,10 @@ class WindowAnalysis(OnlineKeyframer):
         if f1 < f0:
             return
         st = self.stats.maps
-        st.n += f1 - f0 + 1
+        st.n += int(np.count_nonzero(ring.moving[f0 - base : f1 - base + 1]))
         ring_maps_of(ring.curvatures, ring.maps, ring.peaks, f0 - base, f1 - base,
                      self.setup.diff_bank, self.curves.bank_cols, st.total, st.top, st.lm_n,
-                     st.lm_sum, st.lm_top)
+                     st.lm_sum, st.lm_top, ring.moving)
         self.s_ready = f1 + 1
         self.stats.norm = None
 
@@ -171,17 +172,19 @@ class WindowAnalysis(OnlineKeyframer):
             s = np.abs(g[:, :4] - g[:, 4:])
             ring.maps[rf] = s
         st = self.stats.maps
-        st.n += 1
-        st.total += s
-        np.maximum(st.top, s, out=st.top)
+        if ring.moving[rf]:  # only motion enters the statistics
+            st.n += 1
+            st.total += s
+            np.maximum(st.top, s, out=st.top)
         if f >= 2:
             prev, mid = ring.maps[rf - 2], ring.maps[rf - 1]
             flag = (mid > prev) & (mid >= s)
             ring.peaks[rf - 1] = flag
-            st.lm_n += flag
-            peak = mid * flag
-            st.lm_sum += peak
-            np.maximum(st.lm_top, peak, out=st.lm_top)
+            if ring.moving[rf - 1]:
+                st.lm_n += flag
+                peak = mid * flag
+                st.lm_sum += peak
+                np.maximum(st.lm_top, peak, out=st.lm_top)
         self.s_ready = f + 1
         self.stats.norm = None
 
@@ -213,7 +216,7 @@ class WindowAnalysis(OnlineKeyframer):
         a, e = w0 - ring.base, t - ring.base + 1
         self.spread = None
         if spread is None:
-            self._new_basis(st.folded_moments + moments(ring.rotations[a:e]))
+            self._new_basis(st.folded_moments + moments(ring.rotations[a:e][self._motion(a, e)]))
             basis = self.curves.basis
             assert basis is not None
             d = curves_of(basis, ring.rotations[a:e], ring.feet[a:e], su.contact)
@@ -236,12 +239,14 @@ class WindowAnalysis(OnlineKeyframer):
             if w0 == 0:
                 ring.peaks[a] = False
         self.s_ready = max(hi + 1, 0)
-        st.maps = st.folded_maps + map_stats(ring.maps[a:h], ring.peaks[a:h])
+        m = ring.moving[a:h]  # only motion enters the statistics
+        st.maps = st.folded_maps + map_stats(ring.maps[a:h][m], ring.peaks[a:h][m])
         # Below the support, early frames are decided before (almost) any final map exists:
         # until the final maps cover as many frames, normalise with the maps cut at frame t.
         st.warm = None
         if not final and self.lookahead < su.min_lookahead and w0 == 0 and hi < su.radius:
-            st.warm = map_stats(s)
+            m = ring.moving[a:e]
+            st.warm = map_stats(s[m], local_max_mask(s)[m])
         st.norm = None
         self.inc_t = t
         if spread is None:
@@ -267,6 +272,15 @@ class WindowAnalysis(OnlineKeyframer):
         if cnt > 0:
             self._window_maps(c, f0 - R, cnt, self.curves.pick, s[f0 : f0 + cnt])
         return d, c, s
+
+    def _motion(self, a: int, e: int) -> np.ndarray:
+        """Which ring rows a..e-1 enter the moments: the motion rows, or every row while no
+        motion frame has been seen (a stream starting with a calibration hold or stillness
+        needs a basis all the same; offline, a clip without a take)."""
+        m: np.ndarray = self.ring.moving[a:e]
+        if self.stats.folded_moments.n == 0 and not m.any():
+            m = np.ones(e - a, dtype=bool)
+        return m
 
     def _new_basis(self, mom: Moments) -> None:
         """PCA of the moments, matched to the previous basis; per-curve state follows it."""
@@ -324,7 +338,7 @@ class WindowAnalysis(OnlineKeyframer):
         a, e = w0 - ring.base, u - ring.base + 1
         self.spread = BasisUpdate(u, w0, lo, self.stats.folded_moments,
                                   ring.rotations[a:e].copy(),
-                                  ring.feet[lo - ring.base : e].copy())
+                                  ring.feet[lo - ring.base : e].copy(), ring.moving[a:e].copy())
         self.next_update = u + 1 + min(u + 1, self.setup.update_every)
 
     def _spread_step(self, t: int) -> None:
@@ -338,7 +352,8 @@ class WindowAnalysis(OnlineKeyframer):
             return
         k = t - sp.u
         if k == 1:
-            sp.mom = sp.mom + moments(sp.xs)
+            moving = sp.moving if sp.mom.n or sp.moving.any() else np.ones_like(sp.moving)
+            sp.mom = sp.mom + moments(sp.xs[moving])
         elif k == 2:
             sp.corr = correlation(sp.mom)
         elif k == 3:
