@@ -17,7 +17,7 @@ from streamkey.keyframes import KeyframeEvent
 from streamkey.methods import saliency
 from streamkey.methods.saliency_auto import AutoOnline
 from streamkey.motion import Motion
-from streamkey.segments import detect_segments, motion_mask
+from streamkey.segments import SegmentDetector, detect_segments, motion_mask
 from streamkey.units import Duration
 
 FEW = ["07_01.bvh", "05_02.bvh", "09_06.bvh", "16_11.bvh", "131_03.bvh"]
@@ -269,3 +269,26 @@ def test_no_key_inside_a_calibration_hold_or_a_still_stretch(name: str, kind: st
     online = online_keys(m)
     assert len(offline) and take[offline].all()
     assert len(online) and take[online].all()
+
+
+def test_segments_noted_by_a_pipeline_give_the_keyframers_own_result() -> None:
+    """A pipeline that runs the segment detector and notes every segment before the frame
+    that decided it gets the keys of the keyframer's own detector (which then stops)."""
+    m = variant("05_02.bvh", "clean").motion
+    own = saliency.Online(m.skeleton, m.fps, preset="high")
+    want = [e for e in own.push_block(m.frames()) + own.flush() if isinstance(e, KeyframeEvent)]
+    kf = saliency.Online(m.skeleton, m.fps, preset="high")
+    det = SegmentDetector(m.skeleton, m.fps)
+    got: list[object] = []
+    for frame in m.frames():
+        for segment in det.push(frame):
+            kf.note_segment(segment)
+        got += kf.push(frame)
+        got += kf.idle()
+    for segment in det.flush():
+        kf.note_segment(segment)
+    got += kf.flush()
+    assert kf.detector is None
+    keys = [e for e in got if isinstance(e, KeyframeEvent)]
+    assert [(e.frame, e.decided_at) for e in keys] == [(e.frame, e.decided_at) for e in want]
+    assert [e.score for e in keys] == pytest.approx([e.score for e in want], rel=1e-12)

@@ -183,8 +183,10 @@ class Online(WindowAnalysis):
         super().__init__(skeleton, fps, lookahead=look, stream=stream,
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
                          params=params)
-        # session segments (calibration holds, still stretches, takes) as offline
-        self.detector = SegmentDetector(skeleton, fps, stream=stream, role_mapping=role_mapping)
+        # session segments (calibration holds, still stretches, takes) as offline; None once
+        # a pipeline notes them (`note_segment`)
+        self.detector: SegmentDetector | None = SegmentDetector(
+            skeleton, fps, stream=stream, role_mapping=role_mapping)
         self.reset()
 
     # the fixed parameters, in frames at the stream's rate
@@ -212,7 +214,8 @@ class Online(WindowAnalysis):
         self.trace: deque[tuple[int, float]] = deque(maxlen=TRACE_FRAMES)
         self.resume_at = 0  # after a restart with kept statistics: first frame to analyse
         self.deferred = False  # the newest frame's deferred work (`_deferred`) is pending
-        self.detector.reset()
+        if self.detector is not None:
+            self.detector.reset()
         self.label: tuple[bool, int | None] = (True, None)  # frames to come: motion, until seq
 
     def restart(self, keep_statistics: bool = True) -> None:
@@ -245,21 +248,30 @@ class Online(WindowAnalysis):
             self.seq0 = int(block.seq[0])
             if self.x0 is None:
                 self.x0 = block.rotations[0].copy()
-        points = block.pelvis_points(self.detector.points)
+        det = self.detector
+        points = block.pelvis_points(det.points) if det is not None else None
         xs = block.rotations - self.x0
         feet = block.foot_heights / self.features.body_height
         events: list[KeyframeEvent] = []
         for i in range(len(block)):
-            self._settle()  # (a staged basis switch takes the state: labels go on it)
-            # the detector frame by frame, so that a segment is decided by the same frame
-            # whatever the block split, and noted before that frame
-            for segment in self.detector.push_points(block.seq[i : i + 1],
-                                                     block.time[i : i + 1], points[i : i + 1]):
-                self.note_segment(segment)
+            self._settle()  # (a staged basis switch takes the state)
+            if det is not None and points is not None and self.detector is det:
+                # frame by frame, so that a segment is decided by the same frame whatever
+                # the block split, and noted before that frame
+                for segment in det.push_points(block.seq[i : i + 1], block.time[i : i + 1],
+                                               points[i : i + 1]):
+                    self._label(segment)
             events.extend(self._advance(xs[i], feet[i], float(block.time[i])))
         return events
 
     def note_segment(self, event: SegmentEvent) -> None:
+        """The pipeline's hook: a session segment decided by the next frame (`_label`). From
+        the first call on, the keyframer's own detector stops (the pipeline runs the same
+        one, so the segments are the same)."""
+        self.detector = None
+        self._label(event)
+
+    def _label(self, event: SegmentEvent) -> None:
         """A session segment (`streamkey.segments`, as offline `detect_segments`): the frames
         of a calibration hold or a still stretch are not motion, so they stay out of the
         running statistics (moments, map statistics) and get no candidate; a take's are.
@@ -279,7 +291,9 @@ class Online(WindowAnalysis):
         if self.deferred:
             self._deferred()
         if self.spread is not None and self.spread.staged is not None:
+            kept = self.detector, self.label  # (segments noted since the staging)
             self.__dict__.update(self.spread.staged)
+            self.detector, self.label = kept
 
     def _advance(self, x: np.ndarray, foot: np.ndarray, time: float) -> list[KeyframeEvent]:
         self._settle()
@@ -411,8 +425,8 @@ class Online(WindowAnalysis):
 
     def finish(self) -> list[KeyframeEvent]:
         """End of stream: final basis from every frame, then decide every pending frame."""
-        for event in self.detector.finish():
-            self.note_segment(event)
+        for event in self.detector.finish() if self.detector is not None else []:
+            self._label(event)
         if self.deferred:
             self._deferred(early=False)  # the final update comes next
         if self.t < 2:
