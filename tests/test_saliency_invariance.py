@@ -271,13 +271,19 @@ def test_no_key_inside_a_calibration_hold_or_a_still_stretch(name: str, kind: st
     assert len(online) and take[online].all()
 
 
-def test_segments_noted_by_a_pipeline_give_the_keyframers_own_result() -> None:
+@pytest.mark.parametrize("auto", [False, True])
+def test_segments_noted_by_a_pipeline_give_the_keyframers_own_result(auto: bool) -> None:
     """A pipeline that runs the segment detector and notes every segment before the frame
     that decided it gets the keys of the keyframer's own detector (which then stops)."""
     m = variant("05_02.bvh", "clean").motion
-    own = saliency.Online(m.skeleton, m.fps, preset="high")
+
+    def make() -> saliency.Online | AutoOnline:
+        return (AutoOnline(m.skeleton, m.fps) if auto
+                else saliency.Online(m.skeleton, m.fps, preset="high"))
+
+    own = make()
     want = [e for e in own.push_block(m.frames()) + own.flush() if isinstance(e, KeyframeEvent)]
-    kf = saliency.Online(m.skeleton, m.fps, preset="high")
+    kf = make()
     det = SegmentDetector(m.skeleton, m.fps)
     got: list[object] = []
     for frame in m.frames():
@@ -288,7 +294,8 @@ def test_segments_noted_by_a_pipeline_give_the_keyframers_own_result() -> None:
     for segment in det.flush():
         kf.note_segment(segment)
     got += kf.flush()
-    assert kf.detector is None
+    assert all(k.detector is None for k in (kf.inners.values() if isinstance(kf, AutoOnline)
+                                            else [kf]))
     keys = [e for e in got if isinstance(e, KeyframeEvent)]
     assert [(e.frame, e.decided_at) for e in keys] == [(e.frame, e.decided_at) for e in want]
     assert [e.score for e in keys] == pytest.approx([e.score for e in want], rel=1e-12)
