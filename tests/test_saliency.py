@@ -124,7 +124,7 @@ def test_compiled_ring_rows_match_the_batch_curves_maps_and_statistics() -> None
     s[f0 - 2 : f0] = saliency.maps_of(c_ref, 10.0, True, FOOT)[f0 - 2 : f0]
     saliency_math.ring_maps_of(c_ref, s, lm, f0, f1, np.ascontiguousarray(diff),
                                np.ascontiguousarray(cols[:, 0]), st.total, st.top, st.lm_n,
-                               st.lm_sum, st.lm_top)
+                               st.lm_sum, st.lm_top, np.ones(len(c_ref), dtype=bool))
     ref = saliency.maps_of(c_ref, 10.0, True, FOOT)
     assert np.allclose(s[f0 : f1 + 1], ref[f0 : f1 + 1], rtol=1e-9, atol=1e-12 * ref.max())
     got = s[f0 - 2 : f1 + 1]

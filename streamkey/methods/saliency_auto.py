@@ -33,6 +33,7 @@ from ..keyframes import KeyframeEvent
 from ..motion import Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..roles import MIURA_ROLES
+from ..segments import SegmentEvent
 from ..units import DurationLike
 from .saliency import (
     AUTO_SECONDS,
@@ -110,6 +111,12 @@ class AutoOnline(OnlineKeyframer):
             return
         self.active.restart(keep_statistics=True)
         self.held, self.last, self.cut = [], -1, -1
+
+    def note_segment(self, event: SegmentEvent) -> None:
+        """The pipeline's segment hook, passed to the running keyframer(s)
+        (`Online.note_segment`)."""
+        for kf in self.inners.values():
+            kf.note_segment(event)
 
     def candidates(self) -> list[tuple[int, float, float]]:
         """Provisional hook: the running keyframer's candidates, none at or before a switch's
