@@ -83,7 +83,8 @@ class EngineConfig:
     bridge forgets the methods' running statistics too. `due_first`: the deferred
     re-analysis of every stream waits until no frame is queued. `freeze_gc`: freeze the heap
     loaded at start-up out of the garbage collector for the run (the CLI's `run`).
-    `turn_budget_ms`: work between two passes of the event loop (the sources' reads)."""
+    `turn_budget_ms`: work between two passes of the event loop (the sources' reads).
+    `segments`: each stream's pipeline sends segment events (calibration, still, take)."""
 
     stream: str = "default"
     on_ready: Callable[[str], None] | None = None
@@ -96,6 +97,7 @@ class EngineConfig:
     due_first: bool = True
     freeze_gc: bool = False
     turn_budget_ms: float = 1.0
+    segments: bool = True
 
 
 class Engine:
@@ -264,7 +266,8 @@ class Engine:
         costs (compilation, lazy imports, FK plans, BLAS start-up) are not paid by the first
         real decision's latency."""
         self._load_kernels()
-        spare = Pipeline(self.make_keyframers(spec), stream=spec.stream)
+        spare = Pipeline(self.make_keyframers(spec), stream=spec.stream,
+                         segments=self.config.segments)
         jit.warm_up()  # modules the keyframers imported just now
         rest = np.zeros(spec.skeleton.n_channels)
         for seq in range(3):
@@ -275,7 +278,7 @@ class Engine:
 
     def _build(self, spec: StreamSpec) -> Pipeline:
         return Pipeline(self.make_keyframers(spec), stream=spec.stream,
-                        reset_on_gap=self.config.reset_on_gap)
+                        reset_on_gap=self.config.reset_on_gap, segments=self.config.segments)
 
     def _warm_up_without_skeleton(self) -> None:
         """Warm up before listening when the skeleton will come from the wire: on the

@@ -61,9 +61,10 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
                  on_frame: Callable[[Frame], None] | None = None,
                  reset_on_gap: bool = False, max_streams: int = DEFAULT_MAX_STREAMS,
                  stream_idle: float | None = None, due_first: bool = True,
-                 freeze_gc: bool = False) -> Engine:
+                 freeze_gc: bool = False, segments: bool = True) -> Engine:
     """The engine for a source (a Motion is replayed at `rate`, default its fps; 0: unpaced);
-    every stream of the source gets its own keyframers (`Engine`)."""
+    every stream of the source gets its own keyframers (`Engine`); `segments`: send segment
+    events."""
     if isinstance(source, Motion):
         source = MotionSource(source, rate=rate, loop=loop)
 
@@ -73,7 +74,8 @@ def build_engine(source: Source | Motion, methods: list[str], sinks: list[Sink],
     return Engine(source, keyframers, sinks, EngineConfig(
         stream=stream, on_ready=on_ready, on_event=on_event, idle_exit=idle_exit,
         on_frame=on_frame, reset_on_gap=reset_on_gap, max_streams=max_streams,
-        stream_idle=stream_idle, due_first=due_first, freeze_gc=freeze_gc))
+        stream_idle=stream_idle, due_first=due_first, freeze_gc=freeze_gc,
+        segments=segments))
 
 
 async def run_engine(engine: Engine) -> RunSummary:

@@ -205,6 +205,8 @@ class StreamTable:
             kf.reset()
         pipeline.guard.reset()
         pipeline.features.reset()
+        if pipeline.segments is not None:
+            pipeline.segments.reset()
         return [StatusEvent(stream=state.name, method="*", status="error",
                             detail={"error": f"{type(exc).__name__}: {exc}", "seq": seq})]
 

@@ -74,6 +74,7 @@ class WorkerConfig:
     freeze_gc: bool = True
     skeleton: Skeleton | None = None  # a skeleton given up front serves every stream
     fps: float | None = None
+    segments: bool = True  # send segment events
 
 
 # ---------------------------------------------------------------------- worker side
@@ -155,7 +156,8 @@ def _worker_main(conn: Connection, cfg: WorkerConfig) -> None:
     source = _PipeSource(conn, cfg)
     engine = Engine(source, keyframers, [_PipeSink(conn)], EngineConfig(
         stream=cfg.stream, on_ready=say, reset_on_gap=cfg.reset_on_gap,
-        max_streams=cfg.max_streams, stream_idle=cfg.stream_idle, freeze_gc=cfg.freeze_gc))
+        max_streams=cfg.max_streams, stream_idle=cfg.stream_idle, freeze_gc=cfg.freeze_gc,
+        segments=cfg.segments))
     summary = asyncio.run(engine.run())
     summary.sinks = {}
     summary.scheduler["cpu_seconds"] = round(time.process_time(), 3)
@@ -441,7 +443,7 @@ async def run_workers(source: Source, methods: list[str], to: list[str], workers
                       stream: str = "default", idle_exit: float | None = None,
                       reset_on_gap: bool = False, max_streams: int = DEFAULT_MAX_STREAMS,
                       stream_idle: float | None = None,
-                      on_ready: Any = None) -> RunSummary:
+                      on_ready: Any = None, segments: bool = True) -> RunSummary:
     """`run --workers N` from a listening `source` to the sinks at `to` until the source
     ends, `idle_exit`, SIGINT or SIGTERM; the merged summary."""
     from .adapters import make_sink, parse_address
@@ -450,7 +452,7 @@ async def run_workers(source: Source, methods: list[str], to: list[str], workers
     sinks = [make_sink(parse_address(a), listen) for a in to]
     cfg = WorkerConfig(methods, params or {}, lookahead, stream, reset_on_gap, max_streams,
                        stream_idle, True, source.skeleton if source.shared_skeleton else None,
-                       source.fps if source.shared_skeleton else None)
+                       source.fps if source.shared_skeleton else None, segments)
     pool = WorkerPool(source, sinks, cfg, workers, on_ready or _ready, idle_exit)
     loop = asyncio.get_running_loop()
     handled = []

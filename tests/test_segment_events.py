@@ -293,3 +293,28 @@ def test_extract_online_segments_equal_offline_behind_the_noise_filter(tmp_path:
     assert online == offline
     filtered = [s.to_dict() for s in detect_segments(read_bvh(path), noise_cutoff_hz=6.0)]
     assert offline == filtered and [s["kind"] for s in online][:2] == ["calibration", "take"]
+
+
+def test_run_no_segments_sends_none_and_the_same_keys(tmp_path: Path) -> None:
+    """`run --no-segments` over the same calibrated take: no segment event, and the keyframe
+    events are those of a run that sends them."""
+    v = V.with_calibration(clip("07_01.bvh"))
+    path = tmp_path / "calibrated.bvh"
+    write_bvh(v.motion, path)
+    logs = []
+    for extra in ([], ["--no-segments"]):
+        log = tmp_path / f"events{len(extra)}.jsonl"
+        proc = subprocess.run([sys.executable, "-P", "-m", "streamkey", "run", "--from",
+                               str(path), "--fast", "--method", "speed", "--to",
+                               f"jsonl:{log}", *extra], cwd=ROOT, capture_output=True,
+                              text=True, timeout=900)
+        assert proc.returncode == 0, proc.stderr
+        logs.append([json.loads(line) for line in log.read_text().splitlines()])
+    with_segments, without = logs
+    assert any(e["type"] == "segment" for e in with_segments)
+    assert not any(e["type"] == "segment" for e in without)
+
+    def keys(events: list[dict[str, object]]) -> list[object]:
+        return [(e["frame"], e["score"]) for e in events if e["type"] == "keyframe"]
+
+    assert keys(with_segments) == keys(without) != []

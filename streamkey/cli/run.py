@@ -59,6 +59,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("-q", "--quiet", action="store_true",
                    help="no warnings about refused input while running (still counted in "
                         "the summary)")
+    p.add_argument("--no-segments", action="store_true",
+                   help="send no segment events (calibration holds, still stretches, takes)")
     p.add_argument("--workers", type=_workers, default=1, metavar="N",
                    help="spread the streams over N worker processes (auto: one per core; "
                         "network sources; default 1: this process)")
@@ -121,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
         summary = asyncio.run(run_workers(
             source, methods, args.to or ["-"], args.workers, online_params(args), None,
             args.listen, args.stream, idle_exit=args.idle_exit, reset_on_gap=args.reset_on_gap,
-            max_streams=args.max_streams, stream_idle=args.stream_idle))
+            max_streams=args.max_streams, stream_idle=args.stream_idle,
+            segments=not args.no_segments))
     else:
         summary = asyncio.run(_run_watched(args, source, methods, watch))
     print(summary.text(), file=sys.stderr)
@@ -156,7 +159,7 @@ async def _run_watched(args: argparse.Namespace, source: Any, methods: list[str]
                           rate=0.0 if args.fast else None, idle_exit=args.idle_exit,
                           on_frame=watch.on_frame, reset_on_gap=args.reset_on_gap,
                           max_streams=args.max_streams, stream_idle=args.stream_idle,
-                          freeze_gc=True, on_ready=_ready)
+                          freeze_gc=True, on_ready=_ready, segments=not args.no_segments)
     watch.engine = engine
     task = asyncio.create_task(watch.watch())
     try:
