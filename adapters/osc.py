@@ -288,7 +288,17 @@ def _frame_plan(tags: bytes) -> tuple[struct.Struct, struct.Struct | None, int]:
     return plan
 
 
+_KNOWN_TAGS = frozenset(b"ihfdsbrmtTFN[]")  # python-osc logs a warning for any other tag
+
+
 def _message(data: bytes, address: str | None = None) -> OscMessage:
+    at = (data.find(b"\0") // 4 + 1) * 4  # the type tags after the padded address
+    if data[at : at + 1] == b",":
+        end = data.find(b"\0", at)
+        odd = set(data[at + 1 : end if end >= 0 else len(data)]) - _KNOWN_TAGS
+        if odd:
+            raise OscDecodeError("types", f"type tag {chr(min(odd))!r} in an OSC message: "
+                                 "not one streamkey reads")
     try:
         message = OscMessage(data)
     except Exception as exc:  # python-osc raises several types for garbage

@@ -23,35 +23,57 @@ becomes the joint's Euler channels with scipy `Rotation.as_euler` in the joint's
 (intrinsic, as BVH composes them). The skeleton is `streamkey.rigs.humanoid_skeleton()` or
 `--skeleton FILE` whose joints carry Unity bone names.
 
-A datagram that is not OSC, or a Root/Pos / Bone/Pos message with the wrong argument types or
-non-finite values, is dropped and counted (`parse`, `types`).
+Every datagram that does not become a frame or a state update is dropped and counted by kind
+(nothing is printed per packet): `oversize`; `bundle` (an element size that is not a positive
+multiple of 4 inside the packet, bundles nested too deep); `parse` (not an OSC message or
+bundle); `types` (a Root/Pos / Bone/Pos message whose type tags are not `s` then 7 or more
+`f`/`d`, whose size does not match its tags, with non-finite values or a zero quaternion);
+`incomplete` (a frame bundle that lacks a bone the frame needs: a truncated bundle). The
+packets are decoded here, not by python-osc, whose parser logs a warning on stderr for every
+odd element or type tag it skips, and skips them uncounted.
+
+A frame bundle needs every bone that Unity's humanoid requires (Hips, Spine, Head, upper and
+lower legs and arms, feet, hands) that the skeleton has, and every skeleton bone (and the root)
+that the sender put in an earlier accepted frame: a performer sends all its bones in each frame,
+so a bundle without some of them was cut short. Bones the avatar lacks (no UpperChest, no
+fingers) are never asked for.
 """
 
 from __future__ import annotations
 
 import math
+import re
+import struct
 import warnings
-from typing import Any
 
 import numpy as np
-from pythonosc.osc_bundle import OscBundle
-from pythonosc.osc_message import OscMessage
 from scipy.spatial.transform import Rotation
 
 from streamkey.errors import UsageError
 from streamkey.motion import POSITION_CHANNELS, Frame, Skeleton
 
 from .base import MAX_MESSAGE_BYTES, Address, bind_host
+from .osc import OscDecodeError, decode_bundle
 from .udp_listen import DatagramSource
 
-__all__ = ["VmcSource", "VmcDecoder", "ROOT_ADDRESS", "BONE_ADDRESS"]
+__all__ = ["VmcSource", "VmcDecoder", "ROOT_ADDRESS", "BONE_ADDRESS", "REQUIRED_BONES"]
 
 ROOT_ADDRESS = "/VMC/Ext/Root/Pos"
 BONE_ADDRESS = "/VMC/Ext/Bone/Pos"
+# Unity's required HumanBodyBones: an avatar has them all, so a frame always carries them
+REQUIRED_BONES = frozenset({"Hips", "Spine", "Head"} | {
+    f"{side}{bone}" for side in ("Left", "Right")
+    for bone in ("UpperLeg", "LowerLeg", "Foot", "UpperArm", "LowerArm", "Hand")})
+MAX_BUNDLE_DEPTH = 8
+_ROOT = "/root"  # the root's entry in the set of what a frame carries (never a bone name)
+_POSE_TAGS = re.compile(r",s[fd]{7,}")
+
+Pose = tuple[str, str, tuple[float, ...]]  # address, bone name, px py pz qx qy qz qw
 
 
 class VmcDecoder:
-    """VMC datagrams -> channel vectors of one skeleton (sans-I/O; raises ValueError)."""
+    """VMC datagrams -> channel vectors of one skeleton (sans-I/O; raises `OscDecodeError`,
+    whose `kind` names the counter)."""
 
     def __init__(self, skeleton: Skeleton, scale: float = 1.0) -> None:
         self.skeleton = skeleton
@@ -60,6 +82,8 @@ class VmcDecoder:
         self.rotations = np.tile([0.0, 0.0, 0.0, 1.0], (skeleton.n_joints, 1))  # BVH axes
         self.hips_position = skeleton.offsets[0] / scale  # metres, BVH axes: channels 0
         self.root = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+        # what a frame bundle must carry: the required bones, then all the sender has sent
+        self.expected = {name for name in skeleton.names if name in REQUIRED_BONES}
         # joints grouped by Euler sequence: one scipy call per group and frame
         self.groups: dict[str, tuple[list[int], list[list[int | None]]]] = {}
         for j, order in enumerate(skeleton.rotation_order or []):
@@ -72,20 +96,24 @@ class VmcDecoder:
     def datagram(self, data: bytes) -> np.ndarray | None:
         """Apply one datagram; the frame's channels if it was a bundle with pose messages."""
         if len(data) > MAX_MESSAGE_BYTES:
-            raise ValueError(f"packet of {len(data)} bytes, more than {MAX_MESSAGE_BYTES}")
-        try:
-            if OscBundle.dgram_is_bundle(data):
-                messages = _flatten(OscBundle(data))
-                bundled = True
-            else:
-                messages, bundled = [OscMessage(data)], False
-        except Exception as exc:  # python-osc raises several types for garbage
-            raise ValueError(f"not OSC: {exc}") from None
-        pose = [m for m in messages if m.address in (ROOT_ADDRESS, BONE_ADDRESS)]
-        updates = [_transform(m) for m in pose]  # validate all before applying any
-        for message, (name, x, y, z, qx, qy, qz, qw) in zip(pose, updates, strict=True):
+            raise OscDecodeError("oversize", f"packet of {len(data)} bytes, more than "
+                                 f"{MAX_MESSAGE_BYTES}")
+        bundled = data.startswith(b"#bundle\0")
+        pose = _poses(data, 0)  # validate all before applying any
+        if bundled and pose:
+            carried = {name for address, name, _ in pose
+                       if address == BONE_ADDRESS and name in self.joints}
+            carried |= {_ROOT} if any(a == ROOT_ADDRESS for a, _, _ in pose) else set()
+            missing = self.expected - carried
+            if missing:
+                names = ", ".join(sorted(m for m in missing if m != _ROOT)[:4]) or "the root"
+                more = ", ..." if len(missing) > 4 else ""
+                raise OscDecodeError("incomplete", f"a frame bundle without {len(missing)} of "
+                                     f"the bones every frame carries ({names}{more}): cut short")
+            self.expected |= carried
+        for address, name, (x, y, z, qx, qy, qz, qw) in pose:
             # Unity -> BVH axes: the mirror x -> -x (module docstring)
-            if message.address == ROOT_ADDRESS:
+            if address == ROOT_ADDRESS:
                 self.root = (np.array([-x, y, z]), np.array([qx, -qy, -qz, qw]))
             elif (j := self.joints.get(name)) is not None:
                 self.rotations[j] = (qx, -qy, -qz, qw)
@@ -113,23 +141,42 @@ class VmcDecoder:
         return out
 
 
-def _flatten(bundle: OscBundle) -> list[OscMessage]:
-    out: list[OscMessage] = []
-    for i in range(bundle.num_contents):
-        content = bundle.content(i)
-        out += _flatten(content) if isinstance(content, OscBundle) else [content]
-    return out
+def _poses(data: bytes, depth: int) -> list[Pose]:
+    """The Root/Pos and Bone/Pos messages of a datagram or bundle element, in order; other
+    messages are skipped unread."""
+    if data.startswith(b"#bundle\0"):
+        if depth >= MAX_BUNDLE_DEPTH:
+            raise OscDecodeError("bundle", f"bundles nested deeper than {MAX_BUNDLE_DEPTH}")
+        return [p for element in decode_bundle(data)[1] for p in _poses(element, depth + 1)]
+    if not data.startswith(b"/"):
+        raise OscDecodeError("parse", "not OSC: neither a message (/address) nor a #bundle")
+    address, at = _string(data, 0, "parse", "address")
+    if address not in (ROOT_ADDRESS, BONE_ADDRESS):
+        return []
+    expected = "expected s name, f px py pz, f qx qy qz qw"
+    tags, at = _string(data, at, "types", f"{address}: type tags")
+    if not _POSE_TAGS.fullmatch(tags):
+        raise OscDecodeError("types", f"{address}: type tags {tags[:40]!r}; {expected}")
+    name, at = _string(data, at, "types", f"{address}: bone name")
+    values = tags[2:]
+    if len(data) - at != struct.calcsize(">" + values):
+        raise OscDecodeError("types", f"{address} {name[:40]}: {len(data) - at} bytes of "
+                             f"values for type tags {tags[:40]!r}")
+    numbers = struct.unpack_from(">" + values, data, at)[:7]
+    if not all(math.isfinite(v) for v in numbers):
+        raise OscDecodeError("types", f"{address} {name[:40]}: non-finite value; {expected}")
+    if sum(v * v for v in numbers[3:]) < 1e-12:
+        raise OscDecodeError("types", f"{address} {name[:40]}: zero quaternion")
+    return [(address, name, numbers)]
 
 
-def _transform(message: OscMessage) -> tuple[Any, ...]:
-    params = message.params
-    if (len(params) < 8 or not isinstance(params[0], str)
-            or not all(isinstance(v, float) and math.isfinite(v) for v in params[1:8])):
-        raise TypeError(f"{message.address}: expected s name, f px py pz, f qx qy qz qw "
-                        "(finite)")
-    if sum(v * v for v in params[4:8]) < 1e-12:
-        raise TypeError(f"{message.address} {params[0]}: zero quaternion")
-    return tuple(params[:8])
+def _string(data: bytes, at: int, kind: str, what: str) -> tuple[str, int]:
+    """The OSC string at `at` (NUL-terminated, padded to 4 bytes) and the offset after it."""
+    end = data.find(b"\0", at)
+    after = (end // 4 + 1) * 4
+    if end < 0 or after > len(data) or data[end:after].strip(b"\0"):
+        raise OscDecodeError(kind, f"{what}: not a NUL-padded OSC string at byte {at}")
+    return data[at:end].decode("utf-8", "replace"), after
 
 
 class VmcSource(DatagramSource):
@@ -166,11 +213,11 @@ class VmcSource(DatagramSource):
         """Handle one datagram (on the event loop); never raises."""
         try:
             channels = self.decoder.datagram(data)
-        except ValueError as exc:
-            self.stats.reject("parse", f"vmc: {exc}")
+        except OscDecodeError as exc:
+            self.stats.reject(exc.kind, f"vmc: {exc}")
             return
-        except TypeError as exc:
-            self.stats.reject("types", f"vmc: {exc}")
+        except Exception as exc:  # a decoder bug: counted, the source goes on
+            self.stats.reject("internal", f"vmc: {type(exc).__name__}: {str(exc)[:200]}")
             return
         if channels is None:
             return

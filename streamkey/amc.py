@@ -260,7 +260,7 @@ def _build_skeleton(asf: _Asf, last_line: int) -> Skeleton:
 
 
 def _parse_asf_full(text: str, source: str) -> tuple[Skeleton, float]:
-    lines = text.splitlines()
+    lines = text.removeprefix("\ufeff").splitlines()  # a byte-order mark some editors write
     asf = _Asf(source)
     sections = _sections(lines, source)
     handlers = {":units": _parse_units, ":root": _parse_root, ":bonedata": _parse_bonedata,
@@ -374,7 +374,7 @@ def parse_amc(text: str, skeleton: Skeleton, source: str = "<string>", *,
     (`:DEGREES` / `:RADIANS`); `read_amc` passes the ASF's `angle` unit.
     """
     state = _AmcState(skeleton, source)
-    lines = text.splitlines()
+    lines = text.removeprefix("\ufeff").splitlines()  # a byte-order mark some editors write
     for number, raw in enumerate(lines, start=1):
         words = raw.split("#", 1)[0].split()
         if not words:

@@ -208,7 +208,7 @@ def _parse_motion_values(lines: list[str], first_line: int, n_frames: int, n_cha
 
 def parse_bvh(text: str, source: str = "<string>", name: str = "") -> Motion:
     """Parse BVH text into a `Motion`; `source` names the file in error messages."""
-    lines = text.splitlines()
+    lines = text.removeprefix("\ufeff").splitlines()  # a byte-order mark some editors write
     motion_at = next((i for i, ln in enumerate(lines) if ln.strip() == "MOTION"), None)
     if motion_at is None:
         raise BVHError(f"{source}:{len(lines) or 1}: expected a MOTION section, found none")

@@ -168,12 +168,13 @@ def detect_reference_frame(skeleton: Skeleton, channels: np.ndarray) -> int:
     The reference frame has zero root rotation and at most ~10 non-zero joint channels, all
     integers, while the next frame differs; captured frames practically never look like that.
     A frame whose every channel is exactly zero (root at the origin, every joint at rest) is
-    a dropout, not a pose: 07_12 has one right after its reference frame.
+    a dropout, not a pose: 07_12 has one right after its reference frame; a clip with no
+    other frame is a still clip at rest, all captured.
     """
     first = _reference_frame(skeleton, channels)
-    while first < channels.shape[0] - 1 and not np.any(channels[first]):
-        first += 1
-    return first
+    posed = np.flatnonzero(np.any(channels[first:] != 0, axis=1))
+    # nothing but zero frames: a still clip at rest, every frame captured
+    return first + int(posed[0]) if len(posed) else first
 
 
 def _reference_frame(skeleton: Skeleton, channels: np.ndarray) -> int:

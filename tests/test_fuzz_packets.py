@@ -205,3 +205,16 @@ def test_packet_fuzz_during_a_live_run(transport, data):
     summary, events, sent = run_with_handler(run(_interleave(packets)))
     _check(summary, events, sent)
     assert summary.source["kernel_drops"] in (0, None)  # None: not UDP (ZeroMQ)
+
+
+def test_odd_type_tags_on_the_wire_are_counted_and_print_nothing(capfd):
+    """Skeleton messages with type tags python-osc does not know: it printed one warning line
+    per packet on stderr and took the rest; now each is refused, counted, and nothing is
+    printed. Real datagrams on loopback during a live run."""
+    odd = [b"/streamkey/skeleton\0" + tags + b"HIERARCHY\0\0\0"
+           for tags in (b",sX\0", b",Xs\0", b",s\x7f\0", b",sdc\0\0\0\0")]
+    schedule = _interleave([(5 * i, packet) for i, packet in enumerate(odd * 10)])
+    summary, events, sent = run_with_handler(_osc_run(schedule))
+    _check(summary, events, sent)
+    assert summary.source["malformed"] == {"types": len(odd) * 10}
+    assert capfd.readouterr().err == ""

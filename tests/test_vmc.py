@@ -1,13 +1,17 @@
 """VMC source: axis conversion, BVH clip -> VMC bundles -> channels round trip, run fed by
-VMC over UDP equals run from the file, fuzzed datagrams."""
+VMC over UDP equals run from the file, fuzzed datagrams, hostile traffic counted by kind with
+nothing printed per packet (bogus bundle element sizes, truncated bundles, odd type tags)."""
 
 from __future__ import annotations
 
+import logging
 import random
 import socket
+import struct
 import subprocess
 import sys
 import time
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -18,7 +22,7 @@ from pythonosc.osc_message_builder import OscMessageBuilder
 from scipy.spatial.transform import Rotation
 
 from streamkey.adapters.base import parse_address
-from streamkey.adapters.vmc import VmcDecoder, VmcSource
+from streamkey.adapters.vmc import REQUIRED_BONES, VmcDecoder, VmcSource
 from streamkey.bvh import read_bvh, write_bvh
 from streamkey.kinematics import body_height
 from streamkey.methods import ONLINE_METHODS
@@ -94,6 +98,8 @@ def test_unity_axes_map_to_the_performer_frame():
     turn = Rotation.from_euler("y", 90, degrees=True).as_quat()
     b = OscBundleBuilder(IMMEDIATELY)
     b.add_content(_message("/VMC/Ext/Bone/Pos", "Hips", [1.0, 0.9, 0.0, *turn], "f"))
+    for bone in sorted(REQUIRED_BONES - {"Hips"}):  # a frame carries every required bone
+        b.add_content(_message("/VMC/Ext/Bone/Pos", bone, [0, 0, 0, 0, 0, 0, 1], "f"))
     channels = decoder.datagram(b.build().dgram)
     skel = decoder.skeleton
     cols = [skel.channel_index(0, c) for c in skel.rotation_order[0]]
@@ -145,7 +151,7 @@ def test_run_fed_by_vmc_equals_run_from_the_file(tmp_path, humanoid_clip):
     assert got == want and {m for m, _, _ in want} == set(ONLINE_METHODS)
 
 
-def test_fuzzed_vmc_datagrams_are_counted_never_raised(humanoid_clip):
+def test_fuzzed_vmc_datagrams_are_counted_never_raised(humanoid_clip, capfd):
     _, motion = humanoid_clip
     source = VmcSource(parse_address("vmc://127.0.0.1:0"), skeleton=motion.skeleton, fps=120.0)
     good = vmc_bundles(Motion(motion.skeleton, motion.channels[:40], motion.fps))
@@ -167,6 +173,7 @@ def test_fuzzed_vmc_datagrams_are_counted_never_raised(humanoid_clip):
     for data in good:
         source.receive(data)
     assert source.stats.received == before + len(good)
+    assert capfd.readouterr() == ("", "")  # nothing printed per packet
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="/proc/net/udp is Linux's")
@@ -190,3 +197,97 @@ def test_kernel_receive_buffer_drops_are_counted_for_the_vmc_listener():
 
     drops = asyncio.run(main())
     assert drops is not None and drops > 0
+
+
+def hostile_vmc(frame: bytes) -> list[tuple[bytes, str]]:
+    """Packets a fuzzer found wrongly handled, each with the counter it must land in, made
+    from one good frame bundle (the root, every bone, then /VMC/Ext/T)."""
+    head, elements, at = frame[:16], [], 16
+    while at < len(frame):
+        (size,) = struct.unpack_from(">i", frame, at)
+        elements.append(frame[at + 4: at + 4 + size])
+        at += 4 + size
+
+    def bundle(*parts: bytes) -> bytes:
+        return head + b"".join(struct.pack(">i", len(p)) + p for p in parts)
+
+    bone = elements[1]
+    tags = bone.index(b",sfffffff")
+    out = []
+    for size in (0, 3, 6, -8, -len(bone), len(bone) + 4, 1 << 20):  # bogus element sizes
+        out.append((head + struct.pack(">i", size) + bone, "bundle"))
+    out.append((bundle(bone)[:-2], "bundle"))  # the last element cut inside
+    # truncated at an element boundary: well-formed, but without the last bones
+    out += [(bundle(*elements[:k]), "incomplete") for k in range(1, len(elements) - 1)]
+    for odd in (b",sfffffffX", b",sffffffX", b",sffffffi", b",ssffffff", b",sfff\0\0\0\0\0\0"):
+        out.append((bundle(bone[:tags] + odd + bone[tags + len(odd):]), "types"))
+    out.append((bundle(bone + bytes(4)), "types"))  # more bytes than its type tags say
+    out.append((bundle(bone[:tags] + b",s\0\0"), "types"))  # no values at all
+    out.append((bundle(bytes(4)), "parse"))  # an element that is neither message nor bundle
+    out.append((bundle(b"VMC\0" + bone[4:]), "parse"))
+    out.append((bundle(b"/VMC/Ext/Bone/Pos..."), "parse"))  # an address without its NUL
+    return out
+
+
+def test_hostile_vmc_packets_are_counted_by_kind_and_print_nothing(humanoid_clip, capfd):
+    _, motion = humanoid_clip
+    source = VmcSource(parse_address("vmc://127.0.0.1:0"), skeleton=motion.skeleton, fps=120.0)
+    good = vmc_bundles(Motion(motion.skeleton, motion.channels[:3], motion.fps))
+    hostile = hostile_vmc(good[0])
+    handlers = list(logging.root.handlers)
+    source.receive(good[0])
+    for data, _ in hostile * 5:
+        source.receive(data)
+    for data in good[1:]:
+        source.receive(data)
+    want = Counter(kind for _, kind in hostile * 5)
+    assert source.stats.malformed == want, source.stats.last_error
+    assert source.stats.received == len(good)
+    assert want["incomplete"] == 5 * (len(motion.skeleton.names) + 1 - 1)
+    out, err = capfd.readouterr()
+    assert out == err == "" and logging.root.handlers == handlers
+
+
+def test_a_bundle_without_the_required_bones_is_no_first_frame():
+    decoder = VmcDecoder(humanoid_skeleton())
+    b = OscBundleBuilder(IMMEDIATELY)
+    b.add_content(_message("/VMC/Ext/Root/Pos", "root", [0, 0, 0, 0, 0, 0, 1], "f"))
+    b.add_content(_message("/VMC/Ext/Bone/Pos", "Hips", [0, 0.9, 0, 0, 0, 0, 1], "f"))
+    with pytest.raises(Exception, match="without 14 of the bones .*LeftFoot") as caught:
+        decoder.datagram(b.build().dgram)
+    assert getattr(caught.value, "kind", None) == "incomplete"
+
+
+def test_hostile_vmc_traffic_over_loopback_is_counted_in_the_run_summary(tmp_path,
+                                                                         humanoid_clip):
+    """A real run fed over UDP: good frames with hostile packets between them; the summary
+    counts every hostile packet by kind, nothing is printed per packet (python-osc printed
+    one warning line per odd element), and every good frame arrives."""
+    path, motion = humanoid_clip
+    good = vmc_bundles(Motion(motion.skeleton, motion.channels[:240], motion.fps))
+    hostile = hostile_vmc(good[0]) * 4
+    assert len(hostile) < len(good)
+    run = streamkey("run", "--from", "vmc://127.0.0.1:0", "--skeleton", str(path),
+                    "--method", "speed", "--to", f"jsonl:{tmp_path / 'events.jsonl'}",
+                    "--idle-exit", str(1.5 * MS))
+    try:
+        port = int(wait_ready(run, timeout=240)[-1].rsplit(":", 1)[1])
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            t0 = time.monotonic()
+            for i, data in enumerate(good):
+                time.sleep(max(0.0, t0 + i / motion.fps - time.monotonic()))
+                sock.sendto(data, ("127.0.0.1", port))
+                if i < len(hostile):
+                    sock.sendto(hostile[i][0], ("127.0.0.1", port))
+        _, err = run.communicate(timeout=120 * MS)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.communicate()
+    assert run.returncode == 0, err
+    assert "Traceback" not in err and "WARNING" not in err and "dgram" not in err, err
+    assert len(err.splitlines()) < 40, err  # a few explanations, not one line per packet
+    assert f"frames in: {len(good)} " in err, err
+    want = Counter(kind for _, kind in hostile)
+    text = ", ".join(f"{k} {v}" for k, v in sorted(want.items()))
+    assert f"malformed: {len(hostile)} ({text})" in err, err
