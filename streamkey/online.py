@@ -51,7 +51,7 @@ from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from types import EllipsisType
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -72,7 +72,8 @@ from .motion import Frame, Skeleton
 from .segments import SegmentDetector
 
 __all__ = ["StreamGuard", "GuardCounters", "FeatureStage", "FeatureBlock", "OnlineKeyframer",
-           "Pipeline", "DEFAULT_MAX_BRIDGE_FRAMES", "DEFAULT_MAX_REORDER_FRAMES"]
+           "WrappedKeyframer", "Pipeline", "DEFAULT_MAX_BRIDGE_FRAMES",
+           "DEFAULT_MAX_REORDER_FRAMES"]
 
 DEFAULT_MAX_BRIDGE_FRAMES = 12  # 0.1 s at 120 Hz: short enough that a straight line is honest
 DEFAULT_MAX_REORDER_FRAMES = 120  # a seq further back than this means the source restarted
@@ -169,7 +170,7 @@ class OnlineKeyframer:
     everything pending at end of stream) and `reset()` (forget the window, keep parameters).
     """
 
-    method: ClassVar[str] = "?"
+    method: str = "?"  # the method's name (a wrapper's: the method it wraps)
     reset_on_gap = False  # True: a long gap forgets the running statistics too
 
     def __init__(self, skeleton: Skeleton, fps: float, *, lookahead: int, stream: str = "default",
@@ -218,8 +219,9 @@ class OnlineKeyframer:
                              lookahead=self.lookahead, params=self.params_digest,
                              strength=rank_strength(self.recent_scores, float(score)))
 
-    def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
-        """Advance over clean consecutive frames (subclass hook)."""
+    def process(self, block: FeatureBlock) -> Sequence[Event]:
+        """Advance over clean consecutive frames (subclass hook). A method gives its
+        `KeyframeEvent`s; a wrapper may give other events too (provisional, signal)."""
         raise NotImplementedError
 
     def note_segment(self, event: SegmentEvent) -> None:
@@ -228,24 +230,20 @@ class OnlineKeyframer:
         before giving the keyframer the frame that decided it (`event.decided_at`, in the
         numbering of the frames the keyframer is given), and before `finish()` for the
         segment an end of window closes; a method may keep those frames out of its running
-        statistics. Default: nothing, except a wrapper passes it to the keyframer it wraps
-        (subclass hook)."""
-        inner = getattr(self, "inner", None)
-        if isinstance(inner, OnlineKeyframer):
-            inner.note_segment(event)
+        statistics. Default: nothing (subclass hook; a `WrappedKeyframer` passes it on)."""
 
     def candidates(self) -> list[tuple[int, float, float]]:
         """Keys this keyframer expects among its undecided frames now, as (seq, time, score)
         (subclass hook, read for provisional events; must not change state)."""
         return []
 
-    def idle(self) -> list[KeyframeEvent]:
+    def idle(self) -> Sequence[Event]:
         """Deferred work of the last frame (subclass hook): called right after `process`,
         once the events that were already due have been handed on, so a slow re-analysis
         does not hold up finished decisions. Same frame, so `decided_at` is unchanged."""
         return []
 
-    def finish(self) -> list[KeyframeEvent]:
+    def finish(self) -> Sequence[Event]:
         """Decide everything pending at end of stream or before a restart (subclass hook)."""
         raise NotImplementedError
 
@@ -274,13 +272,68 @@ class OnlineKeyframer:
         return restore(data, cls, params)  # type: ignore[no-any-return]
 
 
+class WrappedKeyframer(OnlineKeyframer):
+    """Base of a keyframer that wraps another to apply a rule to its output
+    (`optimal.MaxGap`, `playable_online.MinInterval`, `playable_online.Playable`).
+
+    A wrapper is the inner keyframer seen through the rule: it shares its skeleton, rate,
+    stream, guard, feature stage and score history (no second role resolution, one feature
+    computation), carries its method name, and passes segments, candidates, resets and
+    restarts on to it. It has its own `lookahead` (the inner one plus what the rule holds
+    back) and `params` (the inner ones plus the rule's); its digest is the inner one unless
+    the rule changes the keys (`params_digest`). Subclasses implement `process`, `idle` and
+    `finish` over `self.inner`, and `_forget()` (the rule's own window state).
+    """
+
+    def __init__(self, inner: OnlineKeyframer, *, lookahead: int, params: dict[str, Any],
+                 params_digest: str | None = None) -> None:
+        self.inner = inner  # the wrapped keyframer (itself possibly a wrapper)
+        self.method = inner.method
+        self.skeleton, self.fps, self.stream = inner.skeleton, inner.fps, inner.stream
+        self.lookahead = int(lookahead)
+        self.params = params
+        self.params_digest = inner.params_digest if params_digest is None else params_digest
+        self.guard, self.features = inner.guard, inner.features
+        self.recent_scores = inner.recent_scores
+
+    @property
+    def innermost(self) -> OnlineKeyframer:
+        """The method keyframer under every wrapper."""
+        kf = self.inner
+        while isinstance(kf, WrappedKeyframer):
+            kf = kf.inner
+        return kf
+
+    def note_segment(self, event: SegmentEvent) -> None:
+        """Passed to the wrapped keyframer."""
+        self.inner.note_segment(event)
+
+    def candidates(self) -> list[tuple[int, float, float]]:
+        """The wrapped keyframer's candidates (provisional hook)."""
+        return self.inner.candidates()
+
+    def reset(self) -> None:
+        """Forget the stream (the wrapped keyframer too)."""
+        self.inner.reset()
+        self._forget()
+
+    def restart(self, keep_statistics: bool = True) -> None:
+        """A new window: the wrapped keyframer restarts (keeping its statistics unless told
+        otherwise); the rule's window state starts over."""
+        self.inner.restart(keep_statistics)
+        self._forget()
+
+    def _forget(self) -> None:
+        """Forget the rule's window state (subclass hook)."""
+        raise NotImplementedError
+
+
 def forget_scores(kf: OnlineKeyframer) -> None:
     """A new stream: the strength ranks start afresh (wrapped keyframers too). A restart
     inside a stream (a long gap) keeps them."""
-    cur: OnlineKeyframer | None = kf
-    while cur is not None:
-        cur.recent_scores.clear()
-        cur = getattr(cur, "inner", None)
+    kf.recent_scores.clear()
+    if isinstance(kf, WrappedKeyframer):
+        forget_scores(kf.inner)
 
 
 def _drive(guard: StreamGuard, stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],

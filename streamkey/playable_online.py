@@ -21,52 +21,25 @@ from .keyframes import (
     SignalEvent,
     rank_strength,
 )
-from .online import FeatureBlock, OnlineKeyframer
+from .online import FeatureBlock, OnlineKeyframer, WrappedKeyframer
 from .playable import RADIUS_SECONDS, SIGNAL_SMOOTHING_SECONDS, Debouncer, interval_frames
 from .roles import MIURA_ROLES
 
 __all__ = ["MinInterval", "Playable", "wrap", "link_signal"]
 
 
-def _adopt(wrapper: OnlineKeyframer, inner: OnlineKeyframer, lookahead: int,
-           params: dict[str, Any]) -> None:
-    """The base-class attributes of a wrapper, sharing the inner keyframer's guard and
-    feature stage (no second role resolution)."""
-    wrapper.inner = inner  # type: ignore[attr-defined]
-    wrapper.method = inner.method  # type: ignore[misc]
-    wrapper.skeleton, wrapper.fps, wrapper.stream = inner.skeleton, inner.fps, inner.stream
-    wrapper.lookahead = int(lookahead)
-    wrapper.params = params
-    wrapper.params_digest = inner.params_digest
-    wrapper.guard, wrapper.features = inner.guard, inner.features
-    wrapper.recent_scores = inner.recent_scores
-
-
-class MinInterval(OnlineKeyframer):
+class MinInterval(WrappedKeyframer):
     """Any online keyframer with `--min-interval`: the debounce rule online (module
     docstring). Latency: the inner lookahead plus the interval, at most."""
 
-    method = "?"
-
     def __init__(self, inner: OnlineKeyframer, seconds: float) -> None:
-        self.gap = interval_frames(seconds, inner.fps)
-        _adopt(self, inner, inner.lookahead + self.gap,
-               {**inner.params, "min_interval": seconds})
-        self.inner = inner
+        self.gap = interval_frames(seconds, inner.fps)  # the shortest interval, frames
+        super().__init__(inner, lookahead=inner.lookahead + self.gap,
+                         params={**inner.params, "min_interval": seconds})
         self.reset()
 
-    def reset(self) -> None:
-        """Forget the stream (the inner keyframer too)."""
-        self.inner.reset()
-        self._forget()
-
-    def restart(self, keep_statistics: bool = True) -> None:
-        """A new window: the inner keyframer restarts (keeping its statistics unless told
-        otherwise); the debounce starts over."""
-        self.inner.restart(keep_statistics)
-        self._forget()
-
     def _forget(self) -> None:
+        """The debounce starts over."""
         self.debouncer = Debouncer(self.gap)
         self.t = -1
 
@@ -98,7 +71,7 @@ class MinInterval(OnlineKeyframer):
                 out.append(e)
         return out, len(events)
 
-    def process(self, block: FeatureBlock) -> list[Event]:  # type: ignore[override]
+    def process(self, block: FeatureBlock) -> list[Event]:
         """The inner keyframer over the block; the debounce frame by frame after it."""
         events: list[Event] = list(self.inner.process(block))
         out: list[Event] = []
@@ -117,60 +90,42 @@ class MinInterval(OnlineKeyframer):
             self.t = seqs[-1]
         return out
 
-    def idle(self) -> list[Event]:  # type: ignore[override]
+    def idle(self) -> list[Event]:
         """The inner deferred work, then what it settles."""
         out = self._offer(list(self.inner.idle()), None)[0]
         if self.t >= 0:
             out += self._release(self.debouncer.due(self.t - self.inner.lookahead), self.t)
         return out
 
-    def finish(self) -> list[Event]:  # type: ignore[override]
+    def finish(self) -> list[Event]:
         """End of stream: the inner rest, then the held key."""
         out = self._offer(list(self.inner.finish()), None)[0]
         return out + self._release(self.debouncer.finish(), self.t)
 
 
-def _innermost(kf: OnlineKeyframer) -> OnlineKeyframer:
-    while hasattr(kf, "inner"):
-        kf = kf.inner
-    return kf
-
-
-class Playable(OnlineKeyframer):
+class Playable(WrappedKeyframer):
     """Any online keyframer with provisional events and/or the keyness signal (module
     docstring). Final events pass unchanged but for `confirms`."""
-
-    method = "?"
 
     def __init__(self, inner: OnlineKeyframer, provisional: bool = True,
                  signal_every: int = 0) -> None:
         if isinstance(signal_every, bool) or not isinstance(signal_every, int) or (
                 signal_every < 0):
             raise UsageError(f"signal: decimation must be an integer >= 1, got {signal_every!r}")
-        _adopt(self, inner, inner.lookahead, dict(inner.params))
-        self.inner = inner
+        super().__init__(inner, lookahead=inner.lookahead, params=dict(inner.params))
         self.provisional = bool(provisional)
         self.signal_every = int(signal_every)
         self.radius = max(1, int(round(RADIUS_SECONDS * inner.fps)))
-        self.scorer = _innermost(inner)  # whose recent scores rank the candidates
+        self.scorer = self.innermost  # whose recent scores rank the candidates
         self.siblings: list[Playable] = []  # the signal's other methods (set by link_signal)
         self.sends_signal = signal_every > 0
         self.next_pid = 0
         self._joints = [self.features.roles[name] for name in MIURA_ROLES]
         self.reset()
 
-    def reset(self) -> None:
-        """Forget the stream (the inner keyframer too); pids keep counting."""
-        self.inner.reset()
-        self._forget()
-
-    def restart(self, keep_statistics: bool = True) -> None:
-        """A new window: the inner keyframer restarts (keeping its statistics unless told
-        otherwise); the provisional bookkeeping starts over (`finish` resolved it)."""
-        self.inner.restart(keep_statistics)
-        self._forget()
-
     def _forget(self) -> None:
+        """The provisional bookkeeping starts over (`finish` resolved it); pids keep
+        counting."""
         self.open: dict[int, list[Any]] = {}  # pid: [frame, time, strength]
         self.keys: deque[int] = deque(maxlen=8)  # frames of the last final keys
         self.t = -1
@@ -182,10 +137,6 @@ class Playable(OnlineKeyframer):
     def trace(self) -> Any:
         """The inner keyframer's live trace (saliency), if any."""
         return getattr(self.inner, "trace", None)
-
-    def candidates(self) -> list[tuple[int, float, float]]:
-        """The inner keyframer's candidates."""
-        return self.inner.candidates()
 
     def _strength(self, score: float) -> float:
         recent = list(self.scorer.recent_scores)
@@ -263,7 +214,7 @@ class Playable(OnlineKeyframer):
         values["body_speed"] = self.speed
         return [SignalEvent(stream=self.stream, seq=t, time=float(block.time[i]), values=values)]
 
-    def process(self, block: FeatureBlock) -> list[Event]:  # type: ignore[override]
+    def process(self, block: FeatureBlock) -> list[Event]:
         """The inner keyframer frame by frame (its deferred work between frames), tracking
         after each step."""
         out: list[Event] = []
@@ -279,13 +230,13 @@ class Playable(OnlineKeyframer):
                 out += self._track(list(self.inner.idle()), t, final + 1)
         return out
 
-    def idle(self) -> list[Event]:  # type: ignore[override]
+    def idle(self) -> list[Event]:
         """The inner deferred work of the last frame, tracked; new candidates are announced
         here, once a frame (after the deferred work, which may change them)."""
         events: list[Event] = list(self.inner.idle())
         return self._track(events, self.t, self.t - self.lookahead) if self.t >= 0 else events
 
-    def finish(self) -> list[Event]:  # type: ignore[override]
+    def finish(self) -> list[Event]:
         """End of stream or window: the inner rest; every open provisional resolved."""
         out = self._track(list(self.inner.finish()), self.t, self.t - self.lookahead, False)
         for pid, p in sorted(self.open.items()):

@@ -18,7 +18,7 @@ import numpy as np
 from .io import DEFAULT_MAX_STREAMS
 from .motion import Skeleton
 
-__all__ = ["RunSummary", "StreamStats", "LatencyHistogram", "EngineStatistics",
+__all__ = ["RunSummary", "RunLatency", "StreamStats", "LatencyHistogram", "EngineStatistics",
            "MAX_ERRORS_KEPT"]
 
 MAX_ERRORS_KEPT = 20
@@ -74,16 +74,29 @@ class LatencyHistogram:
 
 
 @dataclass
+class RunLatency:
+    """The wall latency of a run's keyframe events (ms, from the arrival of the frame whose
+    push decided each), and what it leaves out: keys decided by a stream's end."""
+
+    events: LatencyHistogram = field(default_factory=LatencyHistogram)  # every timed key
+    by_method: dict[str, LatencyHistogram] = field(default_factory=dict)
+    due: LatencyHistogram = field(default_factory=LatencyHistogram)  # decided by the push
+    frame_wait: LatencyHistogram = field(default_factory=LatencyHistogram)  # before a push
+    untimed: int = 0  # keyframes decided by a stream's end, not by a frame
+
+
+@dataclass
 class RunSummary:
-    """What a run did: frames, drops, gaps, events per method and sink, wall latency."""
+    """What a run did: frames, drops, gaps, events per method and sink, wall latency
+    (`timing`; its histograms are also readable and settable under their older names,
+    `latency`, `method_latency`, `due_latency`, `frame_wait`, `untimed_events`)."""
 
     frames_in: int = 0
     guard: dict[str, int] = field(default_factory=dict)
     source: dict[str, Any] = field(default_factory=dict)
     events: Counter[str] = field(default_factory=Counter)
     sinks: dict[str, dict[str, Any]] = field(default_factory=dict)
-    latency: LatencyHistogram = field(default_factory=LatencyHistogram)
-    method_latency: dict[str, LatencyHistogram] = field(default_factory=dict)
+    timing: RunLatency = field(default_factory=RunLatency)
     seconds: float = 0.0
     errors: list[str] = field(default_factory=list)
     error_count: int = 0
@@ -94,11 +107,53 @@ class RunSummary:
     refused_streams: int = 0
     refused_frames: int = 0
     waiting_at_stop: int = 0
-    due_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
-    frame_wait: LatencyHistogram = field(default_factory=LatencyHistogram)
-    untimed_events: int = 0  # keyframes decided by a stream's end, not by a frame
     # `TurnStats.as_dict()`; with `run --workers`, "workers": each worker's counters
     scheduler: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def latency(self) -> LatencyHistogram:
+        """Wall latency of every timed keyframe event (`timing.events`)."""
+        return self.timing.events
+
+    @latency.setter
+    def latency(self, value: LatencyHistogram) -> None:
+        self.timing.events = value
+
+    @property
+    def method_latency(self) -> dict[str, LatencyHistogram]:
+        """Wall latency per method (`timing.by_method`)."""
+        return self.timing.by_method
+
+    @method_latency.setter
+    def method_latency(self, value: dict[str, LatencyHistogram]) -> None:
+        self.timing.by_method = value
+
+    @property
+    def due_latency(self) -> LatencyHistogram:
+        """Wall latency of the keys a push decided (`timing.due`)."""
+        return self.timing.due
+
+    @due_latency.setter
+    def due_latency(self, value: LatencyHistogram) -> None:
+        self.timing.due = value
+
+    @property
+    def frame_wait(self) -> LatencyHistogram:
+        """How long frames waited before their push (`timing.frame_wait`)."""
+        return self.timing.frame_wait
+
+    @frame_wait.setter
+    def frame_wait(self, value: LatencyHistogram) -> None:
+        self.timing.frame_wait = value
+
+    @property
+    def untimed_events(self) -> int:
+        """Keyframes decided by a stream's end, not timed (`timing.untimed`)."""
+        return self.timing.untimed
+
+    @untimed_events.setter
+    def untimed_events(self, value: int) -> None:
+        self.timing.untimed = value
 
     def latency_percentiles(self) -> dict[str, float | None]:
         """p50 / p99 / max of the wall latency (ms), None before the first event."""

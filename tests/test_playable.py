@@ -289,3 +289,40 @@ def test_provisional_events_survive_damaged_streams_every_one_resolved():
                         + pipe.flush())
         assert any(isinstance(e, GapEvent) and not e.bridged for e in runs[1])
         check_provisional(runs[0], runs[1], method)
+
+
+# ----------------------------------------------------------------------------- wrappers
+
+def test_wrappers_share_the_method_keyframer_and_pass_segments_and_scores_through(monkeypatch):
+    """`--max-gap`, `--min-interval` and provisional stack as `WrappedKeyframer`s over the
+    method: one guard and feature stage, the method's name and digest, the rule's lookahead;
+    a segment and a new stream reach the method keyframer under all three."""
+    from streamkey.keyframes import SegmentEvent
+    from streamkey.methods.optimal import MaxGap
+    from streamkey.online import WrappedKeyframer, forget_scores
+    from streamkey.playable_online import MinInterval, Playable
+
+    m = load("07_01.bvh")
+    star = {"max_gap": 1.0, "min_interval": {"*": 0.5}, "provisional": True}
+    (kf,) = make_keyframers(m, ["speed"], {"*": star})
+    assert isinstance(kf, Playable) and isinstance(kf.inner, MinInterval)
+    assert isinstance(kf.inner.inner, MaxGap)
+    method = kf.innermost
+    assert not isinstance(method, WrappedKeyframer) and kf.inner.inner.inner is method
+    for w in (kf, kf.inner, kf.inner.inner):
+        assert w.method == "speed" and w.guard is method.guard
+        assert w.features is method.features and w.recent_scores is method.recent_scores
+    assert kf.inner.inner.gap == 120 and kf.inner.gap == 60  # 1 s and 0.5 s at 120 fps
+    assert kf.inner.inner.lookahead == method.lookahead + 120
+    assert kf.lookahead == kf.inner.lookahead == kf.inner.inner.lookahead + 60
+    assert kf.params_digest == kf.inner.params_digest == kf.inner.inner.params_digest
+    assert kf.params_digest != method.params_digest  # max_gap changes the keys
+    seen = []
+    monkeypatch.setattr(method, "note_segment", seen.append)
+    segment = SegmentEvent(stream="default", kind="still", start=0, end=None, start_time=0.0,
+                           end_time=None, decided_at=1)
+    kf.note_segment(segment)
+    assert seen == [segment]
+    method.recent_scores.append(0.5)
+    forget_scores(kf)
+    assert not method.recent_scores

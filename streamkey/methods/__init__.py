@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 from ..errors import UsageError
 
@@ -34,23 +34,25 @@ ONLINE_METHODS: dict[str, str] = {
 COUNTED_METHODS = ("simplify", "uniform", "decimate", "optimal")
 
 
-def _load(spec: str) -> Any:
+def _load(spec: str) -> object:
+    """The object a registry entry ("module:attribute") names, importing its module."""
     module, attr = spec.split(":")
-    return getattr(importlib.import_module(f"{__name__}.{module}"), attr)
+    found: object = getattr(importlib.import_module(f"{__name__}.{module}"), attr)
+    return found
 
 
 def offline_method(name: str) -> Callable[..., Any]:
     """The offline `extract`-style function registered under `name`."""
     if name not in OFFLINE_METHODS:
         raise UsageError(f"unknown method {name!r}; choose from {', '.join(OFFLINE_METHODS)}")
-    return _load(OFFLINE_METHODS[name])  # type: ignore[no-any-return]
+    return cast(Callable[..., Any], _load(OFFLINE_METHODS[name]))
 
 
 def online_class(name: str) -> type:
     """The online keyframer class registered under `name`."""
     if name not in ONLINE_METHODS:
         raise UsageError(f"no online version of {name!r}; choose from {', '.join(ONLINE_METHODS)}")
-    return _load(ONLINE_METHODS[name])  # type: ignore[no-any-return]
+    return cast(type, _load(ONLINE_METHODS[name]))
 
 
 def parse_methods(text: str, online: bool = False) -> list[str]:

@@ -87,15 +87,21 @@ next chunk is complete (so the effective lookahead is `lookahead` − (chunk −
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from ..errors import UsageError
 from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
-from ..keyframes import KeyframeEvent, Keyframes
+from ..keyframes import Event, KeyframeEvent, Keyframes, params_digest
 from ..motion import Motion, Skeleton
-from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
+from ..online import (
+    DEFAULT_MAX_BRIDGE_FRAMES,
+    FeatureBlock,
+    OnlineKeyframer,
+    WrappedKeyframer,
+)
 from ..segments import SegmentDetector, SegmentEvent
 from ..units import Duration, DurationLike, whole_frames
 from . import optimal_math as om
@@ -426,39 +432,24 @@ def max_gap(motion: Motion, keys: Keyframes, seconds: DurationLike,
                      strength=np.array([strength.get(int(r), 0.0) for r in frames]))
 
 
-class MaxGap(OnlineKeyframer):
+class MaxGap(WrappedKeyframer):
     """Any online keyframer with `--max-gap`: once the inner keyframer has decided a stretch
     longer than the gap without a key (frames older than its lookahead are final), a key is
     inserted at the best frame by the optimal segment cost. Inserted keys have latency up to
-    inner lookahead + gap, which is this keyframer's lookahead; inner keys pass unchanged."""
-
-    method = "?"
+    inner lookahead + gap, which is this keyframer's lookahead; inner events pass unchanged."""
 
     def __init__(self, inner: OnlineKeyframer, seconds: DurationLike) -> None:
-        self.inner = inner  # the wrapped keyframer
-        self.method = inner.method  # type: ignore[misc]
         self.gap = _frames(seconds, inner.fps, "max_gap")  # longest stretch, frames
-        super().__init__(inner.skeleton, inner.fps, lookahead=inner.lookahead + self.gap,
-                         stream=inner.stream,
-                         params={**inner.params, "max_gap": _span_param(seconds)})
-        self.guard = inner.guard
-        self.features = inner.features
+        lookahead = inner.lookahead + self.gap
+        params = {**inner.params, "max_gap": _span_param(seconds), "lookahead": lookahead}
+        super().__init__(inner, lookahead=lookahead, params=params,
+                         params_digest=params_digest({"method": inner.method, **params}))
         self.scale = om.point_scale(  # curve point factors
             inner.skeleton.n_joints, inner.features.body_height)
         self.reset()
 
-    def reset(self) -> None:
-        """Forget the stream (the inner keyframer too)."""
-        self.inner.reset()
-        self._forget()
-
-    def restart(self, keep_statistics: bool = True) -> None:
-        """A new window: the inner keyframer restarts (keeping its statistics unless told
-        otherwise); the stretch since the last key starts over."""
-        self.inner.restart(keep_statistics)
-        self._forget()
-
     def _forget(self) -> None:
+        """The stretch since the last key starts over."""
         self.rows: list[np.ndarray] = []  # curve rows from the last key on
         self.seq: list[int] = []  # their sequence numbers
         self.time: list[float] = []  # their times, seconds
@@ -467,10 +458,10 @@ class MaxGap(OnlineKeyframer):
         self._idle_final = 0  # the final frame `idle` fills gaps up to
         self.last = 0  # stream index of the last key (the first frame is an anchor)
 
-    def _fill(self, end: int) -> list[KeyframeEvent]:
+    def _fill(self, end: int) -> list[Event]:
         """Keys while the stretch from the last key to `end` (a key, or a bound on the next
         one) is longer than the gap."""
-        out = []
+        out: list[Event] = []
         while end - self.last > self.gap:
             a = self.last - self.t0
             k = om.best_split(np.array(self.rows), a, a + self.gap + 1, a + self.gap)
@@ -481,15 +472,16 @@ class MaxGap(OnlineKeyframer):
             self.last = k + self.t0
         return out
 
-    def _advance(self, events: list[KeyframeEvent], final: int) -> list[KeyframeEvent]:
-        """Inner events in order with the gaps before them filled, then the gaps of the
-        decided part (frames <= final carry no other key)."""
-        out: list[KeyframeEvent] = []
+    def _advance(self, events: Sequence[Event], final: int) -> list[Event]:
+        """Inner events in order with the gaps before their keys filled, then the gaps of
+        the decided part (frames <= final carry no other key)."""
+        out: list[Event] = []
         for e in events:
-            k = self.t0 + e.frame - self.seq[0]
-            out += self._fill(k)
+            if isinstance(e, KeyframeEvent):
+                k = self.t0 + e.frame - self.seq[0]
+                out += self._fill(k)
+                self.last = max(self.last, k)
             out.append(e)
-            self.last = max(self.last, k)
         out += self._fill(final)
         drop = self.last - self.t0
         if drop > 0:
@@ -497,38 +489,34 @@ class MaxGap(OnlineKeyframer):
             self.t0 += drop
         return out
 
-    def process(self, block: FeatureBlock) -> list[KeyframeEvent]:
+    def process(self, block: FeatureBlock) -> list[Event]:
         """Frame by frame: the inner keyframer, then gap filling over the part it has
         finalised (older than its lookahead). The inner deferred work of the block's last
         frame is left to `idle`, so a re-analysis (speed) stays off the due path; until then
         frame t - lookahead may still get an inner key, so filling stops one frame short."""
         rows = om.body_rows(block.positions, self.scale)
-        out: list[KeyframeEvent] = []
+        out: list[Event] = []
         last = len(block) - 1
         for i in range(len(block)):
             self.rows.append(rows[i])
             self.seq.append(int(block.seq[i]))
             self.time.append(float(block.time[i]))
             self.t += 1
-            events = self.inner.process(block.slice(i, i + 1))
+            events = list(self.inner.process(block.slice(i, i + 1)))
             if i < last:
                 events += self.inner.idle()
             out += self._advance(events, self.t - self.inner.lookahead + (i < last))
         self._idle_final = self.t - self.inner.lookahead + 1
         return out
 
-    def idle(self) -> list[KeyframeEvent]:
+    def idle(self) -> list[Event]:
         """The inner keyframer's deferred work of the last frame, then the gaps it settles."""
         if self.t < 0:
-            return self.inner.idle()
+            return list(self.inner.idle())
         return self._advance(self.inner.idle(), self._idle_final)
 
-    def candidates(self) -> list[tuple[int, float, float]]:
-        """The inner keyframer's candidates (provisional hook)."""
-        return self.inner.candidates()
-
-    def finish(self) -> list[KeyframeEvent]:
+    def finish(self) -> list[Event]:
         """End of stream: the inner keyframer's rest, then the gaps up to the last frame."""
         if self.t < 0:
-            return self.inner.finish()
+            return list(self.inner.finish())
         return self._advance(self.inner.finish(), self.t)
