@@ -16,11 +16,12 @@ from streamkey.amc import read_motion
 from streamkey.cli import main
 from streamkey.errors import UsageError
 from streamkey.evaluate import Evaluator, reconstruct
-from streamkey.keyframes import KeyframeEvent
+from streamkey.keyframes import KeyframeEvent, SegmentEvent
 from streamkey.kinematics import forward_kinematics
 from streamkey.methods import baselines, optimal, optimal_offline, saliency
 from streamkey.methods import optimal_math as om
 from streamkey.motion import Frame
+from streamkey.online import Pipeline
 
 CLIPS = clips()
 FAST = ["07_01.bvh", "09_06.amc", "05_02.bvh"]
@@ -309,6 +310,22 @@ def test_online_count_follows_offline_on_a_take_that_holds_still():
     frames, _, ratio = online_default("49_18.amc")
     count = len(frames) / len(optimal.extract(load("49_18.amc"), rate=6.0))
     assert 0.8 <= count <= 1.25 and ratio <= 1.10, (count, ratio)
+
+
+@pytest.mark.parametrize("name", ["49_18.amc", "05_02.bvh"])
+def test_online_keys_are_the_same_through_a_pipeline_with_its_segment_detector(name):
+    """Alone, the keyframer runs its own segment detector; in a pipeline it takes the
+    pipeline's segment events (`note_segment`) and its own detector stops: same keys, same
+    decision frames, on clips with a calibration hold / still stretches."""
+    m = load(name)
+    alone = optimal.Online(m.skeleton, m.fps)
+    inside = optimal.Online(m.skeleton, m.fps)
+    pipe = Pipeline([inside])
+    events = pipe.push_block(m.frames()) + pipe.flush()
+    assert inside.segments is None and any(isinstance(e, SegmentEvent) for e in events)
+    got = [(e.frame, e.decided_at) for e in events if isinstance(e, KeyframeEvent)]
+    assert got == [(e.frame, e.decided_at) for e in run(alone, m.frames())]
+    assert alone.segments is not None
 
 
 def test_online_memory_stays_bounded_on_a_long_stream():

@@ -280,11 +280,13 @@ class Online(OnlineKeyframer):
         self.root_translation = root_translation  # the root's position is a curve point
         self.scale = om.point_scale(skeleton.n_joints, self.features.body_height, self.weights,
                                     root_translation)
-        # rate mode: the session segments, whose holds stay out of λ (`RateController`)
-        self.segments = SegmentDetector(skeleton, fps, stream=stream, role_mapping=role_mapping)
+        # rate mode: the session segments, whose holds stay out of λ (`RateController`);
+        # None once a pipeline notes them (`note_segment`: its detector is the same one)
+        det = SegmentDetector(skeleton, fps, stream=stream, role_mapping=role_mapping)
+        self.segments: SegmentDetector | None = det
         # frames after which a frame's segment status is final: a still stretch is confirmed
         # `min_still` after it starts, its speed known `half` frames after each frame
-        self.settle_frames = self.segments.min_still - 1 + self.segments.half
+        self.settle_frames = det.min_still - 1 + det.half
         self.reset()
 
     def reset(self) -> None:
@@ -293,7 +295,8 @@ class Online(OnlineKeyframer):
         self.solver = Solver(  # the DP over the stream
             self.max_len, keep_costs=True, ticks=self.ticks, chunk=chunk_frames(self.fps), **kw)
         self.solver.pricer.prepare(3 * len(self.scale))
-        self.segments.reset()
+        if self.segments is not None:
+            self.segments.reset()
         self.held_points: list[np.ndarray] = []  # pelvis-frame points not yet detected
         # times of the newest frames, enough for every undecided one: a deadline leaves at
         # most lookahead + 1 frames undecided (`force` at each chunk end)
@@ -331,14 +334,15 @@ class Online(OnlineKeyframer):
         events: list[KeyframeEvent] = []
         if s.n == 0 and len(block):
             self.seq0 = int(block.seq[0])
-        points = block.pelvis_points(self.segments.points) if s.rate is not None else None
+        det = self.segments if s.rate is not None else None
+        points = block.pelvis_points(det.points) if det is not None else None
         no_values = np.empty((1, 0))
         for i in range(len(block)):
             self.frames.extend(int(block.seq[i]), no_values, block.time[i : i + 1])
             if points is not None:
                 self.held_points.append(points[i])
-                if (s.n + 1) % s.chunk == 0:  # the detector catches up once a chunk
-                    self._detect(s.n)
+            if s.rate is not None and (s.n + 1) % s.chunk == 0:  # statuses, once a chunk
+                self._detect(s.n)
             if s.stale is not None:  # the frame after a chunk's: its decision's re-solve
                 s.settle()
             for end in s.add(rows[i : i + 1]):
@@ -362,24 +366,37 @@ class Online(OnlineKeyframer):
         s = self.solver
         if s.rate is not None:
             self._detect(s.n - 1)
-            self._note(self.segments.finish())
+            if self.segments is not None:
+                self._note(self.segments.finish())
             s.rate.motion.known = s.n
         if s.n == 0:
             return []
         return self._events(s.finish(), self.seq0 + s.n - 1)
 
     def _detect(self, last: int) -> None:
-        """Feed the held frames (up to stream index `last`) to the segment detector, at
-        stream indices fixed by the chunks (so a frame's status is known at the same frame
-        whatever the block split); the frames `settle_frames` back have their final status."""
+        """Statuses up to stream index `last`, at stream indices fixed by the chunks (so a
+        frame's status is known at the same frame whatever the block split): the held frames
+        to the own segment detector (when no pipeline notes segments), then the frames
+        `settle_frames` back have their final status (segments decided by frames up to
+        `last` are in, whoever detected them)."""
         s = self.solver
         assert s.rate is not None
-        if self.held_points:
+        if self.held_points and self.segments is not None:
             seqs = np.arange(last + 1 - len(self.held_points), last + 1) + self.seq0
             times = [self.frames.time(int(q)) for q in seqs]
             self._note(self.segments.push_points(seqs, times, np.array(self.held_points)))
-            self.held_points.clear()
-            s.rate.motion.known = max(s.rate.motion.known, last + 1 - self.settle_frames)
+        self.held_points.clear()
+        s.rate.motion.known = max(s.rate.motion.known, last + 1 - self.settle_frames)
+
+    def note_segment(self, event: SegmentEvent) -> None:
+        """The pipeline's hook: a session segment decided by the next frame. From the first
+        call on, the keyframer's own detector stops (the pipeline's is the same detector on
+        the same frames, and a segment reaches the solver by the same chunk end either way,
+        so the keys are the same)."""
+        self.segments = None
+        self.held_points.clear()
+        if self.solver.rate is not None:
+            self._note([event])
 
     def _note(self, events: list[SegmentEvent]) -> None:
         """Calibration holds and still stretches to the rate controller."""
