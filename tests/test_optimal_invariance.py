@@ -38,7 +38,7 @@ def load(name: str) -> Motion:
 
 
 def keys_of(motion: Motion, online: bool, lookahead: int | Duration | None = None,
-            **mode: float) -> np.ndarray:
+            **mode: float | bool) -> np.ndarray:
     """Key frames of `motion`: offline `extract`, or the online keyframer fed frame blocks
     (default lookahead unless given)."""
     if not online:
@@ -242,10 +242,13 @@ def test_at_120_hz_the_defaults_give_the_keys_they_gave_in_frames():
     assert keys_of(clean, True).tolist() == [0, 13, 31, 50, 65, 80, 100, 117, 133, 146, 165,
                                              182, 197, 211, 231, 247, 263, 278, 301, 315]
     # 49_18 holds still over frames 0-141 and 500-1101 (`streamkey.segments`): those frames
-    # stay out of lambda now (1.44e-3 instead of 4.6e-4), so it gets 14 keys, not 16-21
+    # stay out of lambda now (1.44e-3 instead of 4.6e-4), so it gets 14 keys, not 16-21, and
+    # with keys allowed inside the holds it gets the keys of before
     quiet = V.clean_take(load("49_18.amc")).motion
-    assert keys_of(quiet, True).tolist() == [0, 84, 146, 210, 263, 301, 358, 410, 457, 508, 578,
-                                             810, 862, 1101]
+    assert keys_of(quiet, True, hold_keys=True).tolist() == [
+        0, 84, 146, 210, 263, 301, 358, 410, 457, 508, 578, 810, 862, 1101]
+    # by default no key falls strictly inside a hold: its ends bound it
+    assert keys_of(quiet, True).tolist() == [0, 141, 210, 263, 301, 358, 410, 457, 499, 1101]
 
 
 def test_a_still_stretch_of_the_take_stays_out_of_lambda():

@@ -173,6 +173,11 @@ def _lookahead_frames(lookahead: DurationLike, fps: float) -> int:
     return frames
 
 
+def _hold_param(hold_keys: bool) -> dict[str, bool]:
+    """`hold_keys` in the parameters only when set (the default leaves them as they were)."""
+    return {"hold_keys": True} if hold_keys else {}
+
+
 def _mode(count: int | None, rate: float | None, tolerance: float | None,
           lam: float | None) -> dict[str, Any]:
     given = {k: v for k, v in (("count", count), ("rate", rate), ("tolerance", tolerance),
@@ -196,9 +201,11 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
             tolerance: float | None = None, lam: float | None = None,
             max_segment: DurationLike = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
             root_translation: bool = False, features: Features | None = None,
-            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
+            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ,
+            hold_keys: bool = False) -> Keyframes:
     """Optimal keys of `motion` (module docstring); default mode: `rate=DEFAULT_RATE`.
-    `max_segment`: a `Duration`, or a plain number of seconds."""
+    `max_segment`: a `Duration`, or a plain number of seconds. `hold_keys`: rate mode may
+    put keys inside calibration holds and still stretches."""
     mode = _mode(count, rate, tolerance, lam)
     max_len = _frames(max_segment, motion.fps, "max_segment")
     ticks = TICKS_PER_SECOND / motion.fps
@@ -209,7 +216,8 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
         raise UsageError("the motion has no captured frames")
     params: dict[str, Any] = {**mode, "max_segment": _span_param(max_segment),
                               "root_translation": root_translation,
-                              "weights": None if weights is None else list(weights)}
+                              "weights": None if weights is None else list(weights),
+                              **_hold_param(hold_keys)}
     info: dict[str, Any] = {}
     if n == 1:
         rows, err = np.zeros(1, dtype=np.int64), np.zeros(0)
@@ -220,7 +228,8 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
         err = om.pair_costs(x, rows[:-1], rows[1:])
     elif "rate" in mode:
         rows, err, info["lambda"] = rate_keys(x, max_len, mode["rate"] / motion.fps, ticks,
-                                              chunk_frames(motion.fps), holds(motion, features))
+                                              chunk_frames(motion.fps), holds(motion, features),
+                                              hold_keys)
     else:
         rows, err = solve_all(x, max_len, ticks, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
@@ -261,7 +270,8 @@ class Online(OnlineKeyframer):
                  lookahead: DurationLike = DEFAULT_LOOKAHEAD,
                  count: int | None = None, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
-                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES,
+                 hold_keys: bool = False) -> None:
         if count is not None:
             raise UsageError("optimal online: a key count needs the whole take; give a rate "
                              "(keys per second) or a tolerance")
@@ -273,7 +283,9 @@ class Online(OnlineKeyframer):
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
                          params={**mode, "max_segment": _span_param(max_segment),
                                  "root_translation": root_translation,
-                                 "weights": None if weights is None else list(weights)})
+                                 "weights": None if weights is None else list(weights),
+                                 **_hold_param(hold_keys)})
+        self.hold_keys = hold_keys  # rate mode: keys inside holds and still stretches allowed
         self.mode = mode  # {"rate" | "lam" | "tolerance": value}
         self.weights = None if weights is None else np.asarray(  # per joint, or None
             weights, dtype=np.float64)
@@ -399,12 +411,15 @@ class Online(OnlineKeyframer):
             self._note([event])
 
     def _note(self, events: list[SegmentEvent]) -> None:
-        """Calibration holds and still stretches to the rate controller."""
+        """Calibration holds and still stretches to the rate controller and, unless
+        `hold_keys`, to the DP (no key strictly inside)."""
         assert self.solver.rate is not None
         for e in events:
             if e.kind != "take":
                 end = None if e.end is None else e.end - self.seq0
                 self.solver.rate.motion.hold(e.start - self.seq0, end)
+                if not self.hold_keys:
+                    self.solver.hold(e.start - self.seq0, end)
 
     def candidates(self) -> list[tuple[int, float, float]]:
         """Provisional hook: the keys after the decided part on the best chain of the newest
