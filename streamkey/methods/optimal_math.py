@@ -312,8 +312,9 @@ def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, 
 
     Penalised form: F(b) = min_a F(a) + cost(a, b) + λ over floor ≤ a < b, b − a ≤ L, ties to
     the earliest a. With `marks` (holds, penalised form only): only frames with `keyable`
-    set are candidates a, and a frame b with `edge[b]` = s ≥ floor, b − s > L also has the
-    candidate s at `edge_cost[b]` = cost(s, b) (the segment over a long hold).
+    set are candidates a, and a frame b inside a hold or at its end (`edge[b]` = s ≥ floor,
+    the hold's first frame) has the one candidate s, at `edge_cost[b]` = cost(s, b) if
+    b − s > L: a chain enters a hold at its first frame, or jumps over all of it.
     Tolerance form (`tolerance` given): among a with cost(a, b) ≤ tolerance ·
     (b − a), fewest keys, then least F (summed cost). `keys[b]` counts the chain's keys.
     """
@@ -355,15 +356,18 @@ def _dp_penalised(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.nda
     """Penalised DP rows b0 .. b1 − 1 (`dp_rows`), one compiled loop: F(a) + cost(a, b) summed
     as before, candidates in increasing a with a strict `<` (the earliest minimum, as
     `np.argmin`), so the bits and back-pointers of the numpy version it replaced. A row with
-    no finite candidate points at its first one (a = b − L, or `floor` near the start). A
-    hold's long edge (`marks`) comes before the band, so it wins ties."""
+    no finite candidate points at its first one (a = b − L, or `floor` near the start)."""
     max_len = costs.shape[1]
     for b in range(b0, b1):
         start = b - max_len if b >= max_len else max(b - max_len, floor)
         best, arg = np.inf, start
         s = edge[b]
-        if s >= floor and b - s > max_len:
-            best, arg = f[s] + edge_cost[b], s
+        if s >= floor:  # in a hold, or its last frame: from the hold's first frame only
+            c = costs[b - c0, max_len - (b - s)] if b - s <= max_len else edge_cost[b]
+            f[b] = f[s] + c + lam
+            bp[b] = s
+            keys[b] = keys[s] + 1
+            continue
         for a in range(max(start, floor), b):
             if not keyable[a]:
                 continue
