@@ -65,9 +65,15 @@ still stretch (`streamkey.segments`: the body's speed below 0.07 body heights a 
 `SegmentDetector` reads the same feature blocks; a frame's status is final
 `settle_frames` later (0.5 s + 0.2 s), and the controller counts a chunk of frames once
 all of them are final, chunk after chunk, so its sums are offline's bit for bit; until
-then the chunk counts provisionally, as motion unless inside a hold already found. (49_18,
-balancing on one leg, holds still for 6 of its 9 s: λ 1.44·10⁻³ instead of 4.6·10⁻⁴,
-14 keys instead of 21, and online keeps the offline count.) At stream start λ is the
+then the chunk counts provisionally, as motion unless inside a hold already found. In a
+`Pipeline` the keyframer takes the pipeline's segment events instead (`note_segment`; its
+own detector then stops): the same segments by the same chunk ends, so the same keys.
+(49_18, balancing on one leg, holds still for 6 of its 9 s: λ 1.44·10⁻³ instead of
+4.6·10⁻⁴.) No key falls strictly inside a hold (`hold_keys=True` allows them): a chain
+enters a hold at its first frame or jumps over all of it, and a hold longer than
+`max_segment` is one segment (`optimal_solver.Solver.hold`); online, every solved frame a
+newly found or closed hold changes is solved again. Holds are not perfectly still, so E
+rises where they are long (49_18: 11 keys, E 25x; 05_02, 05_18: 2.2x). At stream start λ is the
 prior; the data takes over as the stream goes on, which keeps λ steady on short takes (a
 moving λ spends keys unevenly).
 Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
