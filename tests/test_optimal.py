@@ -148,6 +148,24 @@ def test_compiled_dp_is_bit_identical_to_the_numpy_rows_on_a_shared_clip(floor):
                                om.pair_costs(x, rows[:-1], rows[1:]), rtol=1e-9, atol=1e-15)
 
 
+def test_hold_edge_costs_are_the_direct_sums_and_the_same_bits_in_any_split():
+    """The segment over 49_18's closing still stretch (from frame 500), priced from running
+    sums: the direct frame sums to rounding, and the same bits whatever the chunks."""
+    m = load("49_18.amc")
+    x = optimal.curve(m)
+    edge = np.full(len(x), -1, dtype=np.int64)
+    edge[501:] = 500
+    whole = np.full(len(x), np.nan)
+    om.edge_costs(x, edge, whole, 0, len(x), 240)
+    parts = np.full(len(x), np.nan)
+    for b0 in range(0, len(x), 16):
+        om.edge_costs(x, edge, parts, b0, min(len(x), b0 + 16), 240)
+    assert np.array_equal(whole, parts, equal_nan=True)
+    assert np.isnan(whole[:741]).all() and not np.isnan(whole[741:]).any()
+    direct = [om.chain_costs(x, np.array([500, b]))[1] for b in range(741, len(x), 37)]
+    assert np.allclose(whole[741::37], direct, rtol=1e-9, atol=1e-15)
+
+
 def test_count_mode_is_the_exact_k_key_optimum_on_a_small_curve():
     x = optimal.curve(load("07_01.bvh"))[::20]  # 16 rows
     n = len(x)

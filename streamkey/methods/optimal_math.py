@@ -289,19 +289,35 @@ def no_marks(n: int) -> Marks:
 def edge_costs(x: np.ndarray, edge: np.ndarray, out: np.ndarray, b0: int, b1: int,
                max_len: int) -> None:
     """cost(edge[b], b) of rows b0 .. b1 − 1 whose hold edge is longer than `max_len` and not
-    priced yet (`out[b]` NaN), summed directly frame by frame (as `chain_costs`: the same
-    bits on any call path)."""
+    priced yet (`out[b]` NaN). With y = x − x[a], u = g − a, m = b − a: Σ|y_g|² − (2/m)
+    y_b·Σ u y_g + (|y_b|²/m²) Σ u², the sums over g in (a, b) running from a in order on
+    every call (so the same bits on any call path), O(D) a row."""
+    d = x.shape[1]
+    q = np.zeros(d)
+    cur, nxt, p = -1, 0, 0.0
     for b in range(b0, b1):
         a = edge[b]
         if a < 0 or b - a <= max_len or not np.isnan(out[b]):
             continue
-        total = 0.0
-        for g in range(a + 1, b):
-            t = (g - a) / (b - a)
-            for j in range(x.shape[1]):
-                r = (x[g, j] - x[a, j]) - t * (x[b, j] - x[a, j])
-                total += r * r
-        out[b] = total
+        if a != cur:
+            cur, nxt, p = a, a + 1, 0.0
+            q[:] = 0.0
+        while nxt < b:
+            u = nxt - a
+            for j in range(d):
+                y = x[nxt, j] - x[a, j]
+                p += y * y
+                q[j] += u * y
+            nxt += 1
+        m = b - a
+        yq = 0.0
+        yy = 0.0
+        for j in range(d):
+            y = x[b, j] - x[a, j]
+            yq += y * q[j]
+            yy += y * y
+        s2 = (m - 1.0) * m * (2.0 * m - 1.0) / 6.0
+        out[b] = max(0.0, p - 2.0 * yq / m + s2 * yy / (m * m))
 
 
 def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, b0: int,
