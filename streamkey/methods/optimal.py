@@ -69,11 +69,12 @@ then the chunk counts provisionally, as motion unless inside a hold already foun
 `Pipeline` the keyframer takes the pipeline's segment events instead (`note_segment`; its
 own detector then stops): the same segments by the same chunk ends, so the same keys.
 (49_18, balancing on one leg, holds still for 6 of its 9 s: λ 1.44·10⁻³ instead of
-4.6·10⁻⁴.) No key falls strictly inside a hold (`hold_keys=True` allows them): a chain
+4.6·10⁻⁴.) No key falls strictly inside a calibration hold (`hold_keys=True` allows them): a chain
 enters a hold at its first frame or jumps over all of it, and a hold longer than
 `max_segment` is one segment (`optimal_solver.Solver.hold`); online, every solved frame a
-newly found or closed hold changes is solved again. Holds are not perfectly still, so E
-rises where they are long (49_18: 11 keys, E 25x; 05_02, 05_18: 2.2x). At stream start λ is the
+newly found or closed hold changes is solved again. Only calibration holds are keyless
+(`KEYLESS`): still stretches are not perfectly still, and with them keyless too E rose where
+they are long (49_18: 11 keys, E 25x; 05_02, 05_18: 2.2x). At stream start λ is the
 prior; the data takes over as the stream goes on, which keeps λ steady on short takes (a
 moving λ spends keys unevenly).
 Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
@@ -127,6 +128,10 @@ METHOD = "optimal"
 DEFAULT_LOOKAHEAD = Duration.seconds(1.0)  # 120 frames at 120 Hz
 DEFAULT_MAX_SEGMENT = 2.0  # seconds
 DEFAULT_RATE = 6.0  # keys per second of motion: 5 % of frames at 120 Hz
+# Segments that get no key inside (rate mode, unless hold_keys): calibration holds only. Still
+# stretches are not perfectly still (49_18 balances on one leg for 5 s), and a chain that
+# jumps over them costs E: with them keyless, 49_18's E rose 25x and lost to uniform keys.
+KEYLESS = ("calibration",)
 
 
 def curve(motion: Motion, features: Features | None = None, weights: np.ndarray | None = None,
@@ -233,9 +238,10 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
         rows, info = count_keys(x, mode["count"], max_len)
         err = om.pair_costs(x, rows[:-1], rows[1:])
     elif "rate" in mode:
+        found = holds(motion, features)
         rows, err, info["lambda"] = rate_keys(x, max_len, mode["rate"] / motion.fps, ticks,
-                                              chunk_frames(motion.fps), holds(motion, features),
-                                              hold_keys)
+                                              chunk_frames(motion.fps), found, hold_keys,
+                                              holds(motion, features, KEYLESS))
     else:
         rows, err = solve_all(x, max_len, ticks, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
@@ -243,15 +249,17 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
     return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
 
 
-def holds(motion: Motion, features: Features) -> list[tuple[int, int]]:
-    """The calibration holds and still stretches of `motion` (`streamkey.segments`) as (first,
-    last) rows of the curve: what the online keyframer's own `SegmentDetector` finds."""
+def holds(motion: Motion, features: Features,
+          kinds: tuple[str, ...] = ("calibration", "still")) -> list[tuple[int, int]]:
+    """The segments of `kinds` (calibration holds, still stretches: `streamkey.segments`) of
+    `motion` as (first, last) rows of the curve: what the online keyframer's own
+    `SegmentDetector` finds."""
     det = SegmentDetector(motion.skeleton, motion.fps)
     points = features.pelvis_points(det.points)[motion.first_frame :]
     seq = np.arange(motion.first_frame, motion.n_frames)
     events = det.push_points(seq, seq / motion.fps, points) + det.flush()
     return [(e.start - motion.first_frame, e.end - motion.first_frame) for e in events
-            if e.end is not None and e.kind != "take"]
+            if e.end is not None and e.kind in kinds]
 
 
 def key_scores(x: np.ndarray, rows: np.ndarray, ticks: float = 1.0) -> np.ndarray:
@@ -418,13 +426,13 @@ class Online(OnlineKeyframer):
 
     def _note(self, events: list[SegmentEvent]) -> None:
         """Calibration holds and still stretches to the rate controller and, unless
-        `hold_keys`, to the DP (no key strictly inside)."""
+        `hold_keys`, calibration holds to the DP (no key strictly inside)."""
         assert self.solver.rate is not None
         for e in events:
             if e.kind != "take":
                 end = None if e.end is None else e.end - self.seq0
                 self.solver.rate.motion.hold(e.start - self.seq0, end)
-                if not self.hold_keys:
+                if not self.hold_keys and e.kind in KEYLESS:
                     self.solver.hold(e.start - self.seq0, end)
 
     def candidates(self) -> list[tuple[int, float, float]]:

@@ -38,13 +38,14 @@ def solve_all(x: np.ndarray, max_len: int, ticks: float,
 
 
 def rate_keys(x: np.ndarray, max_len: int, rate: float, ticks: float, chunk: int,
-              holds: Sequence[tuple[int, int]] = (), hold_keys: bool = False
+              holds: Sequence[tuple[int, int]] = (), hold_keys: bool = False,
+              keyless: Sequence[tuple[int, int]] | None = None
               ) -> tuple[np.ndarray, np.ndarray, float]:
     """Offline rate: λ from every frame's cost (as the online controller ends up with), then
     one penalised pass (keys, segment costs as frame sums, λ in ticks x body heights²).
     `holds`: the calibration holds and still stretches (first, last row), out of λ and,
-    unless `hold_keys`, with no key strictly inside (`Solver.hold`). Same costs and chunks
-    as `Solver`, so bit-identical to it."""
+    `keyless` (default: `holds`) unless `hold_keys`, with no key strictly inside
+    (`Solver.hold`). Same costs and chunks as `Solver`, so bit-identical to it."""
     solver = Solver(max_len, rate=rate, ticks=ticks, chunk=chunk)
     assert solver.rate is not None
     solver.rate.motion.known = len(x)
@@ -56,8 +57,9 @@ def rate_keys(x: np.ndarray, max_len: int, rate: float, ticks: float, chunk: int
         band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
         lam = solver.rate.observe(band[b0:b1], b0)
     marks = om.no_marks(len(x))
-    if holds and not hold_keys:
-        marks = (*mark_rows(list(holds), 0, len(x), 0), marks[2])
+    keyless = holds if keyless is None else keyless
+    if keyless and not hold_keys:
+        marks = (*mark_rows(list(keyless), 0, len(x), 0), marks[2])
         om.edge_costs(np.ascontiguousarray(x, dtype=np.float64), marks[1], marks[2], 0,
                       len(x), max_len)
     keys, f = _penalised(band, lam, marks)
