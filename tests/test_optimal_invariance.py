@@ -38,7 +38,7 @@ def load(name: str) -> Motion:
 
 
 def keys_of(motion: Motion, online: bool, lookahead: int | Duration | None = None,
-            **mode: float) -> np.ndarray:
+            **mode: float | bool) -> np.ndarray:
     """Key frames of `motion`: offline `extract`, or the online keyframer fed frame blocks
     (default lookahead unless given)."""
     if not online:
@@ -86,16 +86,12 @@ def test_variant_gets_as_many_keys_as_the_clean_take(name: str, variant: str,
     assert COUNT_RANGE[0] <= count <= COUNT_RANGE[1], count
 
 
-# Measured misses (keys ratio, E ratio); every other case of FEW meets the E target.
+# Measured misses (keys ratio, E ratio); every other case of FEW meets the E target (05_02
+# and 49_18 at 60 and 30 Hz too since no key falls inside a hold: the interpolation over
+# their long still stretches is the same at any rate and dominates E).
 MISSES = {
     ("07_01.bvh", "30 Hz", False): "19 keys for 20 (0.95), E 1.30x: the 30 Hz frames fall "
                                    "4 clean frames apart, one key fewer on a 2.6 s walk",
-    ("05_02.bvh", "60 Hz", False): "48 keys for 48 (1.0), E 1.114x: as many keys, placed on "
-                                   "the 60 Hz frames",
-    ("05_02.bvh", "60 Hz", True): "keys 0.959x, E 1.151x",
-    ("05_02.bvh", "30 Hz", False): "keys 1.0x, E 1.198x: as many keys, on every 4th clean frame",
-    ("05_02.bvh", "30 Hz", True): "keys 1.0x, E 1.186x",
-    ("49_18.amc", "30 Hz", True): "13 keys for 14 (0.929), E 1.251x",
 }
 
 
@@ -129,29 +125,27 @@ def test_variant_gets_as_many_keys_on_every_clip(variant: str, online: bool) -> 
 
 
 # On every shared clip; measured misses as (clip: keys ratio, E ratio). Every key count is
-# within 0.83-1.09x; E of linear interpolation falls about as K^-4 on smooth motion, so 1.10x
+# within 0.83-1.10x; E of linear interpolation falls about as K^-4 on smooth motion, so 1.10x
 # asks for counts within ~2.5 %, and on the short clips (1.2-2.6 s, 11-20 keys) one key is
 # 5-8 %. The 30 Hz keys also snap to every 4th clean frame.
-ALL_MISSES = {
-    ("60 Hz", False): "05_02 (1.0, 1.114), 09_06.amc (0.917, 1.375); count 0.92-1.03x on every "
-                      "clip",
-    ("60 Hz", True): "05_02 (0.959, 1.151), 08_01 (0.947, 1.232), 09_06.amc (0.917, 1.375); "
+ALL_MISSES = {  # measured with no key inside a hold (`optimal.holds`)
+    ("60 Hz", False): "09_06.amc (0.917, 1.375); count 0.92-1.02x on every clip",
+    ("60 Hz", True): "05_06 (0.969, 1.17), 08_01 (0.947, 1.232), 09_06.amc (0.917, 1.375); "
                      "count 0.92-1.08x",
-    ("30 Hz", False): "01_06 (1.0, 1.119), 02_03 (0.929, 1.448), 05_02 (1.0, 1.198), 05_06 "
-                      "(1.0, 1.15), 06_08 (0.95, 1.258), 07_01 (0.95, 1.301); count 0.93-1.05x",
-    ("30 Hz", True): "02_03 (0.929, 1.448), 02_10 (1.0, 1.277), 05_02 (1.0, 1.186), 05_06 "
-                     "(0.984, 1.255), 05_11.bvh (1.027, 1.138), 05_18 (0.987, 1.12), 06_12 "
-                     "(0.983, 1.107), 08_01 (0.947, 1.302), 49_18 (0.929, 1.251); "
+    ("30 Hz", False): "01_06 (0.996, 1.104), 02_03 (0.929, 1.448), 05_06 (1.0, 1.186), 06_08 "
+                      "(0.95, 1.258), 07_01 (0.95, 1.301); count 0.93-1.05x",
+    ("30 Hz", True): "02_03 (0.929, 1.448), 02_10 (1.0, 1.145), 05_06 (0.984, 1.225), "
+                     "05_11.bvh (1.027, 1.138), 06_12 (0.983, 1.107), 08_01 (0.947, 1.302); "
                      "count 0.93-1.08x",
-    ("calibration before", False): "01_14 (0.968, 1.147), 02_03 (0.929, 1.249), 05_18 (0.959, "
-                                   "1.133), 06_12 (0.966, 1.125), 06_15 (0.963, 1.102), "
-                                   "09_06.amc (0.833, 1.341): the 0.5 s blend out of the "
-                                   "T-pose is motion and lifts lambda 1-3 %; count 0.83-1.09x",
-    ("calibration before", True): "02_03 (0.929, 1.249), 05_11.bvh (0.946, 1.258), 05_18 "
-                                  "(0.962, 1.135), 06_12 (0.966, 1.121), 09_06.amc (0.833, "
-                                  "1.341); count 0.83-1.04x",
-    ("stillness after", False): "02_03 (0.929, 1.336), 09_06.amc (0.917, 1.341): lambda within "
-                                "2 % of the clean take's, one key fewer; count 0.92-1.01x",
+    ("calibration before", False): "01_14 (0.968, 1.147), 02_03 (0.929, 1.249), 06_12 (0.966, "
+                                   "1.125), 06_15 (0.963, 1.102), 09_06.amc (0.833, 1.341): "
+                                   "the 0.5 s blend out of the T-pose is motion and lifts "
+                                   "lambda 1-3 %; count 0.83-1.09x",
+    ("calibration before", True): "02_03 (0.929, 1.249), 05_11.bvh (0.946, 1.258), 06_12 "
+                                  "(0.966, 1.121), 09_06.amc (0.833, 1.341); count 0.83-1.10x",
+    ("stillness after", False): "02_03 (0.929, 1.336), 06_08 (0.95, 1.131), 09_06.amc (0.917, "
+                                "1.341): lambda within 2 % of the clean take's, one key "
+                                "fewer; count 0.91-1.01x",
 }
 
 
@@ -242,10 +236,13 @@ def test_at_120_hz_the_defaults_give_the_keys_they_gave_in_frames():
     assert keys_of(clean, True).tolist() == [0, 13, 31, 50, 65, 80, 100, 117, 133, 146, 165,
                                              182, 197, 211, 231, 247, 263, 278, 301, 315]
     # 49_18 holds still over frames 0-141 and 500-1101 (`streamkey.segments`): those frames
-    # stay out of lambda now (1.44e-3 instead of 4.6e-4), so it gets 14 keys, not 16-21
+    # stay out of lambda now (1.44e-3 instead of 4.6e-4), so it gets 14 keys, not 16-21, and
+    # with keys allowed inside the holds it gets the keys of before
     quiet = V.clean_take(load("49_18.amc")).motion
-    assert keys_of(quiet, True).tolist() == [0, 84, 146, 210, 263, 301, 358, 410, 457, 508, 578,
-                                             810, 862, 1101]
+    assert keys_of(quiet, True, hold_keys=True).tolist() == [
+        0, 84, 146, 210, 263, 301, 358, 410, 457, 508, 578, 810, 862, 1101]
+    # by default no key falls strictly inside a hold: its ends bound it
+    assert keys_of(quiet, True).tolist() == [0, 141, 210, 263, 301, 358, 410, 457, 500, 1101]
 
 
 def test_a_still_stretch_of_the_take_stays_out_of_lambda():

@@ -65,9 +65,16 @@ still stretch (`streamkey.segments`: the body's speed below 0.07 body heights a 
 `SegmentDetector` reads the same feature blocks; a frame's status is final
 `settle_frames` later (0.5 s + 0.2 s), and the controller counts a chunk of frames once
 all of them are final, chunk after chunk, so its sums are offline's bit for bit; until
-then the chunk counts provisionally, as motion unless inside a hold already found. (49_18,
-balancing on one leg, holds still for 6 of its 9 s: λ 1.44·10⁻³ instead of 4.6·10⁻⁴,
-14 keys instead of 21, and online keeps the offline count.) At stream start λ is the
+then the chunk counts provisionally, as motion unless inside a hold already found. In a
+`Pipeline` the keyframer takes the pipeline's segment events instead (`note_segment`; its
+own detector then stops): the same segments by the same chunk ends, so the same keys.
+(49_18, balancing on one leg, holds still for 6 of its 9 s: λ 1.44·10⁻³ instead of
+4.6·10⁻⁴.) No key falls strictly inside a calibration hold (`hold_keys=True` allows them): a chain
+enters a hold at its first frame or jumps over all of it, and a hold longer than
+`max_segment` is one segment (`optimal_solver.Solver.hold`); online, every solved frame a
+newly found or closed hold changes is solved again. Only calibration holds are keyless
+(`KEYLESS`): still stretches are not perfectly still, and with them keyless too E rose where
+they are long (49_18: 11 keys, E 25x; 05_02, 05_18: 2.2x). At stream start λ is the
 prior; the data takes over as the stream goes on, which keeps λ steady on short takes (a
 moving λ spends keys unevenly).
 Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
@@ -127,6 +134,10 @@ METHOD = "optimal"
 DEFAULT_LOOKAHEAD = Duration.seconds(1.0)  # 120 frames at 120 Hz
 DEFAULT_MAX_SEGMENT = 2.0  # seconds
 DEFAULT_RATE = 6.0  # keys per second of motion: 5 % of frames at 120 Hz
+# Segments that get no key inside (rate mode, unless hold_keys): calibration holds only. Still
+# stretches are not perfectly still (49_18 balances on one leg for 5 s), and a chain that
+# jumps over them costs E: with them keyless, 49_18's E rose 25x and lost to uniform keys.
+KEYLESS = ("calibration",)
 
 
 def curve(motion: Motion, features: Features | None = None, weights: np.ndarray | None = None,
@@ -179,6 +190,11 @@ def _lookahead_frames(lookahead: DurationLike, fps: float) -> int:
     return frames
 
 
+def _hold_param(hold_keys: bool) -> dict[str, bool]:
+    """`hold_keys` in the parameters only when set (the default leaves them as they were)."""
+    return {"hold_keys": True} if hold_keys else {}
+
+
 def _mode(count: int | None, rate: float | None, tolerance: float | None,
           lam: float | None) -> dict[str, Any]:
     given = {k: v for k, v in (("count", count), ("rate", rate), ("tolerance", tolerance),
@@ -202,9 +218,11 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
             tolerance: float | None = None, lam: float | None = None,
             max_segment: DurationLike = DEFAULT_MAX_SEGMENT, weights: np.ndarray | None = None,
             root_translation: bool = False, features: Features | None = None,
-            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
+            noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ,
+            hold_keys: bool = False) -> Keyframes:
     """Optimal keys of `motion` (module docstring); default mode: `rate=DEFAULT_RATE`.
-    `max_segment`: a `Duration`, or a plain number of seconds."""
+    `max_segment`: a `Duration`, or a plain number of seconds. `hold_keys`: rate mode may
+    put keys inside calibration holds and still stretches."""
     mode = _mode(count, rate, tolerance, lam)
     max_len = _frames(max_segment, motion.fps, "max_segment")
     ticks = TICKS_PER_SECOND / motion.fps
@@ -215,7 +233,8 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
         raise UsageError("the motion has no captured frames")
     params: dict[str, Any] = {**mode, "max_segment": _span_param(max_segment),
                               "root_translation": root_translation,
-                              "weights": None if weights is None else list(weights)}
+                              "weights": None if weights is None else list(weights),
+                              **_hold_param(hold_keys)}
     info: dict[str, Any] = {}
     if n == 1:
         rows, err = np.zeros(1, dtype=np.int64), np.zeros(0)
@@ -225,8 +244,10 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
         rows, info = count_keys(x, mode["count"], max_len)
         err = om.pair_costs(x, rows[:-1], rows[1:])
     elif "rate" in mode:
+        found = holds(motion, features)
         rows, err, info["lambda"] = rate_keys(x, max_len, mode["rate"] / motion.fps, ticks,
-                                              chunk_frames(motion.fps), holds(motion, features))
+                                              chunk_frames(motion.fps), found, hold_keys,
+                                              holds(motion, features, KEYLESS))
     else:
         rows, err = solve_all(x, max_len, ticks, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
@@ -234,15 +255,17 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
     return Keyframes(METHOD, rows + motion.first_frame, scores, params, motion.n_frames, info)
 
 
-def holds(motion: Motion, features: Features) -> list[tuple[int, int]]:
-    """The calibration holds and still stretches of `motion` (`streamkey.segments`) as (first,
-    last) rows of the curve: what the online keyframer's own `SegmentDetector` finds."""
+def holds(motion: Motion, features: Features,
+          kinds: tuple[str, ...] = ("calibration", "still")) -> list[tuple[int, int]]:
+    """The segments of `kinds` (calibration holds, still stretches: `streamkey.segments`) of
+    `motion` as (first, last) rows of the curve: what the online keyframer's own
+    `SegmentDetector` finds."""
     det = SegmentDetector(motion.skeleton, motion.fps)
     points = features.pelvis_points(det.points)[motion.first_frame :]
     seq = np.arange(motion.first_frame, motion.n_frames)
     events = det.push_points(seq, seq / motion.fps, points) + det.flush()
     return [(e.start - motion.first_frame, e.end - motion.first_frame) for e in events
-            if e.end is not None and e.kind != "take"]
+            if e.end is not None and e.kind in kinds]
 
 
 def key_scores(x: np.ndarray, rows: np.ndarray, ticks: float = 1.0) -> np.ndarray:
@@ -267,7 +290,8 @@ class Online(OnlineKeyframer):
                  lookahead: DurationLike = DEFAULT_LOOKAHEAD,
                  count: int | None = None, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
-                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES) -> None:
+                 max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES,
+                 hold_keys: bool = False) -> None:
         if count is not None:
             raise UsageError("optimal online: a key count needs the whole take; give a rate "
                              "(keys per second) or a tolerance")
@@ -279,18 +303,22 @@ class Online(OnlineKeyframer):
                          role_mapping=role_mapping, max_bridge_frames=max_bridge_frames,
                          params={**mode, "max_segment": _span_param(max_segment),
                                  "root_translation": root_translation,
-                                 "weights": None if weights is None else list(weights)})
+                                 "weights": None if weights is None else list(weights),
+                                 **_hold_param(hold_keys)})
+        self.hold_keys = hold_keys  # rate mode: keys inside holds and still stretches allowed
         self.mode = mode  # {"rate" | "lam" | "tolerance": value}
         self.weights = None if weights is None else np.asarray(  # per joint, or None
             weights, dtype=np.float64)
         self.root_translation = root_translation  # the root's position is a curve point
         self.scale = om.point_scale(skeleton.n_joints, self.features.body_height, self.weights,
                                     root_translation)
-        # rate mode: the session segments, whose holds stay out of λ (`RateController`)
-        self.segments = SegmentDetector(skeleton, fps, stream=stream, role_mapping=role_mapping)
+        # rate mode: the session segments, whose holds stay out of λ (`RateController`);
+        # None once a pipeline notes them (`note_segment`: its detector is the same one)
+        det = SegmentDetector(skeleton, fps, stream=stream, role_mapping=role_mapping)
+        self.segments: SegmentDetector | None = det
         # frames after which a frame's segment status is final: a still stretch is confirmed
         # `min_still` after it starts, its speed known `half` frames after each frame
-        self.settle_frames = self.segments.min_still - 1 + self.segments.half
+        self.settle_frames = det.min_still - 1 + det.half
         self.reset()
 
     def reset(self) -> None:
@@ -299,7 +327,8 @@ class Online(OnlineKeyframer):
         self.solver = Solver(  # the DP over the stream
             self.max_len, keep_costs=True, ticks=self.ticks, chunk=chunk_frames(self.fps), **kw)
         self.solver.pricer.prepare(3 * len(self.scale))
-        self.segments.reset()
+        if self.segments is not None:
+            self.segments.reset()
         self.held_points: list[np.ndarray] = []  # pelvis-frame points not yet detected
         # times of the newest frames, enough for every undecided one: a deadline leaves at
         # most lookahead + 1 frames undecided (`force` at each chunk end)
@@ -337,14 +366,15 @@ class Online(OnlineKeyframer):
         events: list[KeyframeEvent] = []
         if s.n == 0 and len(block):
             self.seq0 = int(block.seq[0])
-        points = block.pelvis_points(self.segments.points) if s.rate is not None else None
+        det = self.segments if s.rate is not None else None
+        points = block.pelvis_points(det.points) if det is not None else None
         no_values = np.empty((1, 0))
         for i in range(len(block)):
             self.frames.extend(int(block.seq[i]), no_values, block.time[i : i + 1])
             if points is not None:
                 self.held_points.append(points[i])
-                if (s.n + 1) % s.chunk == 0:  # the detector catches up once a chunk
-                    self._detect(s.n)
+            if s.rate is not None and (s.n + 1) % s.chunk == 0:  # statuses, once a chunk
+                self._detect(s.n)
             if s.stale is not None:  # the frame after a chunk's: its decision's re-solve
                 s.settle()
             for end in s.add(rows[i : i + 1]):
@@ -368,32 +398,48 @@ class Online(OnlineKeyframer):
         s = self.solver
         if s.rate is not None:
             self._detect(s.n - 1)
-            self._note(self.segments.finish())
+            if self.segments is not None:
+                self._note(self.segments.finish())
             s.rate.motion.known = s.n
         if s.n == 0:
             return []
         return self._events(s.finish(), self.seq0 + s.n - 1)
 
     def _detect(self, last: int) -> None:
-        """Feed the held frames (up to stream index `last`) to the segment detector, at
-        stream indices fixed by the chunks (so a frame's status is known at the same frame
-        whatever the block split); the frames `settle_frames` back have their final status."""
+        """Statuses up to stream index `last`, at stream indices fixed by the chunks (so a
+        frame's status is known at the same frame whatever the block split): the held frames
+        to the own segment detector (when no pipeline notes segments), then the frames
+        `settle_frames` back have their final status (segments decided by frames up to
+        `last` are in, whoever detected them)."""
         s = self.solver
         assert s.rate is not None
-        if self.held_points:
+        if self.held_points and self.segments is not None:
             seqs = np.arange(last + 1 - len(self.held_points), last + 1) + self.seq0
             times = [self.frames.time(int(q)) for q in seqs]
             self._note(self.segments.push_points(seqs, times, np.array(self.held_points)))
-            self.held_points.clear()
-            s.rate.motion.known = max(s.rate.motion.known, last + 1 - self.settle_frames)
+        self.held_points.clear()
+        s.rate.motion.known = max(s.rate.motion.known, last + 1 - self.settle_frames)
+
+    def note_segment(self, event: SegmentEvent) -> None:
+        """The pipeline's hook: a session segment decided by the next frame. From the first
+        call on, the keyframer's own detector stops (the pipeline's is the same detector on
+        the same frames, and a segment reaches the solver by the same chunk end either way,
+        so the keys are the same)."""
+        self.segments = None
+        self.held_points.clear()
+        if self.solver.rate is not None:
+            self._note([event])
 
     def _note(self, events: list[SegmentEvent]) -> None:
-        """Calibration holds and still stretches to the rate controller."""
+        """Calibration holds and still stretches to the rate controller and, unless
+        `hold_keys`, calibration holds to the DP (no key strictly inside)."""
         assert self.solver.rate is not None
         for e in events:
             if e.kind != "take":
                 end = None if e.end is None else e.end - self.seq0
                 self.solver.rate.motion.hold(e.start - self.seq0, end)
+                if not self.hold_keys and e.kind in KEYLESS:
+                    self.solver.hold(e.start - self.seq0, end)
 
     def candidates(self) -> list[tuple[int, float, float]]:
         """Provisional hook: the keys after the decided part on the best chain of the newest

@@ -21,7 +21,8 @@ from ..jit import kernel, warmer
 from ..kinematics import root_relative_joints
 
 __all__ = ["CHUNK", "EPOCH", "Pricer", "point_scale", "body_rows", "band_costs", "pair_costs",
-           "chain_costs", "dp_rows", "broken_chains", "chain", "best_split", "fill_gaps"]
+           "chain_costs", "edge_costs", "no_marks", "Marks", "dp_rows", "broken_chains", "chain",
+           "best_split", "fill_gaps"]
 
 CHUNK = 16  # frames solved together (the DP runs when a chunk of frames is complete)
 EPOCH = 512  # frames between re-based prefix sums (a multiple of CHUNK)
@@ -276,18 +277,67 @@ def chain_costs(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
     return out
 
 
+Marks = tuple[np.ndarray, np.ndarray, np.ndarray]  # keyable, edge, edge_cost (by frame)
+
+
+def no_marks(n: int) -> Marks:
+    """Hold marks of `n` frames outside any hold: every frame may be a key, no long edge."""
+    return np.ones(n, dtype=np.bool_), np.full(n, -1, dtype=np.int64), np.full(n, np.nan)
+
+
+@kernel
+def edge_costs(x: np.ndarray, edge: np.ndarray, out: np.ndarray, b0: int, b1: int,
+               max_len: int) -> None:
+    """cost(edge[b], b) of rows b0 .. b1 − 1 whose hold edge is longer than `max_len` and not
+    priced yet (`out[b]` NaN). With y = x − x[a], u = g − a, m = b − a: Σ|y_g|² − (2/m)
+    y_b·Σ u y_g + (|y_b|²/m²) Σ u², the sums over g in (a, b) running from a in order on
+    every call (so the same bits on any call path), O(D) a row."""
+    d = x.shape[1]
+    q = np.zeros(d)
+    cur, nxt, p = -1, 0, 0.0
+    for b in range(b0, b1):
+        a = edge[b]
+        if a < 0 or b - a <= max_len or not np.isnan(out[b]):
+            continue
+        if a != cur:
+            cur, nxt, p = a, a + 1, 0.0
+            q[:] = 0.0
+        while nxt < b:
+            u = nxt - a
+            for j in range(d):
+                y = x[nxt, j] - x[a, j]
+                p += y * y
+                q[j] += u * y
+            nxt += 1
+        m = b - a
+        yq = 0.0
+        yy = 0.0
+        for j in range(d):
+            y = x[b, j] - x[a, j]
+            yq += y * q[j]
+            yy += y * y
+        s2 = (m - 1.0) * m * (2.0 * m - 1.0) / 6.0
+        out[b] = max(0.0, p - 2.0 * yq / m + s2 * yy / (m * m))
+
+
 def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, b0: int,
             b1: int, lam: float, floor: int = 0, tolerance: float | None = None,
-            c0: int = 0) -> None:
+            c0: int = 0, marks: Marks | None = None) -> None:
     """Advance the DP over frames b0 .. b1 − 1 in place (`f`, `bp`, `keys` indexed by frame,
     `costs[b − c0]` is frame b's band).
 
     Penalised form: F(b) = min_a F(a) + cost(a, b) + λ over floor ≤ a < b, b − a ≤ L, ties to
-    the earliest a. Tolerance form (`tolerance` given): among a with cost(a, b) ≤ tolerance ·
+    the earliest a. With `marks` (holds, penalised form only): only frames with `keyable`
+    set are candidates a, and a frame b inside a hold or at its end (`edge[b]` = s ≥ floor,
+    the hold's first frame) has the one candidate s, at `edge_cost[b]` = cost(s, b) if
+    b − s > L: a chain enters a hold at its first frame, or jumps over all of it.
+    Tolerance form (`tolerance` given): among a with cost(a, b) ≤ tolerance ·
     (b − a), fewest keys, then least F (summed cost). `keys[b]` counts the chain's keys.
     """
     if tolerance is None:
-        _dp_penalised(costs, f, bp, keys, b0, b1, float(lam), floor, c0)
+        keyable, edge, edge_cost = marks if marks is not None else no_marks(len(f))
+        _dp_penalised(costs, f, bp, keys, b0, b1, float(lam), floor, c0, keyable, edge,
+                      edge_cost)
         return
     max_len = costs.shape[1]
     b = b0
@@ -317,7 +367,8 @@ def dp_rows(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, 
 
 @kernel
 def _dp_penalised(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray, b0: int,
-                  b1: int, lam: float, floor: int, c0: int) -> None:
+                  b1: int, lam: float, floor: int, c0: int, keyable: np.ndarray,
+                  edge: np.ndarray, edge_cost: np.ndarray) -> None:
     """Penalised DP rows b0 .. b1 − 1 (`dp_rows`), one compiled loop: F(a) + cost(a, b) summed
     as before, candidates in increasing a with a strict `<` (the earliest minimum, as
     `np.argmin`), so the bits and back-pointers of the numpy version it replaced. A row with
@@ -326,7 +377,16 @@ def _dp_penalised(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.nda
     for b in range(b0, b1):
         start = b - max_len if b >= max_len else max(b - max_len, floor)
         best, arg = np.inf, start
+        s = edge[b]
+        if s >= floor:  # in a hold, or its last frame: from the hold's first frame only
+            c = costs[b - c0, max_len - (b - s)] if b - s <= max_len else edge_cost[b]
+            f[b] = f[s] + c + lam
+            bp[b] = s
+            keys[b] = keys[s] + 1
+            continue
         for a in range(max(start, floor), b):
+            if not keyable[a]:
+                continue
             v = f[a] + costs[b - c0, max_len - (b - a)]
             if v < best:
                 best, arg = v, a
@@ -339,10 +399,13 @@ def _dp_penalised(costs: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.nda
 def _warm() -> None:
     f, bp, keys = np.zeros(4), np.zeros(4, dtype=np.int64), np.zeros(4, dtype=np.int64)
     chain_costs(np.zeros((4, 3)), np.array([0, 3], dtype=np.int64))
+    edge_costs(np.zeros((4, 3)), np.array([-1, 0, 0, 0], dtype=np.int64), np.full(4, np.nan),
+               0, 4, 1)
     band_costs(np.zeros((EPOCH + 1, 3)), 2)  # across a re-base: `_append_rows` called alone
     broken_chains(np.array([-1, 0, 1, 0], dtype=np.int64), 0, 1, 4)
     for dtype in (np.float64, np.float32):
-        _dp_penalised(np.zeros((4, 2), dtype=dtype), f, bp, keys, 1, 4, 1.0, 0, 0)
+        _dp_penalised(np.zeros((4, 2), dtype=dtype), f, bp, keys, 1, 4, 1.0, 0, 0,
+                      *no_marks(4))
 
 
 def _dp_block_tolerance(band: np.ndarray, f: np.ndarray, bp: np.ndarray, keys: np.ndarray,

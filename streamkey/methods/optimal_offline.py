@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from . import optimal_math as om
-from .optimal_solver import Solver
+from .optimal_solver import Solver, mark_rows
 
 __all__ = ["solve_all", "rate_keys", "count_keys"]
 
@@ -38,11 +38,14 @@ def solve_all(x: np.ndarray, max_len: int, ticks: float,
 
 
 def rate_keys(x: np.ndarray, max_len: int, rate: float, ticks: float, chunk: int,
-              holds: Sequence[tuple[int, int]] = ()) -> tuple[np.ndarray, np.ndarray, float]:
+              holds: Sequence[tuple[int, int]] = (), hold_keys: bool = False,
+              keyless: Sequence[tuple[int, int]] | None = None
+              ) -> tuple[np.ndarray, np.ndarray, float]:
     """Offline rate: λ from every frame's cost (as the online controller ends up with), then
     one penalised pass (keys, segment costs as frame sums, λ in ticks x body heights²).
-    `holds`: the calibration holds and still stretches (first, last row), out of λ. Same
-    costs and chunks as `Solver`, so bit-identical to it."""
+    `holds`: the calibration holds and still stretches (first, last row), out of λ and,
+    `keyless` (default: `holds`) unless `hold_keys`, with no key strictly inside
+    (`Solver.hold`). Same costs and chunks as `Solver`, so bit-identical to it."""
     solver = Solver(max_len, rate=rate, ticks=ticks, chunk=chunk)
     assert solver.rate is not None
     solver.rate.motion.known = len(x)
@@ -53,17 +56,24 @@ def rate_keys(x: np.ndarray, max_len: int, rate: float, ticks: float, chunk: int
         b1 = min(len(x), b0 + chunk)
         band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
         lam = solver.rate.observe(band[b0:b1], b0)
-    keys, f = _penalised(band, lam)
+    marks = om.no_marks(len(x))
+    keyless = holds if keyless is None else keyless
+    if keyless and not hold_keys:
+        marks = (*mark_rows(list(keyless), 0, len(x), 0), marks[2])
+        om.edge_costs(np.ascontiguousarray(x, dtype=np.float64), marks[1], marks[2], 0,
+                      len(x), max_len)
+    keys, f = _penalised(band, lam, marks)
     return keys, _segment_errors(f, keys, lam), solver.rate.estimate()
 
 
-def _penalised(band: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+def _penalised(band: np.ndarray, lam: float,
+               marks: om.Marks | None = None) -> tuple[np.ndarray, np.ndarray]:
     n = len(band)
     f = np.full(n, np.inf)
     bp = np.full(n, -1, dtype=np.int64)
     keys = np.zeros(n, dtype=np.int64)
     f[0], keys[0] = 0.0, 1
-    om.dp_rows(band, f, bp, keys, 1, n, lam)
+    om.dp_rows(band, f, bp, keys, 1, n, lam, marks=marks)
     return np.array(om.chain(bp, n - 1), dtype=np.int64), f
 
 

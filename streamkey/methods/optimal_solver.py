@@ -13,7 +13,8 @@ import numpy as np
 from . import optimal_math as om
 
 __all__ = ["DEFAULT_LAMBDA", "TICKS_PER_SECOND", "PRIOR_SECONDS", "RESOLVE", "RATE_FACTOR",
-           "STILL_COST", "DPRows", "MotionFrames", "RateController", "Solver", "motion_weights"]
+           "STILL_COST", "DPRows", "MotionFrames", "mark_rows", "RateController", "Solver",
+           "motion_weights"]
 
 DEFAULT_LAMBDA = 3.5e-3  # ticks x body heights^2 (a tick: 1/120 s)
 TICKS_PER_SECOND = 120.0  # the time unit of costs and lambda: 1/120 s, a frame at 120 Hz
@@ -31,6 +32,24 @@ def motion_weights(costs: np.ndarray, span: int, ticks: float) -> np.ndarray:
     squared departure from a straight line falls below `STILL_COST` (a still or uniformly
     moving stretch needs no keys, so it earns none)."""
     return ticks * np.minimum(1.0, costs / (span * STILL_COST))
+
+
+def mark_rows(holds: list[tuple[int, int]], lo: int, hi: int, base: int,
+              floor: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Hold marks of stream indices lo .. hi − 1 (rows from `base`): keyable unless strictly
+    inside a hold (start, end) (end `_OPEN`: not closed yet), and the row of the hold's
+    start for the frames after it up to its end (the long edge; −1: none), or of the last
+    decided key `floor` if that is inside the hold (decided before the hold was known)."""
+    keyable = np.ones(hi - lo, dtype=np.bool_)
+    edge = np.full(hi - lo, -1, dtype=np.int64)
+    for s, e in holds:
+        i0 = max(s + 1, lo)
+        if i0 < min(e, hi):
+            keyable[i0 - lo : min(e, hi) - lo] = False
+        a = max(s, floor) if floor < e else s
+        if i0 <= min(e, hi - 1) and a >= base:
+            edge[i0 - lo : min(e, hi - 1) + 1 - lo] = a - base
+    return keyable, edge
 
 
 class MotionFrames:
@@ -153,6 +172,7 @@ class DPRows:
         self.bp = np.empty(0, dtype=np.int64)  # back-pointers (row indices)
         self.keys = np.empty(0, dtype=np.int64)  # keys on the chain
         self.costs = np.empty((0, max_len))  # bands (online only)
+        self.marks = om.no_marks(0)  # keyable, hold edge (row), its cost (`om.dp_rows`)
 
     def grow(self, held: int, need: int, width: int, keep: int) -> None:
         """Room for `need` more rows after `held`: drop rows before stream index `keep`
@@ -161,18 +181,21 @@ class DPRows:
             return
         shift = keep - self.base if self.keep_costs else 0
         size = max(64, 2 * (held - shift + need))
-        old = (self.x, self.f, self.bp, self.keys, self.costs)
+        old = (self.x, self.f, self.bp, self.keys, self.costs, *self.marks)
         self.x = np.empty((size, width))
         self.f = np.full(size, np.inf)
         self.bp = np.full(size, -1, dtype=np.int64)
         self.keys = np.zeros(size, dtype=np.int64)
         self.costs = np.empty((size if self.keep_costs else 0, self.max_len))
+        self.marks = om.no_marks(size)
         rows = held - shift
-        for new, prev in zip((self.x, self.f, self.bp, self.keys, self.costs), old,
+        for new, prev in zip((self.x, self.f, self.bp, self.keys, self.costs, *self.marks), old,
                              strict=True):
             if len(new) and rows:
                 new[:rows] = prev[shift:held]
         self.bp[:rows] -= shift
+        edge = self.marks[1][:rows]
+        edge[edge >= 0] -= shift
         self.base += shift
 
 
@@ -209,6 +232,7 @@ class Solver:
         self.lam = (self.lam0 if self.rate is None else self.rate.estimate()) / self.ticks
         self.pricer = om.Pricer(self.max_len)  # segment costs, frame after frame
         self.rows = DPRows(self.max_len, self.keep_costs)  # the held rows and DP arrays
+        self.holds: list[tuple[int, int]] = []  # no key strictly inside (`hold`)
 
     @property
     def base(self) -> int:
@@ -227,6 +251,8 @@ class Solver:
         lo = self.n - r.base
         r.x[lo : lo + len(rows)] = rows
         self.n += len(rows)
+        if self.holds:
+            self._mark(self.n - len(rows), self.n)
         ends = []
         while self.n - self.done >= self.chunk:
             self._solve(self.done + self.chunk)
@@ -248,8 +274,7 @@ class Solver:
         if self.done == 0:
             r.f[0], r.bp[0], r.keys[0] = 0.0, -1, 1
             start = 1
-        om.dp_rows(costs, r.f, r.bp, r.keys, start, b1, self.lam, self.floor - r.base,
-                   self.tolerance, c0=b0)
+        self._dp(costs, start, b1, b0)
         first, self.done = self.done, end
         if self.rate is not None:
             lam = self.rate.observe(costs, first)
@@ -271,9 +296,43 @@ class Solver:
         self.settle()
         self.lam = lam
         r = self.rows
-        lo = self.floor - r.base
-        om.dp_rows(r.costs, r.f, r.bp, r.keys, lo + 1, self.done - r.base, lam, lo,
-                   self.tolerance)
+        self._dp(r.costs, self.floor + 1 - r.base, self.done - r.base)
+
+    def _dp(self, costs: np.ndarray, lo: int, hi: int, c0: int = 0) -> None:
+        """The DP over rows lo .. hi − 1 with the current λ, floor and holds."""
+        r = self.rows
+        if self.holds:
+            om.edge_costs(r.x, r.marks[1], r.marks[2], lo, hi, self.max_len)
+        om.dp_rows(costs, r.f, r.bp, r.keys, lo, hi, self.lam, self.floor - r.base,
+                   self.tolerance, c0=c0, marks=r.marks)
+
+    def hold(self, start: int, end: int | None) -> None:
+        """No key strictly inside frames start .. end (stream indices; None: open, up to the
+        newest frame and on; replaces the hold with the same start): the segment from
+        `start` may then be longer than L. Frames already solved that this changes are
+        solved again (penalised form only)."""
+        stretch = (start, _OPEN if end is None else end)
+        self.holds = [h for h in self.holds if h[0] != start] + [stretch]
+        self.settle()
+        lo = max(start + 1, self.floor + 1, self.rows.base)
+        changed = self._mark(lo, self.n)
+        if changed is not None and changed < self.done:
+            r = self.rows
+            self._dp(r.costs, changed - r.base, self.done - r.base)
+
+    def _mark(self, lo: int, hi: int) -> int | None:
+        """Mark stream indices lo .. hi − 1 from the holds; the first whose marks changed."""
+        r = self.rows
+        if hi <= lo:
+            return None
+        keyable, edge = mark_rows(self.holds, lo, hi, r.base, self.floor)
+        a, b = lo - r.base, hi - r.base
+        moved = edge != r.marks[1][a:b]
+        diff = np.flatnonzero(moved | (keyable != r.marks[0][a:b]))
+        r.marks[0][a:b] = keyable
+        r.marks[1][a:b] = edge
+        r.marks[2][a:b][moved] = np.nan
+        return None if len(diff) == 0 else lo + int(diff[0])
 
     def converge(self) -> list[int]:
         """Keys that every chain from the last L priced frames shares, newly final."""
@@ -313,6 +372,11 @@ class Solver:
         first, last = om.broken_chains(r.bp, lo, hi, self.done - base)
         if first >= 0:  # solved by `settle`, before anything reads them (spreads the work)
             self.stale = (first + base, last + 1 + base)
+        if any(s < self.floor < e for s, e in self.holds):
+            # a key decided inside a hold before it was known: its long edge starts there
+            self._mark(self.floor + 1, self.n)
+            if d + 1 < self.done:
+                self.stale = (d + 1, self.done)
         return keys
 
     def settle(self) -> None:
@@ -321,8 +385,7 @@ class Solver:
             lo, hi = self.stale
             self.stale = None
             r = self.rows
-            om.dp_rows(r.costs, r.f, r.bp, r.keys, lo - r.base, hi - r.base, self.lam,
-                       self.floor - r.base, self.tolerance)
+            self._dp(r.costs, lo - r.base, hi - r.base)
 
     def finish(self) -> list[int]:
         """End of stream: price the tail, trace back from the last frame (always a key)."""
