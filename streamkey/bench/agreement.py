@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UsageError
+from .robustness import finite_json
 
 __all__ = ["main", "measure", "summarise", "markdown", "readme_block", "write_results"]
 
@@ -169,16 +170,6 @@ def markdown(rows: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _finite(x: Any) -> Any:
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_finite(v) for v in x]
-    return x
-
-
 def write_results(rows: Sequence[Mapping[str, Any]], output: Path, meta: Mapping[str, Any]
                   ) -> list[Path]:
     """bench_agreement.json (meta, summary, goal cells, rows) and .md (the tables)."""
@@ -188,7 +179,7 @@ def write_results(rows: Sequence[Mapping[str, Any]], output: Path, meta: Mapping
     goal = [{"kind": k[0], "method": k[1], "check": k[2], "met": ok, "measured": text}
             for k, (ok, text) in goal_cells(rows).items()]
     js, md = output / "bench_agreement.json", output / "bench_agreement.md"
-    js.write_text(json.dumps(_finite({**meta, "summary": summarise(rows), "goal": goal,
+    js.write_text(json.dumps(finite_json({**meta, "summary": summarise(rows), "goal": goal,
                                       "rows": list(rows)}), indent=1, allow_nan=False) + "\n",
                   encoding="utf-8")
     md.write_text(markdown(rows, meta), encoding="utf-8")

@@ -87,13 +87,14 @@ def run(paths: Sequence[Path], cases: Sequence[str] | None = None, say: Say = la
     return rows, motions
 
 
-def _finite(x: Any) -> Any:
+def finite_json(x: Any) -> Any:
+    """`x` with every non-finite float replaced by None (JSON has no NaN or infinity)."""
     if isinstance(x, float) and not math.isfinite(x):
         return None
     if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
+        return {k: finite_json(v) for k, v in x.items()}
     if isinstance(x, list):
-        return [_finite(v) for v in x]
+        return [finite_json(v) for v in x]
     return x
 
 
@@ -148,7 +149,7 @@ def write_results(rows: Sequence[Mapping[str, object]], output: Path, meta: dict
     js, cs, md = (output / f"bench_robustness.{s}" for s in ("json", "csv", "md"))
     goal = [{"method": k[0], "mode": k[1], "variant": k[2], "check": k[3], "met": ok,
              "measured": text} for k, (ok, text) in cells.items()]
-    js.write_text(json.dumps(_finite({**meta, "summary": summary, "goal": goal,
+    js.write_text(json.dumps(finite_json({**meta, "summary": summary, "goal": goal,
                                       "rows": list(rows)}), indent=1, allow_nan=False) + "\n",
                   encoding="utf-8")
     with open(cs, "w", newline="", encoding="utf-8") as fh:
