@@ -43,11 +43,13 @@ OPTION = {
     "r": ("--scale-ratio", "0.9", 0.9), "mojena_k": ("--mojena-k", "2", 2.0),
     "hop": ("--hop", "6", 6), "cutoff_history": ("--cutoff-history", "3000", 3000),
     "warmup_candidates": ("--warmup-candidates", "10", 10),
+    "segment_statistics": ("--segment-statistics", None, True),
     "ratio": ("--ratio", "0.1", 0.1), "space": ("--space", "channels", "channels"),
     "merge": ("--merge", "4", 4), "max_span": ("--max-span", "900", 900),
     "count": ("--count", "12", 12), "rate": ("--rate", "4", 4.0), "lam": ("--lam", "0.01", 0.01),
     "max_segment": ("--max-segment", "1.5", 1.5),
     "root_translation": ("--root-translation", None, True),
+    "hold_keys": ("--hold-keys", None, True),
     "cluster_seconds": ("--cluster-seconds", "0.3", 0.3), "max_merges": ("--max-merges", "3", 3),
     "outlier_fence": ("--outlier-fence", "5", 5.0), "smooth": ("--smooth", "2", 2.0),
     "key_cost": ("--key-cost", "0.5", 0.5), "tol": ("--curvefit-tol", "0.01", 0.01),
@@ -59,7 +61,7 @@ TOLERANCE = {"simplify": ("--simplify-tolerance", "0.05", 0.05),
 # (`-v` sets isodata's verbose + log), the gap bridging (`--max-bridge`, tested below) and the
 # noise front end every method shares (`--noise-cutoff`, tested in test_noise_filter.py).
 NOT_OPTIONS = {"motion", "features", "skeleton", "fps", "stream", "role_mapping", "weights",
-               "log", "verbose", "max_bridge_frames", "noise_cutoff_hz"}
+               "log", "verbose", "max_bridge_frames", "noise_cutoff_hz", "segments"}
 
 
 def _parameters(fn) -> list[str]:

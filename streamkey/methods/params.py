@@ -88,6 +88,9 @@ SPEED = (
           online_only=True),
     Param("warmup_candidates", "number", "online: candidates before the cut-off is trusted "
           "(default 20)", unit="N", default=20, integer=True, online_only=True),
+    Param("segment_statistics", "flag", "online: calibration holds and still stretches stay "
+          "out of the cut-off sample (default: in; the segment detector reads calm motion as "
+          "still)", default=False, online_only=True),
 )
 SIMPLIFY = (
     Param("tolerance", "number", "largest RMS joint error of the straight line between keys: "
@@ -115,6 +118,8 @@ OPTIMAL = (
           unit="SECONDS", default=2.0),
     Param("root_translation", "flag", "include the root's path in the error (default: body "
           "frame only)", default=False),
+    Param("hold_keys", "flag", "rate mode: keys allowed inside calibration holds (default: "
+          "none strictly inside)", default=False),
 )
 ISODATA = (
     Param("cluster_seconds", "number", "expected cluster duration, smaller: more keys "
