@@ -137,7 +137,7 @@ def test_push_block_across_deferred_updates_gives_the_events_of_push_and_idle(
     m = motion(name)
     frames = frames_of(name)[:2100]
     kf = saliency.Online(m.skeleton, m.fps, **LOW)  # type: ignore[arg-type]
-    pipe = Pipeline([kf])
+    pipe = Pipeline([kf], segments=False)  # the keyframer alone: its own segment detector
     expected = [e for f in frames for e in pipe.push(f) + pipe.idle()] + pipe.flush()
     blocks = saliency.Online(m.skeleton, m.fps, **LOW)  # type: ignore[arg-type]
     edges = [0, *cuts, len(frames)]
