@@ -78,8 +78,11 @@ def _ray(paths: list[Path], args: tuple[Any, ...], address: str | None,
     env = single_thread_defaults()
     started = not ray.is_initialized()
     if started:
+        # no --address: a new local Ray of our own, even beside a running one (which would
+        # otherwise be joined, and refuse num_cpus)
         options: dict[str, Any] = {"address": address} if address else {
-            "num_cpus": workers or os.cpu_count() or 1, "include_dashboard": False}
+            "address": "local", "num_cpus": workers or os.cpu_count() or 1,
+            "include_dashboard": False}
         ray.init(**options, runtime_env={"env_vars": env}, logging_level=logging.WARNING,
                  log_to_driver=False, configure_logging=False)
     try:
