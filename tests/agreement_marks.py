@@ -10,7 +10,6 @@ every shared clip and session: about 2-3 CPU-minutes.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import time
 from pathlib import Path
@@ -18,6 +17,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))  # `python -P` does not add the script's folder
 
+import marks_table  # noqa: E402
 import test_agreement as T  # noqa: E402
 
 Key = tuple[str, str, str]
@@ -33,12 +33,7 @@ def measure() -> dict[Key, str]:
 
 def render(misses: dict[Key, str]) -> str:
     """The table as the test module spells it."""
-    lines = ["MISSES: dict[tuple[str, str, str], str] = {"]
-    for key in sorted(misses, key=T.cells().index):
-        lines.append(f"    {key!r}:")
-        lines.append(f"        {misses[key]!r},")
-    lines.append("}")
-    return "\n".join(lines)
+    return marks_table.render("dict[tuple[str, str, str], str]", misses, T.cells().index)
 
 
 def main() -> int:
@@ -50,16 +45,7 @@ def main() -> int:
     if not args.write:
         print(table)
         return 0
-    path = HERE / "test_agreement.py"
-    text = path.read_text(encoding="utf-8")
-    pattern = re.compile(r"(# --- marks: begin[^\n]*\n).*?(\n# --- marks: end)", re.S)
-    if not pattern.search(text):
-        print(f"{path}: the '# --- marks: begin/end' lines are missing", file=sys.stderr)
-        return 2
-    path.write_text(pattern.sub(lambda m: m.group(1) + table + m.group(2), text),
-                    encoding="utf-8")
-    print(f"wrote {table.count(chr(10)) // 2} marks into {path}", file=sys.stderr)
-    return 0
+    return marks_table.write(HERE / "test_agreement.py", table, table.count("\n") // 2)
 
 
 if __name__ == "__main__":
