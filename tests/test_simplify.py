@@ -191,6 +191,27 @@ def test_compiled_split_matches_the_numpy_recursion_on_shared_clips(name):
     assert first == min(ref) and score == got[first]
 
 
+@pytest.mark.parametrize("start", [37, 100, 150])
+def test_the_split_grid_moves_with_its_anchor(start):
+    x = simplify.curve(load("07_01.bvh"), "positions", features("07_01.bvh"))
+    n = len(x)
+    alone = simplify.split_keys(x[start:], 0, n - 1 - start, tolerance=0.03)
+    anchored = simplify.split_keys(x, start, n - 1, tolerance=0.03, anchors=[start])
+    assert sorted(alone) == [k - start for k in sorted(anchored)]
+    unanchored = simplify.split_keys(x, start, n - 1, tolerance=0.03)
+    assert sorted(unanchored) != sorted(anchored)  # 07_01's keys sit on the grid
+
+
+def test_the_split_grid_is_in_seconds():
+    x = simplify.curve(load("07_01.bvh"), "positions", features("07_01.bvh"))
+    ticks = simplify.split_keys(x, 0, len(x) - 1, tolerance=0.03)
+    assert simplify.split_keys(x, 0, len(x) - 1, tolerance=0.03, rate=1.0) == ticks
+    halves = simplify.split_keys(x, 0, len(x) - 1, tolerance=0.03, rate=0.5)
+    assert halves == ticks  # 60 Hz: every level one up, the same order
+    with pytest.raises(UsageError, match="rate"):
+        simplify.split_keys(x, 0, len(x) - 1, tolerance=0.03, rate=0.0)
+
+
 def test_bad_parameters_raise_usage_error():
     m = load("07_01.bvh")
     with pytest.raises(UsageError):

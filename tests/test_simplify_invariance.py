@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 from cmu import clips
-from invariance import case, count_ratio, e_ratio, load, variant
+from invariance import case, count_ratio, e_ratio, f1, load, variant
 
 from streamkey.errors import UsageError
 from streamkey.methods import simplify
@@ -15,6 +15,7 @@ from streamkey.units import Duration
 
 CLIPS = ["07_05.bvh", "02_01.bvh", "09_12.bvh", "06_02.bvh"]
 VARIANTS = ["60 Hz", "30 Hz", "calibration", "stillness"]
+ODD_RATES = ["90 Hz", "100 Hz"]  # not a power of two from 120 Hz
 RATIOS, MAX_E_RATIO = (0.8, 1.25), 1.10
 
 # Unmet targets, as measured (count ratios, largest E ratio).
@@ -77,3 +78,24 @@ def test_online_with_unbounded_lookahead_equals_offline_on_a_variant(which: str)
     kf = simplify.Online(m.skeleton, m.fps, lookahead=m.n_frames)
     events = kf.push_block(m.frames()) + kf.flush()
     assert [e.frame for e in events] == simplify.extract(m).frames.tolist()
+
+
+ODD_XFAIL: dict[tuple[str, str], str] = {
+    ("100 Hz", "offline"): "measured: E ratio 1.19 (02_01), counts 0.93-1.04",
+    ("100 Hz", "online"): "measured: E ratio 1.19 (02_01), counts 0.93-1.04",
+}
+
+
+@pytest.mark.parametrize("mode", ["offline", "online"])
+@pytest.mark.parametrize("which", ODD_RATES)
+def test_the_split_grid_is_in_seconds_so_90_and_100_hz_keep_the_clean_takes_keys(
+        which: str, mode: str) -> None:
+    # measured on a grid of frame numbers: F1 0.33-0.44 at 90 Hz, 0.42-0.44 at 100 Hz
+    scores = {n: f1("simplify", mode, n, which) for n in CLIPS}
+    assert min(scores.values()) >= 0.9, scores
+
+
+@pytest.mark.parametrize(("which", "mode"), [case(w, m, ODD_XFAIL) for w in ODD_RATES
+                                             for m in ("offline", "online")])
+def test_90_and_100_hz_keep_the_clean_takes_key_count_and_error(which: str, mode: str) -> None:
+    check(CLIPS, which, mode)

@@ -26,14 +26,25 @@ Definitions this module settles:
   rule of its own Fig. 2, we follow the figure), ``count`` (thesis ch. 4: split the worst
   segment first, heap, exactly K keyframes).
 - Split frame (tolerance and ratio rules): of the frames within `NEAR_TIE` (30 %) of the
-  largest distance, the one on the coarsest dyadic grid of frame numbers (most trailing zero
-  bits; then the larger distance, the earliest). Where the motion sweeps an arc (a turn, a
+  largest distance, the one on the coarsest dyadic grid in time (then the larger distance,
+  the earliest). The grid of level L is every multiple of 2^L ticks of `GRID_TICK` (1/120 s)
+  after the stream's first frame, each grid time on the frame nearest to it: at 120 Hz a
+  frame's level is the trailing zero bits of its number, and a stream at 30, 60, 90, 100 or
+  240 Hz puts the grid at the same times. Where the motion sweeps an arc (a turn, a
   pirouette) the distance has a broad maximum whose peak follows the segment's ends, so a
   window that ends elsewhere (online) would split elsewhere, and every later split with it;
   the grid frame does not depend on the ends. Shared clips, online vs offline F1 (±4 frames,
   lookahead 0.5 s): median 0.70 / worst 0.29 with the farthest frame, 1.00 / 0.92 with the
-  grid frame, for 5.6 % more keys (the guarantee is unchanged). The count rule splits at the
-  farthest frame (ties: the earliest).
+  grid frame, for 5.6 % more keys (the guarantee is unchanged). A grid of frame numbers
+  instead of times gave the same keys at 30-240 Hz powers of two but not at 90 / 100 Hz
+  (four shared clips, F1 against the clean take 0.44 / 0.54 there, 1.00 / 0.99 in time).
+  Measured and not adopted: the grid anchored at each take's start (session segments):
+  the detected start lies in the motion into the take (a calibration hold's blend), so the
+  grid does not meet the clean take's (calibration-before E ratio 1.97 -> 2.10 on 07_01),
+  and online the start arrives late (agreement worst 0.92 -> 0.86, 49_18); narrower bands
+  (0.15-0.25) cut that E ratio to 0.96-1.14 but broke agreement (worst F1 0.31-0.77, 49_18;
+  sessions after 10 s down to 0.94 at 0.2). The count rule splits at the farthest frame
+  (ties: the earliest).
 - Scores: the distance at which a frame became a key (endpoints: 0, as online, where the first
   frame is a key before anything is known).
 - Iterative (stack / heap), never recursive; the result of the tolerance rules does not depend
@@ -73,6 +84,7 @@ from __future__ import annotations
 
 import heapq
 from collections import deque
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -101,6 +113,7 @@ DEFAULT_LOOKAHEAD = Duration.seconds(0.5)  # online defaults: 60 and 8 frames at
 DEFAULT_HOP = Duration.seconds(8 / 120)
 DEFAULT_MERGE = Duration.seconds(8 / 120)
 NEAR_TIE = 0.3  # split distances within 30 % of the largest are near-ties (module docstring)
+GRID_TICK = 1 / 120  # seconds: the finest step of the split grid (one frame at 120 Hz)
 
 
 def curve(motion: Motion, space: str = DEFAULT_SPACE,
@@ -142,22 +155,41 @@ def chord_sq(x: np.ndarray, a: int, b: int, i: int) -> float:
 
 
 @kernel
-def _grid_level(index: int) -> int:
-    """How coarse a dyadic grid frame `index` lies on: its trailing zero bits (0: odd)."""
+def _grid_level(offset: int, rate: float) -> int:
+    """How coarse a dyadic grid in seconds the frame `offset` frames after the grid's anchor
+    lies on: the largest L such that it is the frame nearest to a multiple of 2^L ticks of
+    1/120 s at `rate` = fps / 120 frames a tick (ties: the later frame). At 120 Hz: the
+    trailing zero bits of `offset` (the anchor itself: the coarsest level, 62)."""
     level = 0
-    while index > 0 and index % 2 == 0:
-        index //= 2
+    while level < 62:
+        period = rate * 2.0 ** (level + 1)  # frames between grid times of the next level
+        if period > 1.0:
+            m = np.floor(offset / period + 0.5)
+            d = m * period - offset
+            if not (-0.5 <= d < 0.5):
+                break
         level += 1
     return level
 
 
 @kernel
-def _farthest_rows(x: np.ndarray, a: int, b: int, origin: int, near: float,
-                   scratch: np.ndarray) -> tuple[int, float]:
+def _anchor(anchors: np.ndarray, row: int) -> int:
+    """The grid's anchor for `row`: the last of the sorted `anchors` at or before it (rows
+    before the first: the first)."""
+    k = anchors.shape[0] - 1
+    while k > 0 and anchors[k] > row:
+        k -= 1
+    return int(anchors[k])
+
+
+@kernel
+def _farthest_rows(x: np.ndarray, a: int, b: int, anchors: np.ndarray, rate: float,
+                   near: float, scratch: np.ndarray) -> tuple[int, float]:
     """(split row, largest squared distance) of x[a..b] from its time-parametrised chord, every
     distance computed directly; (a, -1.0) without interior rows. Split row: the farthest (ties:
-    the earliest), or with `near` > 0 the grid frame (module docstring; frame = row + `origin`).
-    `scratch` holds at least b - a distances."""
+    the earliest), or with `near` > 0 the grid frame (module docstring; the grid in seconds
+    from `anchors`, rows of x, at `rate` frames a tick). `scratch` holds at least b - a
+    distances."""
     m = b - a
     best, arg = -1.0, a
     for i in range(1, m):
@@ -170,18 +202,18 @@ def _farthest_rows(x: np.ndarray, a: int, b: int, origin: int, near: float,
         level, dist = -1, -1.0
         for i in range(1, m):
             if scratch[i] >= floor:
-                g = _grid_level(a + i + origin)
+                g = _grid_level(a + i - _anchor(anchors, a + i), rate)
                 if g > level or (g == level and scratch[i] > dist):
                     level, dist, arg = g, scratch[i], a + i
     return arg, best
 
 
 @kernel
-def _splits(x: np.ndarray, a: int, b: int, limit: float, use_ratio: bool, origin: int,
-            near: float, scratch: np.ndarray) -> tuple[int, float]:
+def _splits(x: np.ndarray, a: int, b: int, limit: float, use_ratio: bool, anchors: np.ndarray,
+            rate: float, near: float, scratch: np.ndarray) -> tuple[int, float]:
     """(split row, largest distance) of x[a..b] if the stopping rule splits the segment, else
     (-1, largest distance)."""
-    k, sq = _farthest_rows(x, a, b, origin, near, scratch)
+    k, sq = _farthest_rows(x, a, b, anchors, rate, near, scratch)
     dist = np.sqrt(sq) if sq > 0.0 else 0.0
     if use_ratio:
         c = 0.0
@@ -196,7 +228,8 @@ def _splits(x: np.ndarray, a: int, b: int, limit: float, use_ratio: bool, origin
 
 @kernel
 def _split_all(x: np.ndarray, lo: int, hi: int, limit: float, use_ratio: bool, skip: int,
-               origin: int, near: float, rows: np.ndarray, dists: np.ndarray) -> int:
+               anchors: np.ndarray, rate: float, near: float, rows: np.ndarray,
+               dists: np.ndarray) -> int:
     """`split_keys` into `rows` / `dists` (room for hi - lo rows); returns the key count."""
     stack = np.empty((hi - lo + 2, 2), dtype=np.int64)
     scratch = np.empty(hi - lo + 1)
@@ -207,7 +240,7 @@ def _split_all(x: np.ndarray, lo: int, hi: int, limit: float, use_ratio: bool, s
         a, b = stack[top, 0], stack[top, 1]
         if b - a < 2 or b <= skip:
             continue
-        k, dist = _splits(x, a, b, limit, use_ratio, origin, near, scratch)
+        k, dist = _splits(x, a, b, limit, use_ratio, anchors, rate, near, scratch)
         if k >= 0:
             rows[n], dists[n] = k, dist
             n += 1
@@ -218,13 +251,13 @@ def _split_all(x: np.ndarray, lo: int, hi: int, limit: float, use_ratio: bool, s
 
 
 @kernel
-def _first(x: np.ndarray, lo: int, hi: int, limit: float, use_ratio: bool, origin: int,
-           near: float) -> tuple[int, float]:
+def _first(x: np.ndarray, lo: int, hi: int, limit: float, use_ratio: bool,
+           anchors: np.ndarray, rate: float, near: float) -> tuple[int, float]:
     """`first_key`: left halves only."""
     b, score = hi, 0.0
     scratch = np.empty(max(hi - lo + 1, 1))
     while b - lo >= 2:
-        k, dist = _splits(x, lo, b, limit, use_ratio, origin, near, scratch)
+        k, dist = _splits(x, lo, b, limit, use_ratio, anchors, rate, near, scratch)
         if k < 0:
             break
         b, score = k, dist
@@ -236,9 +269,20 @@ def _warm() -> None:
     x = np.arange(12.0).reshape(4, 3) ** 2
     rows, dists = np.empty(4, dtype=np.int64), np.empty(4)
     for use_ratio in (False, True):
-        _split_all(x, 0, 3, 0.0, use_ratio, -1, 0, NEAR_TIE, rows, dists)
-        _first(x, 0, 3, 0.0, use_ratio, 0, NEAR_TIE)
-        _splits(x, 0, 3, 0.0, use_ratio, 0, 0.0, dists)  # called alone by `Online._meets`
+        _split_all(x, 0, 3, 0.0, use_ratio, -1, _NO_ANCHOR, 1.0, NEAR_TIE, rows, dists)
+        _first(x, 0, 3, 0.0, use_ratio, _NO_ANCHOR, 1.0, NEAR_TIE)
+        _splits(x, 0, 3, 0.0, use_ratio, _NO_ANCHOR, 1.0, 0.0, dists)  # alone: `Online._meets`
+
+
+_NO_ANCHOR = np.zeros(1, dtype=np.int64)  # the grid from row 0
+
+
+def _grid(anchors: object, rate: float) -> tuple[np.ndarray, float]:
+    """Kernel arguments of a grid: its anchors (sorted rows; none: row 0) and its rate."""
+    a = np.unique(np.asarray(anchors, dtype=np.int64).reshape(-1))
+    if not np.isfinite(rate) or rate <= 0:
+        raise UsageError(f"simplify: the grid's rate must be a number > 0, got {rate!r}")
+    return (a if len(a) else _NO_ANCHOR), float(rate)
 
 
 def _rule_args(x: np.ndarray, tolerance: float | None, ratio: float | None
@@ -259,38 +303,41 @@ def farthest(seg: np.ndarray) -> tuple[int, float]:
     m = len(seg) - 1
     if m < 2:
         return 0, 0.0
-    i, sq = _farthest_rows(np.ascontiguousarray(seg, dtype=np.float64), 0, m, 0, 0.0,
-                           np.empty(m + 1))
+    i, sq = _farthest_rows(np.ascontiguousarray(seg, dtype=np.float64), 0, m, _NO_ANCHOR, 1.0,
+                           0.0, np.empty(m + 1))
     return int(i), float(np.sqrt(sq))
 
 
 def split_keys(x: np.ndarray, lo: int, hi: int, *, tolerance: float | None = None,
-               ratio: float | None = None, skip_to: int | None = None, origin: int = 0,
+               ratio: float | None = None, skip_to: int | None = None,
+               anchors: Sequence[int] | np.ndarray = (), rate: float = 1.0,
                near: float | None = None) -> dict[int, float]:
     """Keys strictly inside [lo, hi] chosen by recursive splitting: {row: split distance}.
 
     Iterative (explicit stack, one compiled loop). Shared by `extract` and the online
     keyframer. With `skip_to`, segments ending at or before that row are not split (their
     keys are left out; every other key is unchanged, as each segment's recursion is
-    independent of the others).
+    independent of the others). `anchors` (rows where takes start; none: row 0) and `rate`
+    (frames per 1/120 s) place the split grid (module docstring); `near`: the near-tie band.
     """
     x, limit, use_ratio = _rule_args(x, tolerance, ratio)
     room = max(hi - lo, 1)
     rows, dists = np.empty(room, dtype=np.int64), np.empty(room)
     n = _split_all(x, lo, hi, limit, use_ratio, -1 if skip_to is None else int(skip_to),
-                   int(origin), NEAR_TIE if near is None else float(near), rows, dists)
+                   *_grid(anchors, rate), NEAR_TIE if near is None else float(near), rows,
+                   dists)
     return dict(zip(rows[:n].tolist(), dists[:n].tolist(), strict=True))
 
 
 def first_key(x: np.ndarray, lo: int, hi: int, *, tolerance: float | None = None,
-              ratio: float | None = None, origin: int = 0, near: float | None = None
-              ) -> tuple[int, float]:
+              ratio: float | None = None, anchors: Sequence[int] | np.ndarray = (),
+              rate: float = 1.0, near: float | None = None) -> tuple[int, float]:
     """First key after `lo` of `split_keys(x, lo, hi)` (or `hi`), and its split distance.
 
     Only left halves are visited: the first key lies in [lo, m] of the first split m.
     """
     x, limit, use_ratio = _rule_args(x, tolerance, ratio)
-    k, dist = _first(x, lo, hi, limit, use_ratio, int(origin),
+    k, dist = _first(x, lo, hi, limit, use_ratio, *_grid(anchors, rate),
                      NEAR_TIE if near is None else float(near))
     return int(k), float(dist)
 
@@ -385,7 +432,8 @@ def extract(motion: Motion, *, tolerance: float | None = None, ratio: float | No
         sort = np.argsort(rows)
         rows, scores = rows[sort], dists[sort]
     else:
-        keys = split_keys(x, 0, n - 1, tolerance=tolerance, ratio=ratio)
+        keys = split_keys(x, 0, n - 1, tolerance=tolerance, ratio=ratio,
+                          rate=motion.fps * GRID_TICK)
         keys.setdefault(0, 0.0)
         keys.setdefault(n - 1, 0.0)
         rows = np.array(sorted(keys), dtype=np.int64)
@@ -450,6 +498,7 @@ class Online(OnlineKeyframer):
         self.history, self.hop, self.merge, self.max_span = (int(history), int(hop),
                                                              int(merge), int(span))
         self._rot = skeleton.rotation_columns()
+        self.rate = fps * GRID_TICK
         self.reset()
 
     def reset(self) -> None:
@@ -496,12 +545,16 @@ class Online(OnlineKeyframer):
     def _x(self) -> np.ndarray:
         return self._buf[: self._t + 1 - self._base]
 
+    def _anchor_rows(self) -> np.ndarray:
+        """The split grid's anchor, the stream's first frame, as a row of the buffer."""
+        return np.array([-self._base], dtype=np.int64)
+
     # -- rules ---------------------------------------------------------------------------
     def _meets(self, lo: int, hi: int) -> bool:
         """Does the segment [lo, hi] (stream indices) meet the stopping rule?"""
         x, limit, use_ratio = _rule_args(self._x(), self.tolerance, self.ratio)
-        return bool(_splits(x, lo - self._base, hi - self._base, limit, use_ratio, 0, 0.0,
-                            np.empty(hi - lo + 1))[0] < 0)
+        return bool(_splits(x, lo - self._base, hi - self._base, limit, use_ratio, _NO_ANCHOR,
+                            1.0, 0.0, np.empty(hi - lo + 1))[0] < 0)
 
     def _commit(self, k: int, score: float) -> KeyframeEvent:
         self._c, self._w = k, None
@@ -518,7 +571,7 @@ class Online(OnlineKeyframer):
         a = self._keys[0]
         keys = split_keys(self._x(), a - self._base, t - self._base, tolerance=self.tolerance,
                           ratio=self.ratio, skip_to=self._c - self._base,  # only c on is used
-                          origin=self._base)
+                          anchors=self._anchor_rows(), rate=self.rate)
         self._p = {k + self._base: dist for k, dist in keys.items()}
         self._p_time = t
 
@@ -528,7 +581,8 @@ class Online(OnlineKeyframer):
             if self._meets(c, k):
                 return k, self._p[k]
         k1, score = first_key(self._x(), c - self._base, t - self._base,
-                              tolerance=self.tolerance, ratio=self.ratio, origin=self._base)
+                              tolerance=self.tolerance, ratio=self.ratio,
+                              anchors=self._anchor_rows(), rate=self.rate)
         return k1 + self._base, score
 
     def _step(self) -> list[KeyframeEvent]:
@@ -578,12 +632,13 @@ class Online(OnlineKeyframer):
             return events
         if self._c < d and self._w is not None:
             k1, _ = first_key(self._x(), self._c - self._base, t - self._base,
-                              tolerance=self.tolerance, ratio=self.ratio, origin=self._base)
+                              tolerance=self.tolerance, ratio=self.ratio,
+                              anchors=self._anchor_rows(), rate=self.rate)
             if k1 + self._base <= d:  # would be late: the witness first
                 events.append(self._commit(*self._w))
         lo, hi = self._c - self._base, t - self._base
         keys = split_keys(self._x(), lo, hi, tolerance=self.tolerance, ratio=self.ratio,
-                          origin=self._base)
+                          anchors=self._anchor_rows(), rate=self.rate)
         keys[hi] = 0.0
         events += [self._commit(self._base + r, keys[r]) for r in sorted(keys)]
         return events
