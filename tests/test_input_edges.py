@@ -107,3 +107,19 @@ def test_a_reference_frame_plus_one_captured_frame_is_one_key_offline_and_online
         "saliency": [], "speed": [], "simplify": [1], "uniform": [1], "decimate": [1],
         "isodata": [1], "curvefit": [1], "optimal": [1]}
     assert {m: r["keyframes"] for m, r in on.items()} == {m: off[m]["keyframes"] for m in on}
+
+
+@pytest.mark.parametrize(("address", "said"), [
+    ("out.jsonl", "a file is not an address (for a JSON Lines file of the events write "
+                  "jsonl:out.jsonl)"),
+    ("README.md", "a file is not an address"),
+    ("127.0.0.1:9000", "the scheme is missing (osc://127.0.0.1:9000, zmq+tcp://127.0.0.1:9000"),
+    ("osc:/127.0.0.1:9000", "an address needs two slashes: osc://127.0.0.1:9000"),
+    ("foo://127.0.0.1:9000", "unknown scheme 'foo'"),
+])
+def test_an_address_that_is_a_file_or_lacks_a_scheme_is_told_what_it_looks_like(
+        capsys, address, said):
+    code = main(["replay", str(DATA / "07_01.bvh"), "--to", address])
+    err = capsys.readouterr().err
+    assert code == 2 and said in err and "Traceback" not in err, err
+    assert err.startswith(f"error: address {address!r}: ")
