@@ -185,7 +185,8 @@ def test_refused_input_is_a_status_event_on_every_sink_with_the_same_rate_limit(
         out = peer.getsockname()[1]
         proc = streamkey("run", "--from", f"osc://127.0.0.1:{port}", "--method", "simplify",
                          "--skeleton", str(CLIP), "--to", f"jsonl:{log}", "--to",
-                         f"osc://127.0.0.1:{out}", "--quiet")
+                         f"osc://127.0.0.1:{out}", "--quiet", "--summary",
+                         str(tmp_path / "summary.json"))
         try:
             wait_ready(proc, timeout=300)
             motion = read_motion(str(CLIP))
@@ -208,6 +209,8 @@ def test_refused_input_is_a_status_event_on_every_sink_with_the_same_rate_limit(
     detail = status[0]["detail"]
     assert detail["kind"] == "channels" and detail["seq"] == arguments[0]
     assert detail["count"] == arguments[0] - 3  # the refusals until it was noticed
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["input_problems"] == {"channels": 3} and summary["events"]["status"] == 1
     assert detail["message"].startswith(f"frame with {n + 2} values on stream 'default': "
                                         f"its skeleton has {n} channels")
 

@@ -198,6 +198,7 @@ class InputWatch:
             detail["seq"] = seq
         event = StatusEvent(stream=name, method="*", status=INPUT_STATUS + kind,
                             detail=detail, seq=seq)
+        engine.summary.events["status"] += 1  # counted as the engine counts its own
         engine.sinks.offer(event)
         engine.sinks.end_batch(time.monotonic_ns())
         if engine.config.on_event is not None:
