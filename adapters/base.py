@@ -6,7 +6,9 @@ core (`streamkey.io`), the `Source` / `Sink` interfaces, their counters and the 
 from __future__ import annotations
 
 import ipaddress
+import re
 from dataclasses import dataclass, field
+from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 from streamkey.errors import UsageError
@@ -71,9 +73,13 @@ def parse_address(text: str) -> Address:
         return Address("jsonl", path=path)
     parts = urlsplit(text)
     if parts.scheme not in _SCHEMES:
-        raise UsageError(f"address {text!r}: unknown scheme {parts.scheme!r}; expected one of "
+        raise UsageError(f"address {text!r}: {_no_scheme(text, parts.scheme)}; expected one of "
                          "osc://HOST:PORT, zmq+tcp://HOST:PORT, ws://HOST:PORT, jsonl:PATH, -, "
                          "axis+tcp://HOST:PORT, axis+udp://HOST:PORT, vmc://HOST:PORT")
+    if not text.startswith(f"{parts.scheme}://"):
+        rest = text[len(parts.scheme) + 1 :].lstrip("/")
+        raise UsageError(f"address {text!r}: an address needs two slashes: "
+                         f"{parts.scheme}://{rest}")
     options = {k: v[-1] for k, v in parse_qs(parts.query).items()}
     if parts.scheme == "zmq+ipc":
         return Address("zmq+ipc", path=parts.netloc + parts.path, options=options)
@@ -84,6 +90,18 @@ def parse_address(text: str) -> Address:
     if port is None:
         raise UsageError(f"address {text!r}: expected a port, e.g. {parts.scheme}://127.0.0.1:9000")
     return Address(parts.scheme, parts.hostname or LOOPBACK, port, parts.path, options)
+
+
+def _no_scheme(text: str, scheme: str) -> str:
+    """Why `text` has no known scheme, in the words of what it looks like: a file, a bare
+    HOST:PORT, or an unknown scheme."""
+    if re.fullmatch(r"[A-Za-z0-9.\-]+:\d+|\[[0-9A-Fa-f:.]+\]:\d+", text):
+        return f"the scheme is missing (osc://{text}, zmq+tcp://{text}, ws://{text}, ...)"
+    if "://" not in text and (not scheme or "/" in text or "\\" in text
+                              or Path(text).suffix or Path(text).exists()):
+        return (f"a file is not an address (for a JSON Lines file of the events write "
+                f"jsonl:{text})")
+    return f"unknown scheme {scheme!r}"
 
 
 def is_loopback(host: str) -> bool:

@@ -118,15 +118,17 @@ def extract_motion(motion: Motion, methods: list[str],
     for name in order:
         kwargs = dict(params.get(name, {}))
         captured = motion.n_frames - motion.first_frame
-        if name in ("uniform", "decimate") and captured < 2:
-            raise InputError(f"{name} keeps the first and last frame, so it needs at least 2"
-                             f" captured frames; the clip has {captured}")
+        if name in ("uniform", "decimate") and captured < 1:
+            raise InputError(f"{name} keeps the first and last frame, so it needs at least 1"
+                             f" captured frame; the clip has none")
         if name in ("uniform", "decimate") and kwargs.get("count") is None:
             if "saliency" not in results:
                 results["saliency"] = offline_method("saliency")(
                     motion, features=features, **params.get("saliency", {}))
-            # At least first and last: a still clip has no salient pose but still two ends.
-            kwargs["count"] = max(len(results["saliency"]), 2)
+            # At least first and last: a still clip has no salient pose but still two ends;
+            # a clip of one captured frame (after its reference frame) has that one key, as
+            # the other methods and the online keyframers give it.
+            kwargs["count"] = min(max(len(results["saliency"]), 2), captured)
         if name == "uniform":
             results[name] = offline_method(name)(motion, **kwargs)
         else:

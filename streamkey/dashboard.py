@@ -5,12 +5,14 @@ page (`/`) and its static files (`/static/...`, shipped in the package: no build
 CDN, works offline), and a WebSocket on `/ws` that pushes, as JSON text:
 
 - `hello` once per connection: take name, methods and their colours, bones and their sides
-  (left / right), fps, recent keyposes, the chart's keys of the last 20 s, annotations;
+  (left / right), fps, recent keyposes, the chart's keys of the last 20 s, annotations, and
+  the recent explanations of refused input (`notices`);
 - `pose` every few frames (about 30 per second): the current pose as points in body heights
   plus the driving signals computed here (body-frame speed and acceleration);
 - every engine event as its `to_dict()` (`keyframe` events carry the pose of their frame
   for the thumbnail; `provisional`, `cancel`, `signal` and any newer type pass through, the
-  page dispatches on `type` and skips what it does not know);
+  page dispatches on `type` and skips what it does not know; a `status` event of refused
+  input, `input_<kind>`, is listed on the page with its message);
 - `stats` about four times a second: frames, drops, frames lost (seq holes), gaps, events,
   decision delay per method (median `latency_frames`, and in ms), wall latency, lookahead,
   annotations and refused operator messages;
@@ -52,7 +54,7 @@ from .adapters.sinks import JsonlSink
 from .adapters.websocket import WebSocketSink
 from .engine import Engine
 from .errors import InputError, RoleError, UsageError
-from .keyframes import SCHEMA_VERSION, Event, KeyframeEvent
+from .keyframes import SCHEMA_VERSION, Event, KeyframeEvent, StatusEvent
 from .kinematics import body_height, forward_kinematics, pelvis_frame
 from .motion import Frame, Motion, Skeleton
 from .roles import resolve_roles
@@ -66,6 +68,7 @@ MAX_TEXT = 500            # characters of a label or a reason
 MAX_KEYS = 10_000         # keyed frames remembered for labels and rejections
 MAX_ANNOTATIONS = 1000    # annotations kept in memory (all of them are in the log)
 MAX_SEGMENTS = 50         # session segments (calibration, still, take) kept for late pages
+MAX_NOTICES = 20          # explanations of refused input kept for late pages
 MAX_CLIENT_MESSAGE = 4096  # bytes of one operator message
 ACTIONS = ("label", "key", "reject", "accept", "undo")
 SIDE_COLORS = {"L": "#1565c0", "R": "#e65100"}  # left / right bones of the live figure
@@ -319,6 +322,8 @@ class DashboardSink(WebSocketSink):
         self.annotations: deque[dict[str, Any]] = deque(maxlen=MAX_ANNOTATIONS)
         self.signals: deque[dict[str, Any]] = deque(maxlen=round(10 * rate) + 1)  # 10 s chart
         self.saliency: deque[list[float]] = deque(maxlen=1500)  # 10 s at up to 150 Hz
+        self.notices: deque[dict[str, Any]] = deque(maxlen=MAX_NOTICES)  # refused input
+        self.frame_hooks: list[Callable[[Frame], None]] = []  # also see each frame first
         self._last_stats = 0
 
     # ------------------------------------------------------------------ engine side
@@ -349,6 +354,8 @@ class DashboardSink(WebSocketSink):
 
     def on_frame(self, frame: Frame) -> None:
         """Engine hook after each frame: remember it, send the pose every few frames."""
+        for hook in self.frame_hooks:
+            hook(frame)
         if self.view is None:
             stats = self.engine.statistics() if self.engine else None
             if stats is None or stats.skeleton is None or stats.fps is None:
@@ -392,6 +399,8 @@ class DashboardSink(WebSocketSink):
                 self.chart.append({"method": method, "frame": frame})
                 record["pose"] = self.view.pose_of(frame) if self.view else None
                 self.recent.append(record)
+            case StatusEvent(status=status) if status.startswith("input_"):
+                self.notices.append(record)  # refused input, explained
             case _ if record.get("type") == "segment":
                 # one entry per segment (an open one is replaced when it closes)
                 self.segments[(record.get("kind"), record.get("start"))] = record
@@ -447,7 +456,7 @@ class DashboardSink(WebSocketSink):
                 "recent": list(self.recent), "keys": self._chart_keys(),
                 "annotations": list(self.annotations)[-50:],
                 "signals": list(self.signals), "saliency": list(self.saliency),
-                "segments": list(self.segments.values())}
+                "segments": list(self.segments.values()), "notices": list(self.notices)}
 
     def _chart_keys(self) -> list[dict[str, Any]]:
         """Keys of the last 20 s (what the page's chart remembers), so a page opened late

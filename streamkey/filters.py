@@ -481,7 +481,8 @@ def _three_rotation_joints(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
 
 @warmer
 def warm_filters() -> None:
-    """Compile (or load from the cache) the FIR kernel."""
+    """Compile (or load from the cache) the FIR kernel and the front end's, filtering
+    (`pack_rows`, `unpack_rows`: a stream with a noise cut-off) and not."""
     out = np.empty((1, 2))
     fir_into(np.ones((3, 2)), np.array([0.25, 0.5, 0.25]), 1, out)
     cols, axes = np.array([[0, 1, 2]]), np.array([[2, 0, 1]])
@@ -490,5 +491,5 @@ def warm_filters() -> None:
     joint_angles(q, axes, np.ones((1, 3)), cols, e)
     skeleton = Skeleton(["root"], [-1], np.zeros((1, 3)),
                         [["Xposition", "Zrotation", "Xrotation", "Yrotation"]])
-    front = FrontEnd(skeleton, 120.0)
-    front.run(np.zeros((3, 4)))
+    for cutoff in (None, RECOMMENDED_NOISE_CUTOFF_HZ):
+        FrontEnd(skeleton, 120.0, cutoff).run(np.zeros((3, 4)))

@@ -24,10 +24,11 @@ from .errors import UsageError
 __all__ = ["Keyframes", "KeyframeEvent", "GapEvent", "StatusEvent", "ProvisionalEvent",
            "CancelEvent", "SignalEvent", "Event", "SCHEMA_VERSION", "params_digest",
            "rank_strength", "rank_strengths", "STRENGTH_WINDOW", "Segment", "SegmentEvent",
-           "SegmentKind"]
+           "SegmentKind", "INPUT_STATUS"]
 
 SCHEMA_VERSION = 2
 SegmentKind = Literal["calibration", "still", "take"]
+INPUT_STATUS = "input_"  # status `input_<kind>`: live input refused (what came, what was due)
 STRENGTH_WINDOW = 64  # keys: a key's strength is its score's rank among this many recent keys
 
 
@@ -270,7 +271,8 @@ class GapEvent(Event):
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StatusEvent(Event):
-    """Free-form status (warm-up done, restart, counters) for logs and dashboards."""
+    """Free-form status (warm-up done, restart, counters) for logs and dashboards; status
+    `input_<kind>` (`INPUT_STATUS`) explains refused live input in `detail["message"]`."""
 
     method: str
     status: str

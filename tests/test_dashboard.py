@@ -725,3 +725,64 @@ def test_the_lookahead_counter_follows_the_auto_preset_after_its_switch(data_dir
     for frame in frames[10:400]:
         pipeline.push(frame)
     assert _lookahead_now(engine, {"saliency": 121}) == {"saliency": 37}
+
+
+def test_browser_lists_refused_input_as_the_stderr_line(data_dir: Path, tmp_path: Path) -> None:
+    """A frame of the wrong size over real OSC: the page lists the same line `run` prints on
+    stderr (a status event `input_channels`), and a page opened later lists it too (hello).
+    Every wait is on page state."""
+    import socket as sockets
+
+    import numpy as np
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    from streamkey.adapters.osc import encode_frame
+
+    with sockets.socket(sockets.AF_INET, sockets.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    proc = streamkey("run", "--from", f"osc://127.0.0.1:{port}", "--method", "simplify",
+                     "--skeleton", str(data_dir / "07_05.bvh"), "--dashboard", "0", "--log",
+                     str(tmp_path / "session.jsonl"))
+    drivers: list[Any] = []
+    try:
+        lines = "".join(wait_ready(proc, "dashboard on", timeout=300))
+        if "listening on" not in lines:  # the page binds first, then the source
+            wait_ready(proc, timeout=300)
+        url = re.search(r"dashboard on (\S+)", lines)
+        assert url is not None
+
+        def page() -> tuple[Any, Any]:
+            driver = chrome()
+            drivers.append(driver)
+            driver.get(url.group(1))
+            wait = WebDriverWait(driver, 60 * MS, poll_frequency=0.05)
+            wait.until(lambda d: d.find_element(By.ID, "status").get_attribute("data-state")
+                       == "open")
+            return driver, wait
+
+        def listed(driver: Any) -> list[str]:
+            return [li.text for li in driver.find_elements(By.CSS_SELECTOR, "#input-notices li")]
+
+        driver, wait = page()
+        assert not driver.find_element(By.ID, "input-panel").is_displayed()
+        with sockets.socket(sockets.AF_INET, sockets.SOCK_DGRAM) as out:
+            out.sendto(encode_frame(0, 0.0, np.zeros(5)), ("127.0.0.1", port))
+        line = next(ln for ln in iter(proc.stderr.readline, "")  # type: ignore[union-attr]
+                    if ln.startswith("warning:")).strip()
+        assert "frame with 5 values on stream 'default'" in line
+        wait.until(lambda d: listed(d))
+        assert listed(driver) == [line]
+        assert driver.find_element(By.ID, "input-panel").is_displayed()
+        item = driver.find_element(By.CSS_SELECTOR, "#input-notices li")
+        assert item.get_attribute("data-kind") == "channels"
+        late, late_wait = page()  # opened after the refusal: the hello lists it
+        late_wait.until(lambda d: listed(d))
+        assert listed(late) == [line]
+    finally:
+        for driver in drivers:
+            driver.quit()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60 * MS)
+    assert proc.returncode == 0 and "input problems: channels 1" in err, err

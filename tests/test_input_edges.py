@@ -1,6 +1,8 @@
 """Input edges a fuzzer found in files: a UTF-8 byte-order mark at the start of a BVH, ASF or
-AMC file (was refused), and a still clip (was "1 captured frame" offline, so `extract
---method all` refused it while `--online` took it). Real CMU clips, mutated copies."""
+AMC file (was refused), a still clip (was "1 captured frame" offline, so `extract
+--method all` refused it while `--online` took it), and a reference frame plus one captured
+frame (uniform and decimate refused it offline, exit 2, while `--online` gave its key, exit
+0). Real CMU clips, mutated copies."""
 
 from __future__ import annotations
 
@@ -83,3 +85,41 @@ def test_a_still_clip_is_valid_input_offline_and_online_alike(tmp_path, capsys, 
     assert off["simplify"]["keyframes"] == off["optimal"]["keyframes"] == [0, 99]
     assert {m: r["keyframes"] for m, r in on.items()} == {
         m: off[m]["keyframes"] for m in on}
+
+
+def test_a_reference_frame_plus_one_captured_frame_is_one_key_offline_and_online(
+        tmp_path, capsys):
+    """07_05's T-pose reference frame and its first captured frame: every method that keys
+    the ends gives that frame, both ways, exit 0 (as for a still clip)."""
+    head, body = (DATA / "07_05.bvh").read_text().split("MOTION\n", 1)
+    lines = body.splitlines()
+    path = tmp_path / "07_05_one.bvh"
+    path.write_text(head + "MOTION\nFrames: 2\n" + lines[1] + "\n" + "\n".join(lines[2:4])
+                    + "\n")
+    motion = read_bvh(path)
+    assert (motion.n_frames, motion.first_frame) == (2, 1)  # one captured frame
+    code, offline, err = extract(capsys, str(path), "--method", "all")
+    assert code == 0 and "error" not in err, err
+    code, online, err = extract(capsys, str(path), "--online", "--method", "all")
+    assert code == 0 and "error" not in err, err
+    off, on = offline["files"][0]["methods"], online["files"][0]["methods"]
+    assert {m: r["keyframes"] for m, r in off.items()} == {
+        "saliency": [], "speed": [], "simplify": [1], "uniform": [1], "decimate": [1],
+        "isodata": [1], "curvefit": [1], "optimal": [1]}
+    assert {m: r["keyframes"] for m, r in on.items()} == {m: off[m]["keyframes"] for m in on}
+
+
+@pytest.mark.parametrize(("address", "said"), [
+    ("out.jsonl", "a file is not an address (for a JSON Lines file of the events write "
+                  "jsonl:out.jsonl)"),
+    ("README.md", "a file is not an address"),
+    ("127.0.0.1:9000", "the scheme is missing (osc://127.0.0.1:9000, zmq+tcp://127.0.0.1:9000"),
+    ("osc:/127.0.0.1:9000", "an address needs two slashes: osc://127.0.0.1:9000"),
+    ("foo://127.0.0.1:9000", "unknown scheme 'foo'"),
+])
+def test_an_address_that_is_a_file_or_lacks_a_scheme_is_told_what_it_looks_like(
+        capsys, address, said):
+    code = main(["replay", str(DATA / "07_01.bvh"), "--to", address])
+    err = capsys.readouterr().err
+    assert code == 2 and said in err and "Traceback" not in err, err
+    assert err.startswith(f"error: address {address!r}: ")

@@ -10,10 +10,14 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 from cmu import DATA
-from live_helpers import MS, free_port, interrupt_if_running, streamkey, wait_ready
+from live_helpers import MS, free_port, interrupt_if_running, read_jsonl, streamkey, wait_ready
+from pythonosc.osc_bundle import OscBundle
+from pythonosc.osc_message import OscMessage
 
 from streamkey.adapters.osc import encode_frame, osc_string
 from streamkey.amc import read_motion
@@ -133,12 +137,127 @@ def test_with_the_dashboard_too_refused_input_is_explained(tmp_path):
         with connect(page.replace("http://", "ws://") + "/ws") as ws:
             assert json.loads(ws.recv(timeout=30 * MS))["type"] == "hello"
             _send(port, encode_frame(0, 0.0, np.zeros(5)))
-            line, took = _line_with(proc, "warning: frame on stream 'default' refused")
-            assert "expected 96 finite channel values" in line and took < 1.0 * MS
-            while (message := json.loads(ws.recv(timeout=30 * MS)))["type"] != "input":
+            line, took = _line_with(proc, "warning: frame with 5 values on stream 'default'")
+            assert "its skeleton has 96 channels" in line and took < 1.0 * MS
+            while (message := json.loads(ws.recv(timeout=30 * MS)))["type"] != "status":
                 pass
-            assert message["text"] == line.strip()  # the page shows the same line
+            assert message["status"] == "input_channels"  # the page gets the same line
+            assert "warning: " + message["detail"]["message"] == line.strip()
+        with connect(page.replace("http://", "ws://") + "/ws") as late:  # a page opened later
+            hello = json.loads(late.recv(timeout=30 * MS))
+            assert [n["detail"]["message"] for n in hello["notices"]] == [message["detail"][
+                "message"]]
     finally:
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60 * MS)
-    assert "input problems: invalid 1" in err
+    assert "input problems: channels 1" in err
+    logged = [e for e in read_jsonl(tmp_path / "session.jsonl") if e["type"] == "status"]
+    assert [e["status"] for e in logged] == ["input_channels"]
+
+
+def _osc_messages(sock: socket.socket, seconds: float) -> Iterator[tuple[str, list[Any]]]:
+    """(address, arguments) of every message of the OSC packets arriving on `sock`."""
+    deadline = time.monotonic() + seconds * MS
+    while time.monotonic() < deadline:
+        sock.settimeout(max(0.01, deadline - time.monotonic()))
+        try:
+            packet = sock.recv(65536)
+        except TimeoutError:
+            break
+        if OscBundle.dgram_is_bundle(packet):
+            for item in OscBundle(packet):
+                if isinstance(item, OscMessage):
+                    yield item.address, list(item.params)
+        else:
+            message = OscMessage(packet)
+            yield message.address, list(message.params)
+    raise AssertionError("no such OSC message in time")
+
+
+def test_refused_input_is_a_status_event_on_every_sink_with_the_same_rate_limit(tmp_path):
+    """The stderr line is also a `status` event (`input_<kind>`, its message the line) in
+    the JSON Lines log, on OSC (`/streamkey/<stream>/status/input_<kind> i seq`) and in the
+    `--summary` counts; `--quiet` silences stderr, not the events."""
+    port, log = free_port(), tmp_path / "events.jsonl"
+    n = read_motion(str(CLIP)).skeleton.n_channels
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as peer:
+        peer.bind(("127.0.0.1", 0))
+        out = peer.getsockname()[1]
+        proc = streamkey("run", "--from", f"osc://127.0.0.1:{port}", "--method", "simplify",
+                         "--skeleton", str(CLIP), "--to", f"jsonl:{log}", "--to",
+                         f"osc://127.0.0.1:{out}", "--quiet", "--summary",
+                         str(tmp_path / "summary.json"))
+        try:
+            wait_ready(proc, timeout=300)
+            motion = read_motion(str(CLIP))
+            for seq in range(1, 4):  # good frames first: the event names the newest one
+                _send(port, encode_frame(seq, seq / 120, motion.channels[seq]))
+            for seq in range(4, 7):  # three refusals: one event, the others counted
+                _send(port, encode_frame(seq, seq / 120, np.zeros(n + 2)))
+            start = time.monotonic()
+            address, arguments = next(m for m in _osc_messages(peer, 10) if "/status/" in m[0])
+            assert time.monotonic() - start < 1.0 * MS
+            assert address == "/streamkey/default/status/input_channels"
+            assert arguments[0] in (4, 5, 6)  # the stream's newest frame: a refused one
+        finally:
+            proc.send_signal(signal.SIGINT)
+            _, err = proc.communicate(timeout=60 * MS)
+    assert proc.returncode == 0 and "warning" not in err and "input problems: channels 3" in err
+    status = [e for e in read_jsonl(log) if e["type"] == "status"]
+    assert len(status) == 1, status  # the same rate limit as the stderr line
+    assert status[0]["status"] == "input_channels" and status[0]["stream"] == "default"
+    detail = status[0]["detail"]
+    assert detail["kind"] == "channels" and detail["seq"] == arguments[0]
+    assert detail["count"] == arguments[0] - 3  # the refusals until it was noticed
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["input_problems"] == {"channels": 3} and summary["events"]["status"] == 1
+    assert detail["message"].startswith(f"frame with {n + 2} values on stream 'default': "
+                                        f"its skeleton has {n} channels")
+
+
+def test_a_cluster_shard_explains_refused_input_as_status_events_and_notices(tmp_path):
+    """`cluster run`'s shard worker (no Ray: messages handed over by hand, a real
+    redis-server): frames before the skeleton, a wrong channel count and a bad topic are
+    each one `input_<kind>` status event in the run's event stream and one line in its
+    notice list (the driver prints those), rate-limited per kind, and counted."""
+    from cluster_helpers import RedisServer, redis_events
+
+    from streamkey.adapters.osc import skeleton_header
+    from streamkey.adapters.zmq import encode_frame_parts
+    from streamkey.cluster.live import ClusterConfig, ShardWorker, new_notices, stream_topic
+    from streamkey.motion import Frame
+
+    server = RedisServer(tmp_path)
+    try:
+        cfg = ClusterConfig("tcp://127.0.0.1:1", server.url, 1, ["simplify"], {}, run="input",
+                            snapshot_every=100_000)
+        worker = ShardWorker(cfg, 0)  # not started: messages are handed over by hand
+        motion = read_motion(str(CLIP))
+        n = motion.skeleton.n_channels
+
+        def frame(seq: int, values: np.ndarray) -> list[bytes]:
+            return stream_topic("dancer", encode_frame_parts(Frame(seq, seq / 120, values)))
+
+        worker.handle(frame(1, motion.channels[1]))  # before the skeleton
+        worker.handle(stream_topic("dancer", [b"skeleton", json.dumps(
+            {"bvh": skeleton_header(motion.skeleton, motion.fps), "fps": motion.fps}).encode()]))
+        for seq in range(2, 5):
+            worker.handle(frame(seq, motion.channels[seq]))
+        for seq in range(5, 8):  # three of the wrong size: one explanation
+            worker.handle(frame(seq, np.zeros(n - 1)))
+        worker.handle([b"dancer/nonsense", b""])
+        notices = new_notices(server.client(), "input", 0)
+        events = [e for e in redis_events(server.client(), "input") if e["type"] == "status"]
+        problems = worker.status()["input_problems"]
+    finally:
+        server.stop()
+    assert [e["status"] for e in events] == ["input_no_skeleton", "input_channels",
+                                             "input_malformed"]
+    channels = events[1]["detail"]
+    assert channels["message"].startswith(f"frame with {n - 1} values on stream 'dancer': "
+                                          f"expected {n} finite channel values")
+    assert events[1]["stream"] == "dancer" and channels["seq"] == 4
+    assert "unknown topic b'dancer/nonsense'; expected the topic <stream>/frame or " \
+           "<stream>/skeleton" in events[2]["detail"]["message"]
+    assert notices == [f"shard 0: {e['detail']['message']}" for e in events]
+    assert problems == {"no_skeleton": 1, "channels": 3, "malformed": 1}

@@ -3,12 +3,14 @@ and warm_up() runs every registered warmer."""
 
 from __future__ import annotations
 
+import os
 import pickle
 import subprocess
 import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 from streamkey import jit
 
@@ -79,3 +81,36 @@ def test_a_kernel_calls_the_prefetch_hint_by_name_and_keeps_its_result(tmp_path,
     assert mod.strided_sum(a, 8) == float(np.sum(a[::8]))
     assert jit.prefetch not in jit._KERNELS  # nothing of its own in numba's cache
     assert not jit.cache_is_cold([mod.strided_sum])  # the caller is cached as any kernel
+
+
+_PIPELINE = '''
+import sys
+from streamkey import jit
+from streamkey.io import StreamSpec
+from streamkey.online import Pipeline
+from streamkey.rigs import humanoid_skeleton
+from streamkey.streamtable import keyframers_for
+spec = StreamSpec("s", humanoid_skeleton(), 120.0)
+Pipeline(keyframers_for(spec, ["saliency", "speed", "simplify", "optimal"]), stream="s")
+cold = jit.cache_is_cold()  # before anything runs, as the engine asks it
+if sys.argv[1] == "warm":
+    jit.warm_up()
+print(cold)
+'''
+
+
+@pytest.mark.slow
+def test_a_fresh_process_after_warm_up_finds_the_cache_warm(tmp_path):
+    """`cache_is_cold()` is what the engine's "compiling the numba kernels" notice rests on:
+    True on an empty cache, False in the next process once `warm_up()` ran (every kernel a
+    live stream can call is compiled by a warmer, the noise filter's included)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+
+    def cold(step: str) -> str:
+        done = subprocess.run([sys.executable, "-P", "-c", _PIPELINE, step], env=env,
+                              capture_output=True, text=True, timeout=1800)
+        assert done.returncode == 0, done.stderr
+        return done.stdout.split()[-1]
+
+    assert cold("warm") == "True"  # an empty cache
+    assert cold("check") == "False"  # a fresh process after warm_up: nothing to compile

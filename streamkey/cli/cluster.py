@@ -8,6 +8,7 @@ import json
 import signal
 import sys
 import threading
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -86,10 +87,12 @@ def run(args: argparse.Namespace) -> int:
         motion.skeleton.roles = roles or motion.skeleton.roles
         config.skeleton, config.skeleton_fps = motion.skeleton, motion.fps
     _check_redis(args.redis)
+    from ..cluster.live import new_notices
     from ..cluster.ray_run import ClusterRun
 
     run = ClusterRun(config, args.address, args.actor_cpus)
     stop = threading.Event()
+    said = 0  # refused input, explained by the shards: printed as they come
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         for line in run.start():
@@ -97,6 +100,9 @@ def run(args: argparse.Namespace) -> int:
         while not stop.wait(0.2):
             if run.logger.error:
                 break
+            for line in new_notices(run.logger.redis, config.run, said):
+                said += 1
+                print(f"warning: {line}", file=sys.stderr, flush=True)
             idle = run.idle_for()
             if args.idle_exit is not None and idle is not None and idle >= args.idle_exit:
                 break
@@ -112,6 +118,12 @@ def run(args: argparse.Namespace) -> int:
           f"({total['replayed']} replayed from the log), {total['events']} events "
           f"({total['duplicates_dropped']} duplicates dropped), {total['snapshots']} snapshots, "
           f"{restarts} actor restart(s), {run.logger.logged} frames logged", file=sys.stderr)
+    problems: Counter[str] = Counter()
+    for shard in shards:
+        problems.update(shard.get("input_problems", {}))
+    if problems:
+        print("input problems: " + ", ".join(f"{k} {v}" for k, v in sorted(problems.items())),
+              file=sys.stderr)
     if run.logger.error:  # without the log a worker's restart would lose frames: fail
         print(f"error: {run.logger.error}", file=sys.stderr)
         return 2

@@ -107,9 +107,9 @@ def dashboard(args: argparse.Namespace, source: Any, methods: list[str], to: lis
     log = args.log or (None if any(a.startswith("jsonl:") for a in to) else default_log())
     watch = InputWatch(quiet=getattr(args, "quiet", False))
 
-    def watching(board: Any) -> None:  # refused input explained on stderr meanwhile
+    def watching(board: Any) -> None:  # refused input explained meanwhile (stderr, events)
         watch.engine = board.engine
-        watch.notify = lambda line: board.broadcast({"type": "input", "text": line})
+        board.frame_hooks.append(watch.on_frame)
         watch.task = asyncio.get_running_loop().create_task(watch.watch())
 
     summary, board = asyncio.run(run_dashboard(

@@ -4,7 +4,13 @@ non-finite values) gets one line on stderr naming what arrived and what was expe
 first time and then at most every few seconds per kind (with the count since), and a count
 per kind at the end. A first frame that looks like a calibration/reference pose (a BVH's
 frame-0 T-pose) is pointed out once. Reads the engine's and source's counters from outside:
-the engine itself is unchanged."""
+the engine itself is unchanged.
+
+Each line is also a `status` event to every sink of the engine (JSON Lines, OSC, ZeroMQ,
+WebSocket, the dashboard), with the same rate limit: status `input_<kind>` (OSC
+`/streamkey/<stream>/status/input_<kind> i seq`), detail `kind`, `message` (the line without
+its `warning: `), `count` (refusals this line stands for) and `seq` (the stream's newest frame,
+when there is one). `--quiet` silences stderr only; the events still go out."""
 
 from __future__ import annotations
 
@@ -12,11 +18,11 @@ import asyncio
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable
 from typing import Any, TextIO
 
 import numpy as np
 
+from ..keyframes import INPUT_STATUS, StatusEvent
 from ..motion import Frame, detect_reference_frame
 
 __all__ = ["InputWatch", "REPEAT_S", "POLL_S"]
@@ -43,7 +49,7 @@ class InputWatch:
         self.repeat_s = repeat_s
         self.engine: Any = None
         self.task: asyncio.Task[None] | None = None  # `watch()` when the caller keeps it
-        self.notify: Callable[[str], None] | None = None  # also gets each line (the page)
+        self.publish = True  # also send each line as a status event to the engine's sinks
         self.counts: Counter[str] = Counter()
         self._said_at: dict[str, float] = {}
         self._unsaid: Counter[str] = Counter()
@@ -90,22 +96,23 @@ class InputWatch:
             grew = count - self._seen_malformed[kind]
             if grew > 0:
                 self._seen_malformed[kind] = count
-                self._note(kind, grew, self._malformed_line(kind, stats.last_error))
+                self._note(kind, grew, self._malformed_line(kind, stats.last_error), None,
+                           final)
         for name, state in list(engine.table.live.items()):
             guard = state.pipeline.guard
             invalid = guard.counters.invalid
             grew = invalid - self._seen_invalid.get(name, 0)
             if grew > 0:
                 self._seen_invalid[name] = invalid
-                self._note_invalid(name, guard.n_channels, grew)
+                self._note_invalid(name, guard.n_channels, grew, final)
         for name, held in list(engine.table.waiting.items()):
             if held and name not in self._waiting_said:
                 self._waiting_said.add(name)
                 self._note("no_skeleton", len(held),
                            f"frames on stream {name!r} before any skeleton: send "
                            "/streamkey/skeleton (or the stdin skeleton line) first, or give "
-                           "--skeleton FILE; they are held until it comes")
-        self._check_first_pose()
+                           "--skeleton FILE; they are held until it comes", name, final)
+        self._check_first_pose(final)
         if final:
             self._flush_unsaid()
 
@@ -130,19 +137,19 @@ class InputWatch:
             hint = _KIND_HINTS["positions"]
         return f"input refused ({kind}): {last_error}" + (f"; {hint}" if hint else "")
 
-    def _note_invalid(self, stream: str, n_channels: int, grew: int) -> None:
+    def _note_invalid(self, stream: str, n_channels: int, grew: int, final: bool) -> None:
         size, self._bad_size = self._bad_size, None
         if size is not None and size != n_channels:
             self._note("channels", grew,
                        f"frame with {size} values on stream {stream!r}: its skeleton has "
                        f"{n_channels} channels (frames must carry one value per channel, in "
-                       "the skeleton's order); dropped")
+                       "the skeleton's order); dropped", stream, final)
         else:
             self._note("invalid", grew, f"frame on stream {stream!r} refused: expected "
                        f"{n_channels} finite channel values (one per skeleton channel) and a "
-                       "usable seq/time; dropped")
+                       "usable seq/time; dropped", stream, final)
 
-    def _check_first_pose(self) -> None:
+    def _check_first_pose(self, final: bool) -> None:
         if self._pose_checked or len(self._first) < 2 or self.engine is None:
             return
         self._pose_checked = True
@@ -155,9 +162,13 @@ class InputWatch:
                        "looks like a calibration/reference pose (a BVH's frame-0 T-pose: zero "
                        "root rotation, a few whole-degree joint angles), not captured motion; "
                        "the keyframers take it as motion, which can change their keys. Start "
-                       "the sender at the first captured frame (`replay` does by default)")
+                       "the sender at the first captured frame (`replay` does by default)",
+                       name, final)
 
-    def _note(self, kind: str, count: int, line: str) -> None:
+    def _note(self, kind: str, count: int, line: str, stream: str | None,
+              final: bool = False) -> None:
+        """Count `count` refusals of `kind`; explain them unless `kind` was explained less
+        than `repeat_s` ago (`stream`: whose they are, None for the source's)."""
         self.counts[kind] += count
         now = time.monotonic()
         said = self._said_at.get(kind)
@@ -166,14 +177,29 @@ class InputWatch:
             return
         more = self._unsaid.pop(kind, 0)
         self._said_at[kind] = now
-        self._say(f"warning: {line}" + (f" (+{more} more since the last warning)"
-                                         if more else ""))
+        message = line + (f" (+{more} more since the last warning)" if more else "")
+        if not self.quiet:
+            print(f"warning: {message}", file=self.out or sys.stderr, flush=True)
+        if self.publish and not final:  # at the end the sinks are closed
+            self._send(kind, count + more, message, stream)
 
     def _flush_unsaid(self) -> None:
         self._unsaid.clear()
 
-    def _say(self, line: str) -> None:
-        if not self.quiet:
-            print(line, file=self.out or sys.stderr, flush=True)
-        if self.notify is not None:
-            self.notify(line)
+    def _send(self, kind: str, count: int, message: str, stream: str | None) -> None:
+        """The explanation as a status event to every sink of the engine, as if the engine
+        had sent it (the dashboard and `on_event` included)."""
+        engine = self.engine
+        name = stream if stream is not None else engine.config.stream
+        state = engine.table.live.get(name)
+        seq = state.seq if state is not None else None
+        detail: dict[str, Any] = {"kind": kind, "message": message, "count": count}
+        if seq is not None:
+            detail["seq"] = seq
+        event = StatusEvent(stream=name, method="*", status=INPUT_STATUS + kind,
+                            detail=detail, seq=seq)
+        engine.summary.events["status"] += 1  # counted as the engine counts its own
+        engine.sinks.offer(event)
+        engine.sinks.end_batch(time.monotonic_ns())
+        if engine.config.on_event is not None:
+            engine.config.on_event(event.to_dict())

@@ -39,22 +39,25 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 import zmq
 
 from ..adapters.codec import event_json
 from ..adapters.zmq import decode_frame_parts, decode_skeleton_parts, parse_topic, topic
 from ..io import StreamSpec, stream_tag
 from ..jit import warm_up
-from ..keyframes import Event
+from ..keyframes import INPUT_STATUS, Event, StatusEvent
 from ..motion import Frame, Skeleton
 from ..online import Pipeline
 from ..streamtable import LiveStream, StreamTable, keyframers_for
 from .placement import Placement, RedisKeys
 
 __all__ = ["ClusterConfig", "ShardWorker", "FrameLogger", "Placement", "split_topic",
-           "stream_topic", "snapshot_pipeline", "restore_pipeline", "RedisKeys"]
+           "stream_topic", "snapshot_pipeline", "restore_pipeline", "RedisKeys",
+           "notices_key", "new_notices"]
 
 _LOG_BATCH = 512  # log entries per Redis round trip when replaying
+REPEAT_S = 5.0  # a kind of refused input is explained again at most this often (as `run`)
 
 
 @dataclass
@@ -193,6 +196,8 @@ class ShardWorker:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._adopt_tried: dict[str, float] = {}
+        self.input_problems: Counter[str] = Counter()  # refused input by kind
+        self._said_at: dict[str, float] = {}
 
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
@@ -256,6 +261,7 @@ class ShardWorker:
                     "totals": totals,
                     "retired": list(self.retired), "counters": {**self.counters, **totals},
                     "rejects": dict(self.rejects), "errors": list(self.errors),
+                    "input_problems": dict(self.input_problems),
                     "keyframer_errors": self.table.faults.count,
                     "keyframer_faults": list(self.table.faults.messages)}
 
@@ -303,6 +309,9 @@ class ShardWorker:
         if st is None:
             # No skeleton yet: the logger keeps the frame, replayed when the skeleton comes.
             self.counters["before_skeleton"] += 1
+            self._explain("no_skeleton", stream, f"frames on stream {stream!r} before any "
+                          "skeleton: publish its skeleton message first, or give --skeleton "
+                          "FILE; the frame log keeps them until it comes")
             return
         if st.replayed_to is not None:
             if frame.seq <= st.replayed_to:  # queued while the log was replayed: done already
@@ -314,12 +323,44 @@ class ShardWorker:
             self.counters["holes"] += 1
             self.catch_up(stream, frame.seq)
         self.table.touch(st.live, time.monotonic())
+        invalid = st.pipeline.guard.counters.invalid
         self._push(stream, st, frame)
+        if st.pipeline.guard.counters.invalid > invalid:
+            n = st.pipeline.guard.n_channels
+            self._explain("channels" if np.size(frame.channels) != n else "invalid", stream,
+                          f"frame with {np.size(frame.channels)} values on stream {stream!r}: "
+                          f"expected {n} finite channel values (one per skeleton channel) "
+                          "and a usable seq/time; dropped")
 
     def _reject(self, kind: str, exc: BaseException) -> None:
         self.rejects[kind] += 1
         if len(self.errors) < 20:
             self.errors.append(f"{kind}: {type(exc).__name__}: {str(exc)[:200]}")
+        hint = ("; expected the topic <stream>/frame or <stream>/skeleton (bare frame or "
+                "skeleton: stream default)" if "topic" in str(exc) or kind == "topic" else "")
+        self._explain(kind, None, f"input refused ({kind}): {str(exc)[:200]}{hint}")
+
+    def _explain(self, kind: str, stream: str | None, message: str) -> None:
+        """Refused input, counted by kind and explained at most every `REPEAT_S` per kind:
+        a status event `input_<kind>` in the event stream, and the line in the run's notice
+        list (`notices_key`), which the driver prints on stderr."""
+        self.input_problems[kind] += 1
+        now = time.monotonic()
+        if now - self._said_at.get(kind, -math.inf) < REPEAT_S:
+            return
+        self._said_at[kind] = now
+        st = self.streams.get(stream) if stream is not None else None
+        seq = _last_seq(st.pipeline) if st is not None else None
+        detail: dict[str, Any] = {"kind": kind, "message": message, "shard": self.shard}
+        if seq is not None:
+            detail["seq"] = seq
+        try:
+            self.emit([StatusEvent(stream=stream or "*", method="*",
+                                   status=INPUT_STATUS + kind, detail=detail, seq=seq)])
+            self.redis.rpush(notices_key(self.cfg.run), f"shard {self.shard}: {message}")
+        except Exception as exc:  # an explanation must never end the worker's loop
+            if len(self.errors) < 20:
+                self.errors.append(f"notice: {type(exc).__name__}: {exc}")
 
     # -- streams ---------------------------------------------------------------------------
     def _new_pipeline(self, spec: StreamSpec) -> Pipeline:
@@ -477,6 +518,17 @@ class ShardWorker:
         self.table.close(st.live)
         del self.streams[stream]
         self.retired.append(stream)
+
+
+def notices_key(run: str) -> str:
+    """Redis list of the run's explanations of refused input (one line each)."""
+    return f"{RedisKeys(run).prefix}:input-notices"
+
+
+def new_notices(redis: Any, run: str, seen: int) -> list[str]:
+    """The notice lines after the first `seen` (the driver prints them as they come)."""
+    return [line.decode("utf-8", "replace") for line in
+            redis.lrange(notices_key(run), seen, -1)]
 
 
 def _last_seq(pipeline: Pipeline) -> int | None:

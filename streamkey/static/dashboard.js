@@ -4,6 +4,7 @@
 const WINDOW_SECONDS = 10;   // the strip chart shows the last 10 s of the stream
 const MAX_KEYS_SHOWN = 24;   // recent method keyposes listed (annotated and manual ones stay)
 const MAX_NOTES_SHOWN = 200; // annotations listed
+const MAX_INPUT_SHOWN = 5;   // explanations of refused input listed (the newest first)
 const GROUP_PX = 11;         // markers of one lane within this width merge into one block
 const GUIDES_UP_TO = 15;     // a lane with more marks (blocks) draws no guide lines
 const SEGMENT_COLORS = {     // session segments drawn as shaded spans behind the curves
@@ -50,6 +51,19 @@ function say(text, error) {
 }
 
 function note(text) { $("notes").textContent = text; }
+
+function showInput(m) {
+  // one line per refused-input status event, the newest on top; the same line as stderr
+  const detail = m.detail || {};
+  const list = $("input-notices");
+  const li = document.createElement("li");
+  li.dataset.kind = detail.kind || m.status.slice("input_".length);
+  li.textContent = `warning: ${detail.message || m.status}`;
+  li.title = `stream ${m.stream}${detail.seq !== undefined ? `, at frame ${detail.seq}` : ""}`;
+  list.prepend(li);
+  while (list.children.length > MAX_INPUT_SHOWN) list.lastChild.remove();
+  $("input-panel").hidden = false;
+}
 
 function send(obj) {
   if (!state.ws || state.ws.readyState !== WebSocket.OPEN) {
@@ -102,6 +116,8 @@ const HANDLERS = {
     for (const k of m.recent) addKey(k);
     for (const a of m.annotations) applyAnnotation(a);
     for (const seg of m.segments || []) HANDLERS.segment(seg);
+    $("input-notices").textContent = "";
+    for (const n of m.notices || []) showInput(n);
   },
   segment(m) {
     // a session state (calibration hold, still stretch, take), open while `end` is null
@@ -142,8 +158,11 @@ const HANDLERS = {
   },
   cancel(m) { state.provisional.delete(`${m.method}/${m.pid}`); state.dirty = true; },
   gap(m) { note(`gap: frames ${m.first}..${m.last} missing${m.bridged ? " (bridged)" : ""}`); },
-  status(m) { note(`status: ${m.status}`); },
-  input(m) { note(m.text); },  // refused input, explained (what arrived, what was expected)
+  status(m) {
+    // refused input, explained (what arrived, what was expected): listed until it stops
+    if (typeof m.status === "string" && m.status.startsWith("input_")) showInput(m);
+    else note(`status: ${m.status}`);
+  },
   stats(m) {
     $("c-frames").textContent = m.frames;
     $("c-drops").textContent = m.drops;
