@@ -388,17 +388,21 @@ class Engine:
     def _handle(self, frame: Frame, arrival_ns: int, tag: str | None) -> None:
         name = self.config.stream if tag is None else tag
         self.summary.frames_in += 1
-        now = self._last_frame = time.monotonic()
+        self._last_frame = time.monotonic()
+        # Idleness on the arrival clock: frames are handled in arrival order, so every frame
+        # that arrived before this one has been handled, and a stream is idle when none of
+        # its frames arrived for `stream_idle` before it, however far the run is behind.
+        arrived = arrival_ns / 1e9
         state = self.streams.get(name) or self._open(name, tag)
         if state is None:  # waiting for its skeleton (held) or refused (counted)
-            self.table.hold(name, frame, arrival_ns, now)
-            self._retire_idle(now)
+            self.table.hold(name, frame, arrival_ns, arrived)
+            self._retire_idle(arrived)
             return
-        self.table.touch(state, now)
+        self.table.touch(state, arrived)
         self._push(state, frame, arrival_ns)
         if self.config.on_frame is not None:
             self.config.on_frame(frame)
-        self._retire_idle(now)
+        self._retire_idle(arrived)
 
     def _push(self, state: LiveStream, frame: Frame, arrival_ns: int) -> None:
         """One frame of a stream: the pending re-analysis of its previous frame first (the

@@ -3,12 +3,16 @@
 Sans-I/O: bytes in, bytes out; where they are kept (a file, Redis) is the caller's business.
 A snapshot is a small versioned header and a pickle of the keyframer's plain attributes::
 
-    b"SKSNAP" | u8 format version | u32 header length | header JSON | pickle payload
+    b"SKSNAP" | u8 format version | u32 header length | header JSON | payload
+
+The payload is the pickle compressed with zlib at level 1 (format 5; deterministic for
+the same bytes, and about a quarter smaller); format 4, the same pickle uncompressed, is
+still read.
 
 The header names the kind (`keyframer` or `pipeline`), the class, the stream, the params
 digest (a pipeline's digest covers every keyframer's, in order), the last accepted `seq`
 (None before the first frame) and a SHA-256 of the payload. `restore` refuses, with a clear
-`SnapshotError`, another format version (it changes whenever a keyframer's state changes
+`SnapshotError`, any other format version (it changes whenever a keyframer's state changes
 shape, so an older streamkey's snapshot is refused, never restored half-fitting), a damaged
 payload, a different params digest than the caller expects, or a snapshot of another kind.
 
@@ -19,7 +23,7 @@ original. Preallocated buffers are not stored whole: an array's index slices (ro
 columns, ...) whose bytes are all zero are left out and restored as zeros, and big boolean
 arrays are packed to bits (`_Pickler`), so a ring's spare capacity and a feature matrix's
 unused channels cost nothing (the default four-method pipeline after 30 s: 10.4 MiB as
-plain pickles, 7.7 MiB so).
+plain pickles, 7.8 MiB so, 6.1 MiB compressed).
 Determinism contract (tested): the same frames give the same events after any snapshot /
 restore point.
 
@@ -32,6 +36,7 @@ import hashlib
 import json
 import pickle
 import struct
+import zlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,7 +49,9 @@ __all__ = ["SnapshotError", "SnapshotHeader", "snapshot", "restore", "read_heade
            "SNAPSHOT_VERSION", "MAGIC"]
 
 MAGIC = b"SKSNAP"
-SNAPSHOT_VERSION = 4  # 4: arrays stored without their all-zero slices
+SNAPSHOT_VERSION = 5  # 4: arrays stored without their all-zero slices; 5: compressed
+READABLE_VERSIONS = (4, 5)  # 4 differs from 5 only in the payload's compression
+ZLIB_LEVEL = 1  # the fastest level: higher ones save 1-2 % more at twice the time
 MIN_TRIMMED_BYTES = 4096  # arrays this big or bigger are stored without their zero slices
 _PREFIX = struct.Struct(">6sBI")
 MAX_HEADER_BYTES = 1 << 16
@@ -101,7 +108,7 @@ class _Writer:
 class _Reader:
     """An in-memory file for the unpickler."""
 
-    def __init__(self, data: memoryview) -> None:
+    def __init__(self, data: bytes | memoryview) -> None:
         self.data, self.pos = bytes(data), 0
 
     def read(self, n: int = -1) -> bytes:
@@ -178,7 +185,7 @@ def snapshot(obj: Any) -> bytes:
     """Snapshot of an `OnlineKeyframer` or a `Pipeline` (see the module docstring)."""
     buf = _Writer()
     _Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
-    payload = b"".join(buf.parts)
+    payload = zlib.compress(b"".join(buf.parts), ZLIB_LEVEL)
     kind, cls, stream, last = _describe(obj)
     header = json.dumps({"version": SNAPSHOT_VERSION, "kind": kind, "cls": cls,
                          "stream": stream, "params": _digest_of(obj), "last_seq": last,
@@ -194,9 +201,10 @@ def read_header(data: bytes) -> tuple[SnapshotHeader, memoryview]:
     magic, version, size = _PREFIX.unpack_from(data)
     if magic != MAGIC:
         raise SnapshotError("not a streamkey snapshot: bad magic bytes")
-    if version != SNAPSHOT_VERSION:
+    if version not in READABLE_VERSIONS:
         raise SnapshotError(f"snapshot format version {version}, this streamkey reads "
-                            f"version {SNAPSHOT_VERSION} only; replay the stream instead")
+                            f"versions {', '.join(map(str, READABLE_VERSIONS))} only; "
+                            "replay the stream instead")
     if size > MAX_HEADER_BYTES or _PREFIX.size + size > len(data):
         raise SnapshotError("damaged snapshot: header length out of range")
     try:
@@ -224,7 +232,8 @@ def restore(data: bytes, expected: type | None = None, params: str | None = None
     if hashlib.sha256(payload).hexdigest() != header.sha256:
         raise SnapshotError(f"damaged snapshot of stream {header.stream!r}: checksum mismatch")
     try:
-        obj = _Unpickler(_Reader(payload)).load()
+        pickled = zlib.decompress(payload) if header.version >= 5 else payload
+        obj = _Unpickler(_Reader(pickled)).load()
     except SnapshotError:
         raise
     except Exception as exc:  # the code changed under the snapshot (a class moved, ...)

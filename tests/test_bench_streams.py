@@ -33,5 +33,8 @@ def test_an_external_row_measures_a_real_run_from_outside():
     assert row["frames_sent"] == 2 * 240
     assert row["frames_in"] + row["frames_lost"] == row["frames_sent"]
     assert row["events"] > 0 and 0 < row["p50_ms"] <= row["p99_ms"] <= row["max_ms"]
-    assert row["met"] == (row["p99_ms"] <= 5.0 and row["frames_lost"] == 0)
+    assert row["met"] == (row["p99_ms"] <= 5.0 and row["max_ms"] <= 20.0
+                          and row["frames_lost"] == 0)
+    assert row["phases"] == "spread" and row["load_1min_before"] >= 0
     assert capacity([row], 1)["streams"] == (2 if row["met"] else 0)
+    assert capacity([row], 1, "together")["streams"] == 0  # no row of that kind

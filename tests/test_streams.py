@@ -394,3 +394,34 @@ def test_the_scheduler_puts_due_work_first_and_deferred_work_oldest_first():
     assert not s.should_drain(10**9)  # no turn open
     assert s.stats.turns == 1 and s.stats.longest_turn_ms == 1490 / 1e6
     assert s.stats.deferred_in_order == 1 and s.stats.deferred_idle == 2
+
+
+async def test_a_stream_is_not_retired_while_its_frames_wait_behind_a_slow_push():
+    """Idleness on the arrival clock: frames of streams a and b queued together, one push
+    of a takes twice `stream_idle`; neither stream is idle (their frames had arrived), so
+    both keep one session and decide as they would alone."""
+    from streamkey.engine import EngineConfig
+    from streamkey.methods import speed
+
+    m = read_bvh(DATA / "07_01.bvh")
+    frames = m.frames()[:240]
+
+    class Stalls(speed.Online):
+        def process(self, block):
+            if self.stream == "a" and 100 in np.asarray(block.seq):
+                time.sleep(0.6)
+            return super().process(block)
+
+    source = OscSource(parse_address(f"osc://127.0.0.1:{free_port()}"), None, m.skeleton, m.fps)
+    source.frames = FrameQueue(source.stats, maxsize=0)
+    for f in frames:
+        for tag in ("a", "b"):
+            source.frames.put(f, None, tag)
+    source.frames.put(None)
+    said: list[str] = []
+    engine = Engine(source, lambda spec: [Stalls(spec.skeleton, spec.fps, stream=spec.stream)],
+                    [], config=EngineConfig(stream_idle=0.3, on_ready=said.append))
+    summary = await engine.run()
+    assert not [line for line in said if "retired after" in line]
+    for tag in ("a", "b"):
+        assert summary.streams[tag].sessions == 1 and summary.streams[tag].frames_in == 240

@@ -228,8 +228,8 @@ def _load() -> float:
         return float("nan")
 
 
-def _latency_one(transport: str, clip: Path, frames: int, realtime: bool = False
-                 ) -> dict[str, Any]:
+def _latency_one(transport: str, clip: Path, frames: int, realtime: bool = False,
+                 workers: int = 1) -> dict[str, Any]:
     """One run: replay -> run (all methods) -> this process, over `transport`.
 
     The receiver's copy of every frame comes over OSC in both cases, stamped by the kernel
@@ -242,7 +242,7 @@ def _latency_one(transport: str, clip: Path, frames: int, realtime: bool = False
     with tempfile.TemporaryDirectory() as tmp:
         summary_path = Path(tmp) / "summary.json"
         copy_port = _free_port()
-        extra = ["--realtime"] if realtime else []
+        extra = (["--realtime"] if realtime else []) + ["--workers", str(workers)]
         if transport == "osc":
             run_port, event_port = _free_port(), _free_port()
             socks = receiver.osc(copy_port, event_port)
@@ -292,7 +292,8 @@ def _latency_one(transport: str, clip: Path, frames: int, realtime: bool = False
         return round(float(np.percentile(lat, q)), 3) if len(lat) else None
 
     p99 = pct(99)
-    return {"transport": transport, "priority": priority, "load_1min_before": load_before,
+    return {"transport": transport, "workers": workers, "priority": priority,
+            "load_1min_before": load_before,
             "load_1min_after": load_after, "frames_sent": frames,
             "frames_seen_by_receiver": len(receiver.frames), "events": len(lat),
             "p50_ms": pct(50), "p99_ms": p99,

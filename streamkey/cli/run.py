@@ -63,7 +63,8 @@ def add_parser(sub: Any) -> None:
                    help="send no segment events (calibration holds, still stretches, takes)")
     p.add_argument("--workers", type=_workers, default=1, metavar="N",
                    help="spread the streams over N worker processes (auto: one per core; "
-                        "network sources; default 1: this process)")
+                        "network sources; default 1: this process, as a worker's extra "
+                        "process hop costs one stream about 1 ms of latency)")
     p.add_argument("--realtime", action="store_true",
                    help="run ahead of ordinary processes (SCHED_RR 10 where allowed, else "
                         "nice -10), so frames do not wait for a busy machine's other work")

@@ -223,6 +223,7 @@ class ShardWorker:
             poller = zmq.Poller()
             poller.register(sock, zmq.POLLIN)
             while not self._stop.is_set():
+                drained = True
                 if poller.poll(100):
                     with self.lock:
                         for _ in range(256):
@@ -231,8 +232,13 @@ class ShardWorker:
                             except zmq.Again:
                                 break
                             self.handle(parts)
-                with self.lock:
-                    self.retire_idle()
+                        else:
+                            drained = False
+                # Idle only once every received frame is pushed: a frame queued behind a
+                # slow push (a snapshot, a burst) has arrived, its stream is not idle.
+                if drained:
+                    with self.lock:
+                        self.retire_idle()
         except Exception as exc:  # Redis gone, socket failed: Ray restarts the actor
             self.errors.append(f"{type(exc).__name__}: {exc}")
             raise
