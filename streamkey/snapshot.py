@@ -46,7 +46,7 @@ from .errors import StreamkeyError
 from .keyframes import params_digest
 
 __all__ = ["SnapshotError", "SnapshotHeader", "snapshot", "restore", "read_header",
-           "SNAPSHOT_VERSION", "MAGIC"]
+           "Pickled", "pickled", "seal", "SNAPSHOT_VERSION", "MAGIC"]
 
 MAGIC = b"SKSNAP"
 SNAPSHOT_VERSION = 5  # 4: arrays stored without their all-zero slices; 5: compressed
@@ -181,17 +181,38 @@ class _Unpickler(pickle.Unpickler):
         raise SnapshotError(f"snapshot refers to an unknown derived object {str(pid)[:60]}")
 
 
-def snapshot(obj: Any) -> bytes:
-    """Snapshot of an `OnlineKeyframer` or a `Pipeline` (see the module docstring)."""
+@dataclass(frozen=True)
+class Pickled:
+    """The state of an object, pickled but not yet sealed into snapshot bytes: taking it
+    must happen between pushes, sealing it (`seal`: compression and checksum, which release
+    the GIL) can run on another thread while the stream goes on."""
+
+    raw: bytes
+    description: tuple[str, str, str, int | None]
+    params: str
+
+
+def pickled(obj: Any) -> Pickled:
+    """The first, state-reading half of `snapshot(obj)`."""
     buf = _Writer()
     _Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
-    payload = zlib.compress(b"".join(buf.parts), ZLIB_LEVEL)
-    kind, cls, stream, last = _describe(obj)
+    return Pickled(b"".join(buf.parts), _describe(obj), _digest_of(obj))
+
+
+def seal(state: Pickled) -> bytes:
+    """The second half of `snapshot(obj)`: the compressed payload behind its header."""
+    payload = zlib.compress(state.raw, ZLIB_LEVEL)
+    kind, cls, stream, last = state.description
     header = json.dumps({"version": SNAPSHOT_VERSION, "kind": kind, "cls": cls,
-                         "stream": stream, "params": _digest_of(obj), "last_seq": last,
+                         "stream": stream, "params": state.params, "last_seq": last,
                          "sha256": hashlib.sha256(payload).hexdigest()},
                         sort_keys=True).encode()
     return _PREFIX.pack(MAGIC, SNAPSHOT_VERSION, len(header)) + header + payload
+
+
+def snapshot(obj: Any) -> bytes:
+    """Snapshot of an `OnlineKeyframer` or a `Pipeline` (see the module docstring)."""
+    return seal(pickled(obj))
 
 
 def read_header(data: bytes) -> tuple[SnapshotHeader, memoryview]:

@@ -36,6 +36,7 @@ import math
 import threading
 import time
 from collections import Counter
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -49,6 +50,7 @@ from ..jit import warm_up
 from ..keyframes import INPUT_STATUS, Event, StatusEvent
 from ..motion import Frame, Skeleton
 from ..online import Pipeline
+from ..snapshot import pickled, seal
 from ..streamtable import LiveStream, StreamTable, keyframers_for
 from .placement import Placement, RedisKeys
 
@@ -198,6 +200,8 @@ class ShardWorker:
         self._adopt_tried: dict[str, float] = {}
         self.input_problems: Counter[str] = Counter()  # refused input by kind
         self._said_at: dict[str, float] = {}
+        self._sealer = ThreadPoolExecutor(1, thread_name_prefix=f"streamkey-seal-{shard}")
+        self._pending: list[Future[None]] = []
 
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
@@ -253,6 +257,8 @@ class ShardWorker:
         with self.lock:
             for stream in list(self.streams):
                 self.retire(stream)
+        self._sealed()
+        self._sealer.shutdown()
         return self.status()
 
     def status(self) -> dict[str, Any]:
@@ -487,14 +493,28 @@ class ShardWorker:
             self._snapshot(stream, st)
 
     def _snapshot(self, stream: str, st: _Stream) -> None:
-        data = snapshot_pipeline(st.pipeline)
+        """Take the pipeline's state between two pushes; compress and store it on the
+        sealing thread (in order), so the stream's next frames do not wait for zlib."""
+        state = pickled(st.pipeline)
         last = _last_seq(st.pipeline)
-        self.redis.hset(self.keys.snapshot(stream),
-                        mapping={"data": data, "seq": "" if last is None else str(last),
-                                 "frames": st.frames})
+        fields: dict[str, str | int] = {"seq": "" if last is None else str(last),
+                                        "frames": st.frames}
         st.since_snapshot = 0
-        self.counters["snapshots"] += 1
-        self.counters["snapshot_bytes"] = len(data)
+
+        def store() -> None:
+            data = seal(state)
+            self.redis.hset(self.keys.snapshot(stream), mapping={"data": data, **fields})
+            self.counters["snapshots"] += 1
+            self.counters["snapshot_bytes"] = len(data)
+
+        self._pending.append(self._sealer.submit(store))
+
+    def _sealed(self) -> None:
+        """Wait for every snapshot handed to the sealing thread (before keys are deleted
+        or the worker stops); a failed store raises here."""
+        pending, self._pending = self._pending, []
+        for future in pending:
+            future.result()
 
     def emit(self, events: list[Event]) -> None:
         """Append events to the Redis sink unless their id is already there."""
@@ -516,6 +536,7 @@ class ShardWorker:
         st = self.streams[stream]
         self.catch_up(stream, None)
         self.emit(self.table.step(st.live, None, st.pipeline.flush))
+        self._sealed()  # no snapshot of this stream written after its keys are deleted
         done = self.redis.pipeline(transaction=True)  # counted once, or restored and redone
         done.delete(self.keys.snapshot(stream), self.keys.log(stream), self.keys.skeleton(stream))
         done.srem(self.keys.shard(self.shard), stream)
