@@ -77,7 +77,7 @@ def test_readme_starts_with_the_two_commands_and_ci_runs_the_same_test_command()
     setup = first.rsplit("&&", 1)[0].strip()
     assert "[" not in setup  # the first command installs the core dependencies only
     assert f"{setup} && .venv/bin/streamkey demo" in ci  # CI runs the demo on that alone,
-    assert '.venv/bin/pip install -q -e ".[test,dev,cluster]" && .venv/bin/pytest' in ci
+    assert '.venv/bin/pip install -q -e ".[test,dev,cluster,docs]" && .venv/bin/pytest' in ci
     assert ".venv/bin/pytest" in readme
 
 
