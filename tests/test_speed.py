@@ -399,9 +399,10 @@ def test_1d_ward_keeps_the_offline_keyposes_on_the_shared_clips_concatenated() -
 
 
 def test_the_regular_analysis_is_spread_over_the_frames_after_its_start() -> None:
-    """No push runs a whole re-analysis: its four stages (speed and the carried HP forward
-    passes; the HP trends of every scale and their minima; the chains; Ward + Mojena and the
-    decisions) run on four different frames of the `delay` after the analysis starts."""
+    """No push runs a whole re-analysis: its six stages (speed and the carried HP forward
+    passes; the HP trends of half the scales' lambdas; of the rest and their minima; the
+    chains; Ward + Mojena; the warm-up rule and the decisions) run on six different frames of
+    the `delay` after the analysis starts."""
     from streamkey.bench import long_motion
 
     motion, _ = long_motion(3400, DATA)
@@ -418,9 +419,11 @@ def test_the_regular_analysis_is_spread_over_the_frames_after_its_start() -> Non
         per_push.append(0 if job is None else job.done - before)
     steady = np.array(per_push[2592:3384])  # window full (2,546 frames), 33 whole hops
     assert steady.max() == 1
-    assert steady.sum() == 33 * 4
+    stages = len(speed.Online.STAGES)
+    assert stages == 6
+    assert steady.sum() == 33 * stages
     busy = (steady > 0).reshape(-1, kf.hop).sum(axis=1)
-    assert busy.min() == 4
+    assert busy.min() == stages
 
 
 def test_hp_tables_are_shared_between_streams_and_left_out_of_pickles() -> None:

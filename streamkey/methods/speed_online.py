@@ -56,7 +56,7 @@ from ..segments import SegmentEvent
 from ..signal import hp_lambda
 from ..units import Duration, DurationLike, whole_frames
 from .ring import RingWindow
-from .speed_chains import BAND_BUDGET, intensities
+from .speed_chains import BAND_BUDGET, intensities, mojena_threshold
 from .speed_kernels import chain_totals, tail_minima
 from .speed_scales import (
     METHOD,
@@ -119,7 +119,7 @@ class Online(OnlineKeyframer):
 
     method = METHOD
     # The stages of an analysis, in order (`Analysis.done` counts those run).
-    STAGES = ("speeds", "trends", "chains", "decisions")
+    STAGES = ("speeds", "trends", "trends", "chains", "cut-off", "decisions")
 
     def __init__(self, skeleton: Skeleton, fps: float, *, f_c: float = 10.0, f_max: float = 8.0,
                  f_min: float = 0.2, r: float = 0.95, mojena_k: float = 2.75,
@@ -337,8 +337,9 @@ class Online(OnlineKeyframer):
                                                           if self._quiet.counts(c)]])
         # Stage costs, ~µs (measured at the defaults: speed signal, HP trends, chains,
         # Ward + Mojena and decisions).
-        cost = np.array([50 if old is not None else 50 + len(snap) // 4,
-                         40 + min(spans.region, n) // 4, 40, 60 + len(sample) // 8])
+        trend = 20 + min(spans.region, n) // 8
+        cost = np.array([50 if old is not None else 50 + len(snap) // 4, trend, trend, 40,
+                         60 + len(sample) // 8, 20])
         inputs = AnalysisInput(anchor=self._count, zone_end=zone_end,
                                lo=ring.first_seq - 1 if upto is None else upto,
                                base=ring.first_seq, g0=self._speeds.dropped, rows=snap, old=old,
@@ -347,13 +348,15 @@ class Online(OnlineKeyframer):
         self._advance(self._count)
 
     def _advance(self, count: int) -> None:
-        """Run the running analysis' stages due by frame `count` (its share per frame)."""
+        """Run the running analysis' stages due by frame `count`: a stage starts on the
+        frame after the anchor where its share of the estimated cost begins (the first on
+        the next frame), and whatever is left runs on the `delay`-th."""
         job = self._job
         if job is None or (count <= job.inputs.anchor and self.delay > 0):
             return
         k, total = count - job.inputs.anchor, job.cum[-1]
-        while self._job is job and (k >= self.delay
-                                    or job.cum[job.done] * self.delay <= total * k):
+        while self._job is job and (k >= self.delay or (job.cum[job.done - 1] if job.done else 0)
+                                    * self.delay <= total * (k - 1)):
             self._run_stage(job)
 
     def _run_stage(self, job: Analysis) -> None:
@@ -363,9 +366,13 @@ class Online(OnlineKeyframer):
         if stage == 0:
             self._stage_speeds(job)
         elif stage == 1:
-            self._stage_trends(job)
+            self._stage_trends(job, first=True)
         elif stage == 2:
+            self._stage_trends(job, first=False)
+        elif stage == 3:
             self._stage_chains(job)
+        elif stage == 4:
+            self._stage_cutoff(job)
         else:
             self._stage_decisions(job)
 
@@ -385,13 +392,27 @@ class Online(OnlineKeyframer):
                                  cand=candidates_of(v[lo_trend:]) + lo_trend)
         self._carry.advance(v, inputs.g0, fresh)
 
-    def _stage_trends(self, job: Analysis) -> None:
-        """Stage 2: HP trends of the region, every scale; their minima."""
+    def _stage_trends(self, job: Analysis, first: bool) -> None:
+        """Stages 2 and 3: HP trends of the region, the first part of the scales' lambdas,
+        then the rest (all of them if the first part was lost to a pickle) and the minima.
+        The parts cost about the same: a lambda costs ~3x while its factor's columns have
+        not converged (its first 20 lambda^(1/4) rows of the stream)."""
         sp = job.speeds
         assert sp is not None
-        trends = self._carry.trends(sp.v, job.inputs.g0, sp.lo_trend, self._bank)
-        minima, u, counts = tail_minima(trends, len(self._carry.lams) // 2, sp.lo_trend,
-                                        sp.start, REST_SPEED)
+        lams, g0 = self._carry.lams, job.inputs.g0
+        if first:
+            k = np.diff(packed_factors(lams)[1])
+            w = 1.0 + 2.0 * np.minimum(1.0, k / (g0 + len(sp.v)))
+            job.split = int(np.clip(np.searchsorted(np.cumsum(w), w.sum() / 2), 1,
+                                    len(lams) - 1))
+            self._carry.trends(sp.v, g0, sp.lo_trend, self._bank, slice(0, job.split),
+                               job.rows)
+            return
+        part = slice(job.split, None) if job.rows.rows is not None else None
+        trends = self._carry.trends(sp.v, g0, sp.lo_trend, self._bank, part, job.rows)
+        job.rows.rows = None
+        minima, u, counts = tail_minima(trends, len(lams) // 2, sp.lo_trend, sp.start,
+                                        REST_SPEED)
         job.minima = StageMinima(minima=minima, u=u, counts=counts)
 
     def _stage_chains(self, job: Analysis) -> None:
@@ -405,24 +426,34 @@ class Online(OnlineKeyframer):
                                                   np.split(mn.u, cuts), strict=True)))
         job.total = total
 
-    def _stage_decisions(self, job: Analysis) -> None:
-        """Stage 4: Ward + Mojena over the cut-off sample, the decisions of the zone."""
-        sp, u, inputs, decisions = job.speeds, job.total, job.inputs, self._decisions
+    def _stage_cutoff(self, job: Analysis) -> None:
+        """Stage 5: Ward + Mojena over the cut-off sample."""
+        sp, u, inputs = job.speeds, job.total, job.inputs
         assert sp is not None and u is not None
-        decisions.upto = inputs.zone_end
-        self._job = None
         seqs = sp.cand + inputs.base
         new = (seqs > inputs.lo) & (seqs <= inputs.zone_end)
         if np.any(new):
             counted = self._quiet.outside(seqs)
-            cut = np.concatenate([inputs.sample, u[new & counted],
-                                  u[(seqs > inputs.zone_end) & counted]])
-            threshold = self._cutoff.threshold(cut, False)
-            decisions.due.extend(zip(seqs[new].tolist(), u[new].tolist(),
-                                     (u[new] > threshold).tolist(), strict=True))
-            ahead = (seqs > inputs.zone_end) & (u > threshold)
-            decisions.ahead = [(c, self._ring.time(c), x) for c, x in  # provisional hook
-                               zip(seqs[ahead].tolist(), u[ahead].tolist(), strict=True)]
+            job.cut = np.concatenate([inputs.sample, u[new & counted],
+                                      u[(seqs > inputs.zone_end) & counted]])
+            job.verdict = mojena_threshold(job.cut, self._cutoff.mojena_k)
+
+    def _stage_decisions(self, job: Analysis) -> None:
+        """Stage 6: the warm-up rule, the decisions of the zone."""
+        sp, u, inputs, decisions = job.speeds, job.total, job.inputs, self._decisions
+        assert sp is not None and u is not None
+        decisions.upto = inputs.zone_end
+        self._job = None
+        if job.cut is None or job.verdict is None:
+            return
+        seqs = sp.cand + inputs.base
+        new = (seqs > inputs.lo) & (seqs <= inputs.zone_end)
+        threshold = self._cutoff.warmed(job.cut, job.verdict, False)
+        decisions.due.extend(zip(seqs[new].tolist(), u[new].tolist(),
+                                 (u[new] > threshold).tolist(), strict=True))
+        ahead = (seqs > inputs.zone_end) & (u > threshold)
+        decisions.ahead = [(c, self._ring.time(c), x) for c, x in  # provisional hook
+                           zip(seqs[ahead].tolist(), u[ahead].tolist(), strict=True)]
 
     def _speed(self) -> np.ndarray:
         """Speed over the whole window (at flush)."""
