@@ -138,7 +138,8 @@ def test_mojena_without_zero_intensity_drops_the_lowest_mean_cluster() -> None:
     assert res.n_clusters == 2 and res.threshold == pytest.approx(1.1)
 
 
-@pytest.mark.parametrize("bad", [{"r": 1.0}, {"f_min": 9.0}, {"f_c": 0.0}, {"mojena_k": np.nan}])
+@pytest.mark.parametrize("bad", [{"r": 1.0}, {"f_min": 9.0}, {"f_c": 0.0}, {"mojena_k": np.nan},
+                                 {"cut": "ward"}])
 def test_bad_parameters_raise_usage_error(bad: dict[str, float]) -> None:
     with pytest.raises(UsageError):
         speed.extract(load("07_01.bvh"), **bad)
@@ -152,7 +153,9 @@ def test_finds_3_to_5_keyposes_on_07_01_where_miura_counts_4() -> None:
     assert keys.frames.min() >= 1  # the cgspeed reference frame is skipped
     info = keys.info
     assert set(keys.frames) <= set(info["candidates"])
-    assert info["n_clusters"] >= 1 and info["n_scales"] == 72
+    assert info["cut"] == "quantile" and info["n_scales"] == 72
+    assert info["threshold"] == speed.quantile_threshold(info["intensities"])
+    assert speed.extract(load("07_01.bvh"), cut="mojena").info["n_clusters"] >= 1
     np.testing.assert_array_equal(keys.scores, info["intensities"][
         np.isin(info["candidates"], keys.frames)])
 
@@ -388,11 +391,11 @@ def test_1d_ward_keeps_the_offline_keyposes_on_the_shared_clips_concatenated() -
 
     motion, _ = long_motion(20_000, DATA)
     feats = compute_features(motion)
-    ours = speed.extract(motion, features=feats)
+    ours = speed.extract(motion, features=feats, cut="mojena")
     assert len(ours.info["candidates"]) >= speed.WARD_1D_FROM  # the 1-D path ran
     old, speed_chains.WARD_1D_FROM = speed_chains.WARD_1D_FROM, 10**9
     try:
-        scipy_way = speed.extract(motion, features=feats)
+        scipy_way = speed.extract(motion, features=feats, cut="mojena")
     finally:
         speed_chains.WARD_1D_FROM = old
     np.testing.assert_array_equal(ours.frames, scipy_way.frames)

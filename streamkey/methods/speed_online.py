@@ -23,13 +23,15 @@ sent yet. Windowed replacements of the offline global steps:
   the same keys, intensities within 5.4e-5 relative, and the same agreement table.
 - Candidate correspondence over the whole clip -> the same DP over the region (compiled,
   `speed_kernels.chain_totals`: the band DP of `match_minima`, same ties, same sums).
-- Ward + Mojena over all candidates -> one cut-off per update, re-derived from a bounded sample:
+- The keypose cut over all candidates (the quantile cut, or Ward + Mojena with
+  `cut="mojena"`) -> one cut-off per update, re-derived from a bounded sample:
   the candidates decided in the last `cutoff_history` frames (intensities as decided), those
   decided now and the window's pending ones. Applying it to the candidates due (U > cut-off)
   replaces re-clustering per candidate, whose cluster count flips as candidates arrive.
-- Warm-up: while the sample holds fewer than `warmup_candidates` (Mojena's rule cannot split
-  fewer than ~10 levels at k = 2.75), a single-cluster verdict is replaced by Ward cut into
-  two clusters; after that, the rule is Mojena's.
+- Warm-up (the Mojena cut only): while the sample holds fewer than `warmup_candidates`
+  (Mojena's rule cannot split fewer than ~10 levels at k = 2.75), a single-cluster verdict is
+  replaced by Ward cut into two clusters; after that, the rule is Mojena's. The quantile cut
+  of a few values is already a fraction of their largest.
 - `flush()` analyses the whole window (full-window HP filters) and decides everything pending.
   With a lookahead of at least the stream's length nothing is sent before, the window is the
   whole stream and the sample all its candidates: the offline result, bit for bit.
@@ -56,7 +58,7 @@ from ..segments import SegmentEvent
 from ..signal import hp_lambda
 from ..units import Duration, DurationLike, whole_frames
 from .ring import RingWindow
-from .speed_chains import BAND_BUDGET, intensities, mojena_threshold
+from .speed_chains import BAND_BUDGET, check_cut, intensities
 from .speed_kernels import chain_totals, tail_minima
 from .speed_scales import (
     METHOD,
@@ -128,8 +130,9 @@ class Online(OnlineKeyframer):
                  warmup_candidates: int = 20, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES,
-                 segment_statistics: bool = False) -> None:
+                 segment_statistics: bool = False, cut: str = "quantile") -> None:
         check_params(f_c, f_max, f_min, r, mojena_k)
+        cut = check_cut(cut)
         lookahead = _frames("lookahead", lookahead, fps, 3)
         if hop is None:  # a fifth of the lookahead, at most 0.2 s (24 frames at 120 Hz)
             hop = max(1, min(whole_frames(MAX_HOP, fps), lookahead // 5))
@@ -140,7 +143,7 @@ class Online(OnlineKeyframer):
         _check_count("warmup_candidates", warmup_candidates, 0)
         params = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r, "mojena_k": mojena_k,
                   "hop": hop, "history": history, "cutoff_history": cutoff_history,
-                  "warmup_candidates": int(warmup_candidates)}
+                  "warmup_candidates": int(warmup_candidates), "cut": cut}
         if segment_statistics:  # in the digest only when on, so today's digests stay
             params["segment_statistics"] = True
         super().__init__(skeleton, fps, lookahead=lookahead, stream=stream,
@@ -171,8 +174,13 @@ class Online(OnlineKeyframer):
         packed_factors(lams)  # built now (shared, derived), not on a streaming frame
         self._carry = TrendCarry(lams, region)  # HP forward passes
         self._cutoff = CutoffSample(self.cutoff_history, self.lookahead, mojena_k,
-                                    int(warmup_candidates))  # Ward + Mojena memory
+                                    int(warmup_candidates), cut)  # the cut's memory
         self.reset()
+
+    @property
+    def cut(self) -> str:
+        """The keypose cut (`speed_chains.CUTS`): "quantile" (the default) or "mojena"."""
+        return self._cutoff.cut
 
     @property
     def mojena_k(self) -> float:
@@ -427,7 +435,7 @@ class Online(OnlineKeyframer):
         job.total = total
 
     def _stage_cutoff(self, job: Analysis) -> None:
-        """Stage 5: Ward + Mojena over the cut-off sample."""
+        """Stage 5: the cut over the cut-off sample (Ward + Mojena's, or the quantile's)."""
         sp, u, inputs = job.speeds, job.total, job.inputs
         assert sp is not None and u is not None
         seqs = sp.cand + inputs.base
@@ -436,7 +444,7 @@ class Online(OnlineKeyframer):
             counted = self._quiet.outside(seqs)
             job.cut = np.concatenate([inputs.sample, u[new & counted],
                                       u[(seqs > inputs.zone_end) & counted]])
-            job.verdict = mojena_threshold(job.cut, self._cutoff.mojena_k)
+            job.verdict = self._cutoff.verdict(job.cut)
 
     def _stage_decisions(self, job: Analysis) -> None:
         """Stage 6: the warm-up rule, the decisions of the zone."""

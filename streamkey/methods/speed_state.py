@@ -16,7 +16,12 @@ import numpy as np
 
 from ..motion import Skeleton
 from ..online import FeatureBlock
-from .speed_chains import MojenaResult, mojena_threshold, two_cluster_threshold
+from .speed_chains import (
+    MojenaResult,
+    mojena_threshold,
+    quantile_threshold,
+    two_cluster_threshold,
+)
 from .speed_kernels import hp_advance, hp_tail_part
 from .speed_scales import HPBank, WorkRows, packed_factors, reference_lead
 
@@ -158,7 +163,9 @@ class CutoffSample:
     """The Ward + Mojena cut-off's memory: intensities (as decided) of the candidates decided
     in the last `span` frames, with a warm-up rule while it is small."""
 
-    def __init__(self, span: int, lookahead: int, mojena_k: float, warmup: int) -> None:
+    def __init__(self, span: int, lookahead: int, mojena_k: float, warmup: int,
+                 cut: str = "quantile") -> None:
+        self.cut = cut  # the keypose cut (`speed_chains.CUTS`)
         self.span = span  # frames of decided candidates kept (`cutoff_history`)
         self.lookahead = lookahead  # frames from a candidate to its decision
         self.mojena_k = mojena_k  # Mojena's k
@@ -169,7 +176,7 @@ class CutoffSample:
 
     def emptied(self) -> CutoffSample:
         """A sample with the same parameters and nothing in it."""
-        return CutoffSample(self.span, self.lookahead, self.mojena_k, self.warmup)
+        return CutoffSample(self.span, self.lookahead, self.mojena_k, self.warmup, self.cut)
 
     def resume(self, first_seq: int) -> None:
         """The first frame after a restart: if the source started over, the kept history is
@@ -203,11 +210,21 @@ class CutoffSample:
         """Ward + Mojena threshold over a cut-off sample: the candidates decided in the last
         `span` frames (intensities as decided), the ones being decided and the window's
         pending ones (current intensities). Warm-up (not `final`): a one-cluster verdict on
-        fewer than `warmup` values becomes Ward cut into two clusters."""
-        return self.warmed(sample, mojena_threshold(sample, self.mojena_k), final)
+        fewer than `warmup` values becomes Ward cut into two clusters (the Mojena cut only).
+        The quantile cut needs no warm-up rule: the threshold of a few values is already
+        fractions of their largest."""
+        return self.warmed(sample, self.verdict(sample), final)
 
-    def warmed(self, sample: np.ndarray, res: MojenaResult, final: bool) -> float:
-        """`threshold` from Ward + Mojena's verdict `res` on `sample` (in two steps)."""
+    def verdict(self, sample: np.ndarray) -> MojenaResult | float:
+        """The cut on `sample`: Ward + Mojena's result, or the quantile cut's threshold."""
+        if self.cut == "mojena":
+            return mojena_threshold(sample, self.mojena_k)
+        return quantile_threshold(sample)
+
+    def warmed(self, sample: np.ndarray, res: MojenaResult | float, final: bool) -> float:
+        """`threshold` from the verdict `res` on `sample` (in two steps)."""
+        if not isinstance(res, MojenaResult):
+            return res
         if res.n_clusters == 1 and not final and len(sample) < self.warmup:
             return two_cluster_threshold(sample)
         return res.threshold
@@ -300,4 +317,4 @@ class Analysis:
         self.minima: StageMinima | None = None  # after the trend stages
         self.total: np.ndarray | None = None  # after the chains: the candidates' intensities
         self.cut: np.ndarray | None = None  # the cut-off sample of the decisions
-        self.verdict: MojenaResult | None = None  # Ward + Mojena on it
+        self.verdict: MojenaResult | float | None = None  # the cut on it
