@@ -450,3 +450,26 @@ def test_hp_tables_are_shared_between_streams_and_left_out_of_pickles() -> None:
     assert max(sizes) < 2 * 2**20 and sum(t.nbytes for t in tables) > 2 * 2**20
     assert clone.push_block(frames[3600:]) + clone.flush() == events + a.flush()
     assert speed.packed_factors(clone._carry.lams)[0] is tables[0]
+
+
+def test_a_keyframer_pickled_between_its_two_trend_stages_resumes_identically() -> None:
+    """The first part of the trends lives in derived work rows (pickled empty): a keyframer
+    restored between the two trend stages solves every lambda in the second."""
+    from streamkey.bench import long_motion
+
+    motion, _ = long_motion(3000, DATA)
+    frames = motion.frames()
+    kf = speed.Online(motion.skeleton, motion.fps)
+    kf.push_block(frames[:2900])
+    clones, events = [], []
+    for frame in frames[2900:2924]:  # one hop: every stage of an analysis in flight
+        events.append(kf.push(frame))
+        job = kf._job
+        if job is not None and job.done == 2:
+            clones.append((len(events), pickle.loads(pickle.dumps(kf))))
+    rest = sum(events, []) + [e for f in frames[2924:] for e in kf.push(f)] + kf.flush()
+    assert clones
+    for at, clone in clones:
+        assert clone._job is not None and clone._job.rows.rows is None
+        mine = [e for f in frames[2900 + at:] for e in clone.push(f)] + clone.flush()
+        assert sum(events[:at], []) + mine == rest
