@@ -138,7 +138,8 @@ def test_mojena_without_zero_intensity_drops_the_lowest_mean_cluster() -> None:
     assert res.n_clusters == 2 and res.threshold == pytest.approx(1.1)
 
 
-@pytest.mark.parametrize("bad", [{"r": 1.0}, {"f_min": 9.0}, {"f_c": 0.0}, {"mojena_k": np.nan}])
+@pytest.mark.parametrize("bad", [{"r": 1.0}, {"f_min": 9.0}, {"f_c": 0.0}, {"mojena_k": np.nan},
+                                 {"cut": "ward"}])
 def test_bad_parameters_raise_usage_error(bad: dict[str, float]) -> None:
     with pytest.raises(UsageError):
         speed.extract(load("07_01.bvh"), **bad)
@@ -152,7 +153,9 @@ def test_finds_3_to_5_keyposes_on_07_01_where_miura_counts_4() -> None:
     assert keys.frames.min() >= 1  # the cgspeed reference frame is skipped
     info = keys.info
     assert set(keys.frames) <= set(info["candidates"])
-    assert info["n_clusters"] >= 1 and info["n_scales"] == 72
+    assert info["cut"] == "quantile" and info["n_scales"] == 72
+    assert info["threshold"] == speed.quantile_threshold(info["intensities"])
+    assert speed.extract(load("07_01.bvh"), cut="mojena").info["n_clusters"] >= 1
     np.testing.assert_array_equal(keys.scores, info["intensities"][
         np.isin(info["candidates"], keys.frames)])
 
@@ -388,20 +391,21 @@ def test_1d_ward_keeps_the_offline_keyposes_on_the_shared_clips_concatenated() -
 
     motion, _ = long_motion(20_000, DATA)
     feats = compute_features(motion)
-    ours = speed.extract(motion, features=feats)
+    ours = speed.extract(motion, features=feats, cut="mojena")
     assert len(ours.info["candidates"]) >= speed.WARD_1D_FROM  # the 1-D path ran
     old, speed_chains.WARD_1D_FROM = speed_chains.WARD_1D_FROM, 10**9
     try:
-        scipy_way = speed.extract(motion, features=feats)
+        scipy_way = speed.extract(motion, features=feats, cut="mojena")
     finally:
         speed_chains.WARD_1D_FROM = old
     np.testing.assert_array_equal(ours.frames, scipy_way.frames)
 
 
 def test_the_regular_analysis_is_spread_over_the_frames_after_its_start() -> None:
-    """No push runs a whole re-analysis: its four stages (speed and the carried HP forward
-    passes; the HP trends of every scale and their minima; the chains; Ward + Mojena and the
-    decisions) run on four different frames of the `delay` after the analysis starts."""
+    """No push runs a whole re-analysis: its six stages (speed and the carried HP forward
+    passes; the HP trends of half the scales' lambdas; of the rest and their minima; the
+    chains; Ward + Mojena; the warm-up rule and the decisions) run on six different frames of
+    the `delay` after the analysis starts."""
     from streamkey.bench import long_motion
 
     motion, _ = long_motion(3400, DATA)
@@ -418,9 +422,11 @@ def test_the_regular_analysis_is_spread_over_the_frames_after_its_start() -> Non
         per_push.append(0 if job is None else job.done - before)
     steady = np.array(per_push[2592:3384])  # window full (2,546 frames), 33 whole hops
     assert steady.max() == 1
-    assert steady.sum() == 33 * 4
+    stages = len(speed.Online.STAGES)
+    assert stages == 6
+    assert steady.sum() == 33 * stages
     busy = (steady > 0).reshape(-1, kf.hop).sum(axis=1)
-    assert busy.min() == 4
+    assert busy.min() == stages
 
 
 def test_hp_tables_are_shared_between_streams_and_left_out_of_pickles() -> None:
@@ -444,3 +450,26 @@ def test_hp_tables_are_shared_between_streams_and_left_out_of_pickles() -> None:
     assert max(sizes) < 2 * 2**20 and sum(t.nbytes for t in tables) > 2 * 2**20
     assert clone.push_block(frames[3600:]) + clone.flush() == events + a.flush()
     assert speed.packed_factors(clone._carry.lams)[0] is tables[0]
+
+
+def test_a_keyframer_pickled_between_its_two_trend_stages_resumes_identically() -> None:
+    """The first part of the trends lives in derived work rows (pickled empty): a keyframer
+    restored between the two trend stages solves every lambda in the second."""
+    from streamkey.bench import long_motion
+
+    motion, _ = long_motion(3000, DATA)
+    frames = motion.frames()
+    kf = speed.Online(motion.skeleton, motion.fps)
+    kf.push_block(frames[:2900])
+    clones, events = [], []
+    for frame in frames[2900:2924]:  # one hop: every stage of an analysis in flight
+        events.append(kf.push(frame))
+        job = kf._job
+        if job is not None and job.done == 2:
+            clones.append((len(events), pickle.loads(pickle.dumps(kf))))
+    rest = sum(events, []) + [e for f in frames[2924:] for e in kf.push(f)] + kf.flush()
+    assert clones
+    for at, clone in clones:
+        assert clone._job is not None and clone._job.rows.rows is None
+        mine = [e for f in frames[2900 + at:] for e in clone.push(f)] + clone.flush()
+        assert sum(events[:at], []) + mine == rest

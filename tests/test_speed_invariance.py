@@ -19,25 +19,16 @@ MEAN_F1, WORST_F1, RATIOS = 0.9, 0.75, (0.8, 1.25)
 
 # Unmet targets, as measured (mean F1, worst F1 (clip), count ratios).
 XFAIL: dict[tuple[str, str], str] = {
-    ("60 Hz", "online"): "measured: mean F1 0.876, worst 0.71 (06_02), ratios 0.89-1.00; keys "
-                         "at 60 Hz sit 1-5 frames (120 Hz) early and 06_02 loses 150",
-    ("30 Hz", "online"): "measured: mean F1 0.838, worst 0.67 (06_02), ratios 0.80-1.00",
-    ("stillness", "offline"): "measured: mean F1 0.922, worst 0.80 (07_05), ratios 0.67-1.00: "
-                              "07_05 keeps 4 of 6 keys (Mojena's cut moves with two intensities "
-                              "at the take's end)",
+    ("60 Hz", "online"): "measured: mean F1 0.894, worst 0.76 (06_02), ratios 0.97-1.10; keys "
+                         "at 60 Hz sit 1-5 frames (120 Hz) early",
+    ("30 Hz", "online"): "measured: mean F1 0.867, worst 0.76 (06_02), ratios 0.80-1.10",
 }
-_MOJENA = "; Ward + Mojena's cluster count flips with small changes of the intensities"
 XFAIL_ALL: dict[tuple[str, str], str] = {
-    ("60 Hz", "offline"): "measured: mean F1 0.915, worst 0.55 (05_02), ratios 0.60-2.25" + _MOJENA,
-    ("60 Hz", "online"): "measured: mean F1 0.921, worst 0.61 (05_02), ratios 0.82-1.14",
-    ("30 Hz", "offline"): "measured: mean F1 0.821, worst 0.40 (05_06), ratios 0.34-1.82" + _MOJENA,
-    ("30 Hz", "online"): "measured: mean F1 0.836, worst 0.48 (05_06), ratios 0.67-1.50",
-    ("calibration", "offline"): "measured: mean F1 0.882, worst 0.00 (49_18: the blend out of "
-                                "the T-pose outweighs its calm take), ratios 0.03-3.50",
-    ("calibration", "online"): "measured: mean F1 0.879, worst 0.00 (49_18), ratios 0.09-1.22",
-    ("stillness", "offline"): "measured: mean F1 0.919, worst 0.55 (06_12), ratios 0.38-2.00"
-                              + _MOJENA,
-    ("stillness", "online"): "measured: mean F1 0.959, worst 0.67 (09_01), ratios 0.50-1.06",
+    ("60 Hz", "offline"): "measured: mean F1 0.944, worst 0.71 (05_02), ratios 0.70-1.14",
+    ("60 Hz", "online"): "measured: mean F1 0.940, worst 0.73 (05_06), ratios 0.83-1.20",
+    ("30 Hz", "offline"): "measured: mean F1 0.881, worst 0.55 (06_15), ratios 0.60-1.25",
+    ("30 Hz", "online"): "measured: mean F1 0.880, worst 0.53 (06_15), ratios 0.68-1.10",
+    ("stillness", "offline"): "measured: mean F1 0.977, worst 0.86 (06_06), ratios 0.75-1.25",
 }
 
 

@@ -11,10 +11,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 
+from ..errors import UsageError
 from .speed_kernels import band_offsets, dropped_threshold, ward_labels, ward_levels
 
 __all__ = ["BAND_BUDGET", "match_minima", "intensities", "Chain", "MojenaResult",
-           "WARD_1D_FROM", "ward_1d", "mojena_threshold", "two_cluster_threshold"]
+           "WARD_1D_FROM", "ward_1d", "mojena_threshold", "two_cluster_threshold", "CUTS",
+           "CUT_QUANTILE", "CUT_FRACTION", "quantile_threshold", "check_cut"]
 
 BAND_BUDGET = 4_000_000  # full band DP table entries; above it the windowed DP is used
 
@@ -213,3 +215,26 @@ def two_cluster_threshold(u: np.ndarray) -> float:
     z = linkage(u.reshape(-1, 1), method="ward")
     labels = fcluster(z, 2, criterion="maxclust")
     return float(u[labels == labels[np.argmin(u)]].max())
+
+
+CUTS = ("quantile", "mojena")  # the keypose cuts: the default, then Miura's own rule
+CUT_QUANTILE, CUT_FRACTION = 0.95, 0.4  # the quantile cut: U above 0.4 x the 95th percentile
+
+
+def quantile_threshold(u: np.ndarray) -> float:
+    """The quantile cut: keyposes are the candidates whose U is above `CUT_FRACTION` of the
+    `CUT_QUANTILE` quantile of the sample's intensities (0 for an empty sample).
+
+    A departure from Miura's Ward + Mojena cut, stable by construction: the threshold moves
+    continuously with the sample, so a candidate's verdict changes only when its own U is
+    near the threshold, where Ward + Mojena's cluster count jumps between nearly equal
+    samples (the module docstring of `streamkey.methods.speed` has the measurements)."""
+    u = np.asarray(u, dtype=np.float64)
+    return float(CUT_FRACTION * np.quantile(u, CUT_QUANTILE)) if len(u) else 0.0
+
+
+def check_cut(cut: object) -> str:
+    """`cut` if it names a keypose cut (`CUTS`), else a `UsageError`."""
+    if cut not in CUTS:
+        raise UsageError(f"speed: cut must be one of {', '.join(CUTS)}, got {cut!r}")
+    return str(cut)

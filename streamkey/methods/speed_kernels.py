@@ -23,7 +23,7 @@ import numpy as np
 
 from ..jit import kernel, warmer
 
-__all__ = ["hp_advance", "hp_tail", "tail_minima", "chain_totals", "band_offsets",
+__all__ = ["hp_advance", "hp_tail", "hp_tail_part", "tail_minima", "chain_totals", "band_offsets",
            "ward_levels", "ward_labels", "dropped_threshold"]
 
 
@@ -38,9 +38,11 @@ def _column(pre: np.ndarray, off: np.ndarray, lam: int, j: int
 
 @kernel
 def _forward_row(x: float, g: int, y: np.ndarray, y1: np.ndarray, y2: np.ndarray,
-                 pre: np.ndarray, off: np.ndarray, conv: np.ndarray) -> None:
-    """Forward row g of every lambda (y1, y2: rows g-1, g-2), factors not all converged."""
-    for lam in range(len(y)):
+                 pre: np.ndarray, off: np.ndarray, conv: np.ndarray, lam0: int, lam1: int
+                 ) -> None:
+    """Forward row g of lambdas lam0..lam1-1 (y1, y2: rows g-1, g-2), factors not all
+    converged."""
+    for lam in range(lam0, lam1):
         if g >= off[lam + 1] - off[lam]:  # converged: the constant column
             y[lam] = ((x - conv[0, lam] * y2[lam]) - conv[1, lam] * y1[lam]) * conv[3, lam]
         else:
@@ -71,7 +73,7 @@ def hp_advance(v: np.ndarray, g0: int, done: int, upto: int, ys: np.ndarray, pre
             for lam in range(n_lam):
                 y[lam] = ((x - conv[0, lam] * y2[lam]) - conv[1, lam] * y1[lam]) * conv[3, lam]
         else:
-            _forward_row(x, g, ys[r], ys[r1], ys[r2], pre, off, conv)
+            _forward_row(x, g, ys[r], ys[r1], ys[r2], pre, off, conv, 0, n_lam)
     return upto
 
 
@@ -85,13 +87,25 @@ def hp_tail(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.
     factor's bottom corner (the arithmetic of `signal.hp_factor`), then the back
     substitution (U x = y, bottom up) down to row g0 + lo. The result is a view of
     `scratch` (at least N - min(g0 + lo, done) rows, reused: no page faults per call)."""
-    n_ring, n_lam = ys.shape
+    out: np.ndarray = hp_tail_part(v, g0, lo, done, ys, pre, off, conv, lams, scratch, 0,
+                                   ys.shape[1])
+    return out
+
+
+@kernel
+def hp_tail_part(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.ndarray,
+                 off: np.ndarray, conv: np.ndarray, lams: np.ndarray, scratch: np.ndarray,
+                 lam0: int, lam1: int) -> np.ndarray:
+    """`hp_tail` for the lambdas lam0..lam1-1 only (their columns of the result; the others
+    are left as they are): each lambda's recursion is its own, so a call per part gives the
+    same numbers as one call for all."""
+    n_ring = ys.shape[0]
     big_n = g0 + len(v)
     lo_g = g0 + lo
     e0 = min(lo_g, done)  # rows before `done` are read from the ring (no copy)
     out = scratch[: big_n - e0]
     k_max = 0
-    for lam in range(n_lam):
+    for lam in range(lam0, lam1):
         k_max = max(k_max, off[lam + 1] - off[lam])
     for g in range(done, big_n):  # forward rows (the last two: the corner, below)
         y = out[g - e0]
@@ -99,7 +113,7 @@ def hp_tail(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.
         y2 = ys[(g - 2) % n_ring] if g - 2 < done else out[g - 2 - e0]
         x = v[g - g0]
         if g >= big_n - 2:
-            for lam in range(n_lam):  # the bottom corner
+            for lam in range(lam0, lam1):  # the bottom corner
                 u0, u1, _ = _column(pre, off, lam, big_n - 2)
                 v0 = _column(pre, off, lam, big_n - 1)[0]
                 d2 = np.sqrt((1.0 + 5.0 * lams[lam]) - u0 * u0 - u1 * u1)
@@ -110,12 +124,12 @@ def hp_tail(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.
                     last = np.sqrt((1.0 + lams[lam]) - v0 * v0 - e * e)
                     y[lam] = ((x - v0 * y2[lam]) - e * y1[lam]) / last
         elif g >= k_max:
-            for lam in range(n_lam):
+            for lam in range(lam0, lam1):
                 y[lam] = ((x - conv[0, lam] * y2[lam]) - conv[1, lam] * y1[lam]) * conv[3, lam]
         else:
-            _forward_row(x, g, y, y1, y2, pre, off, conv)
+            _forward_row(x, g, y, y1, y2, pre, off, conv, lam0, lam1)
     i = big_n - 2 - e0
-    for lam in range(n_lam):  # the corner, back
+    for lam in range(lam0, lam1):  # the corner, back
         u0, u1, _ = _column(pre, off, lam, big_n - 2)
         v0 = _column(pre, off, lam, big_n - 1)[0]
         d2 = np.sqrt((1.0 + 5.0 * lams[lam]) - u0 * u0 - u1 * u1)
@@ -128,11 +142,11 @@ def hp_tail(v: np.ndarray, g0: int, lo: int, done: int, ys: np.ndarray, pre: np.
         x0, x1, x2 = out[i], out[i + 1], out[i + 2]
         y = ys[g % n_ring] if g < done else x0
         if g >= k_max:
-            for lam in range(n_lam):
+            for lam in range(lam0, lam1):
                 x0[lam] = ((y[lam] - x2[lam] * conv[0, lam]) - x1[lam] * conv[1, lam]
                            ) * conv[3, lam]
         else:
-            for lam in range(n_lam):
+            for lam in range(lam0, lam1):
                 if g + 1 >= off[lam + 1] - off[lam]:  # columns g..g+2 have converged
                     x0[lam] = ((y[lam] - x2[lam] * conv[0, lam]) - x1[lam] * conv[1, lam]
                                ) * conv[3, lam]

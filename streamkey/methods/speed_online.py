@@ -23,13 +23,15 @@ sent yet. Windowed replacements of the offline global steps:
   the same keys, intensities within 5.4e-5 relative, and the same agreement table.
 - Candidate correspondence over the whole clip -> the same DP over the region (compiled,
   `speed_kernels.chain_totals`: the band DP of `match_minima`, same ties, same sums).
-- Ward + Mojena over all candidates -> one cut-off per update, re-derived from a bounded sample:
+- The keypose cut over all candidates (the quantile cut, or Ward + Mojena with
+  `cut="mojena"`) -> one cut-off per update, re-derived from a bounded sample:
   the candidates decided in the last `cutoff_history` frames (intensities as decided), those
   decided now and the window's pending ones. Applying it to the candidates due (U > cut-off)
   replaces re-clustering per candidate, whose cluster count flips as candidates arrive.
-- Warm-up: while the sample holds fewer than `warmup_candidates` (Mojena's rule cannot split
-  fewer than ~10 levels at k = 2.75), a single-cluster verdict is replaced by Ward cut into
-  two clusters; after that, the rule is Mojena's.
+- Warm-up (the Mojena cut only): while the sample holds fewer than `warmup_candidates`
+  (Mojena's rule cannot split fewer than ~10 levels at k = 2.75), a single-cluster verdict is
+  replaced by Ward cut into two clusters; after that, the rule is Mojena's. The quantile cut
+  of a few values is already a fraction of their largest.
 - `flush()` analyses the whole window (full-window HP filters) and decides everything pending.
   With a lookahead of at least the stream's length nothing is sent before, the window is the
   whole stream and the sample all its candidates: the offline result, bit for bit.
@@ -56,7 +58,7 @@ from ..segments import SegmentEvent
 from ..signal import hp_lambda
 from ..units import Duration, DurationLike, whole_frames
 from .ring import RingWindow
-from .speed_chains import BAND_BUDGET, intensities
+from .speed_chains import BAND_BUDGET, check_cut, intensities
 from .speed_kernels import chain_totals, tail_minima
 from .speed_scales import (
     METHOD,
@@ -119,7 +121,7 @@ class Online(OnlineKeyframer):
 
     method = METHOD
     # The stages of an analysis, in order (`Analysis.done` counts those run).
-    STAGES = ("speeds", "trends", "chains", "decisions")
+    STAGES = ("speeds", "trends", "trends", "chains", "cut-off", "decisions")
 
     def __init__(self, skeleton: Skeleton, fps: float, *, f_c: float = 10.0, f_max: float = 8.0,
                  f_min: float = 0.2, r: float = 0.95, mojena_k: float = 2.75,
@@ -128,8 +130,9 @@ class Online(OnlineKeyframer):
                  warmup_candidates: int = 20, stream: str = "default",
                  role_mapping: dict[str, str] | None = None,
                  max_bridge_frames: int = DEFAULT_MAX_BRIDGE_FRAMES,
-                 segment_statistics: bool = False) -> None:
+                 segment_statistics: bool = False, cut: str = "quantile") -> None:
         check_params(f_c, f_max, f_min, r, mojena_k)
+        cut = check_cut(cut)
         lookahead = _frames("lookahead", lookahead, fps, 3)
         if hop is None:  # a fifth of the lookahead, at most 0.2 s (24 frames at 120 Hz)
             hop = max(1, min(whole_frames(MAX_HOP, fps), lookahead // 5))
@@ -140,7 +143,7 @@ class Online(OnlineKeyframer):
         _check_count("warmup_candidates", warmup_candidates, 0)
         params = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r, "mojena_k": mojena_k,
                   "hop": hop, "history": history, "cutoff_history": cutoff_history,
-                  "warmup_candidates": int(warmup_candidates)}
+                  "warmup_candidates": int(warmup_candidates), "cut": cut}
         if segment_statistics:  # in the digest only when on, so today's digests stay
             params["segment_statistics"] = True
         super().__init__(skeleton, fps, lookahead=lookahead, stream=stream,
@@ -171,8 +174,13 @@ class Online(OnlineKeyframer):
         packed_factors(lams)  # built now (shared, derived), not on a streaming frame
         self._carry = TrendCarry(lams, region)  # HP forward passes
         self._cutoff = CutoffSample(self.cutoff_history, self.lookahead, mojena_k,
-                                    int(warmup_candidates))  # Ward + Mojena memory
+                                    int(warmup_candidates), cut)  # the cut's memory
         self.reset()
+
+    @property
+    def cut(self) -> str:
+        """The keypose cut (`speed_chains.CUTS`): "quantile" (the default) or "mojena"."""
+        return self._cutoff.cut
 
     @property
     def mojena_k(self) -> float:
@@ -337,8 +345,9 @@ class Online(OnlineKeyframer):
                                                           if self._quiet.counts(c)]])
         # Stage costs, ~µs (measured at the defaults: speed signal, HP trends, chains,
         # Ward + Mojena and decisions).
-        cost = np.array([50 if old is not None else 50 + len(snap) // 4,
-                         40 + min(spans.region, n) // 4, 40, 60 + len(sample) // 8])
+        trend = 20 + min(spans.region, n) // 8
+        cost = np.array([50 if old is not None else 50 + len(snap) // 4, trend, trend, 40,
+                         60 + len(sample) // 8, 20])
         inputs = AnalysisInput(anchor=self._count, zone_end=zone_end,
                                lo=ring.first_seq - 1 if upto is None else upto,
                                base=ring.first_seq, g0=self._speeds.dropped, rows=snap, old=old,
@@ -347,13 +356,15 @@ class Online(OnlineKeyframer):
         self._advance(self._count)
 
     def _advance(self, count: int) -> None:
-        """Run the running analysis' stages due by frame `count` (its share per frame)."""
+        """Run the running analysis' stages due by frame `count`: a stage starts on the
+        frame after the anchor where its share of the estimated cost begins (the first on
+        the next frame), and whatever is left runs on the `delay`-th."""
         job = self._job
         if job is None or (count <= job.inputs.anchor and self.delay > 0):
             return
         k, total = count - job.inputs.anchor, job.cum[-1]
-        while self._job is job and (k >= self.delay
-                                    or job.cum[job.done] * self.delay <= total * k):
+        while self._job is job and (k >= self.delay or (job.cum[job.done - 1] if job.done else 0)
+                                    * self.delay <= total * (k - 1)):
             self._run_stage(job)
 
     def _run_stage(self, job: Analysis) -> None:
@@ -363,9 +374,13 @@ class Online(OnlineKeyframer):
         if stage == 0:
             self._stage_speeds(job)
         elif stage == 1:
-            self._stage_trends(job)
+            self._stage_trends(job, first=True)
         elif stage == 2:
+            self._stage_trends(job, first=False)
+        elif stage == 3:
             self._stage_chains(job)
+        elif stage == 4:
+            self._stage_cutoff(job)
         else:
             self._stage_decisions(job)
 
@@ -385,13 +400,27 @@ class Online(OnlineKeyframer):
                                  cand=candidates_of(v[lo_trend:]) + lo_trend)
         self._carry.advance(v, inputs.g0, fresh)
 
-    def _stage_trends(self, job: Analysis) -> None:
-        """Stage 2: HP trends of the region, every scale; their minima."""
+    def _stage_trends(self, job: Analysis, first: bool) -> None:
+        """Stages 2 and 3: HP trends of the region, the first part of the scales' lambdas,
+        then the rest (all of them if the first part was lost to a pickle) and the minima.
+        The parts cost about the same: a lambda costs ~3x while its factor's columns have
+        not converged (its first 20 lambda^(1/4) rows of the stream)."""
         sp = job.speeds
         assert sp is not None
-        trends = self._carry.trends(sp.v, job.inputs.g0, sp.lo_trend, self._bank)
-        minima, u, counts = tail_minima(trends, len(self._carry.lams) // 2, sp.lo_trend,
-                                        sp.start, REST_SPEED)
+        lams, g0 = self._carry.lams, job.inputs.g0
+        if first:
+            k = np.diff(packed_factors(lams)[1])
+            w = 1.0 + 2.0 * np.minimum(1.0, k / (g0 + len(sp.v)))
+            job.split = int(np.clip(np.searchsorted(np.cumsum(w), w.sum() / 2), 1,
+                                    len(lams) - 1))
+            self._carry.trends(sp.v, g0, sp.lo_trend, self._bank, slice(0, job.split),
+                               job.rows)
+            return
+        part = slice(job.split, None) if job.rows.rows is not None else None
+        trends = self._carry.trends(sp.v, g0, sp.lo_trend, self._bank, part, job.rows)
+        job.rows.rows = None
+        minima, u, counts = tail_minima(trends, len(lams) // 2, sp.lo_trend, sp.start,
+                                        REST_SPEED)
         job.minima = StageMinima(minima=minima, u=u, counts=counts)
 
     def _stage_chains(self, job: Analysis) -> None:
@@ -405,24 +434,34 @@ class Online(OnlineKeyframer):
                                                   np.split(mn.u, cuts), strict=True)))
         job.total = total
 
-    def _stage_decisions(self, job: Analysis) -> None:
-        """Stage 4: Ward + Mojena over the cut-off sample, the decisions of the zone."""
-        sp, u, inputs, decisions = job.speeds, job.total, job.inputs, self._decisions
+    def _stage_cutoff(self, job: Analysis) -> None:
+        """Stage 5: the cut over the cut-off sample (Ward + Mojena's, or the quantile's)."""
+        sp, u, inputs = job.speeds, job.total, job.inputs
         assert sp is not None and u is not None
-        decisions.upto = inputs.zone_end
-        self._job = None
         seqs = sp.cand + inputs.base
         new = (seqs > inputs.lo) & (seqs <= inputs.zone_end)
         if np.any(new):
             counted = self._quiet.outside(seqs)
-            cut = np.concatenate([inputs.sample, u[new & counted],
-                                  u[(seqs > inputs.zone_end) & counted]])
-            threshold = self._cutoff.threshold(cut, False)
-            decisions.due.extend(zip(seqs[new].tolist(), u[new].tolist(),
-                                     (u[new] > threshold).tolist(), strict=True))
-            ahead = (seqs > inputs.zone_end) & (u > threshold)
-            decisions.ahead = [(c, self._ring.time(c), x) for c, x in  # provisional hook
-                               zip(seqs[ahead].tolist(), u[ahead].tolist(), strict=True)]
+            job.cut = np.concatenate([inputs.sample, u[new & counted],
+                                      u[(seqs > inputs.zone_end) & counted]])
+            job.verdict = self._cutoff.verdict(job.cut)
+
+    def _stage_decisions(self, job: Analysis) -> None:
+        """Stage 6: the warm-up rule, the decisions of the zone."""
+        sp, u, inputs, decisions = job.speeds, job.total, job.inputs, self._decisions
+        assert sp is not None and u is not None
+        decisions.upto = inputs.zone_end
+        self._job = None
+        if job.cut is None or job.verdict is None:
+            return
+        seqs = sp.cand + inputs.base
+        new = (seqs > inputs.lo) & (seqs <= inputs.zone_end)
+        threshold = self._cutoff.warmed(job.cut, job.verdict, False)
+        decisions.due.extend(zip(seqs[new].tolist(), u[new].tolist(),
+                                 (u[new] > threshold).tolist(), strict=True))
+        ahead = (seqs > inputs.zone_end) & (u > threshold)
+        decisions.ahead = [(c, self._ring.time(c), x) for c, x in  # provisional hook
+                           zip(seqs[ahead].tolist(), u[ahead].tolist(), strict=True)]
 
     def _speed(self) -> np.ndarray:
         """Speed over the whole window (at flush)."""

@@ -65,9 +65,12 @@ class WorkRows:
         return (WorkRows, ())
 
     def get(self, n: int, width: int) -> np.ndarray:
-        """At least n rows of `width` values (contents undefined)."""
+        """At least n rows of `width` values (contents undefined). Grown by doubling: while
+        a stream's window fills, a new block per analysis meant fresh pages (page faults)
+        on every early analysis."""
         if len(self.rows) < n or self.rows.shape[1] != width:
-            self.rows = np.empty((n, width))
+            grow = 2 * len(self.rows) if self.rows.shape[1:] == (width,) else 0
+            self.rows = np.empty((max(n, grow), width))
         return self.rows
 
 

@@ -16,12 +16,18 @@ import numpy as np
 
 from ..motion import Skeleton
 from ..online import FeatureBlock
-from .speed_chains import mojena_threshold, two_cluster_threshold
-from .speed_kernels import hp_advance, hp_tail
+from .speed_chains import (
+    MojenaResult,
+    mojena_threshold,
+    quantile_threshold,
+    two_cluster_threshold,
+)
+from .speed_kernels import hp_advance, hp_tail_part
 from .speed_scales import HPBank, WorkRows, packed_factors, reference_lead
 
 __all__ = ["Spans", "PoseRows", "LeadHold", "WindowSpeeds", "TrendCarry", "CutoffSample",
-           "QuietSpans", "Decisions", "AnalysisInput", "StageSpeeds", "StageMinima", "Analysis"]
+           "TrendRows", "QuietSpans", "Decisions", "AnalysisInput", "StageSpeeds",
+           "StageMinima", "Analysis"]
 
 
 @dataclass(frozen=True)
@@ -118,24 +124,48 @@ class TrendCarry:
         if upto > self.done:
             self.done = hp_advance(v, start, self.done, upto, self.y, *packed_factors(self.lams))
 
-    def trends(self, v: np.ndarray, g0: int, lo: int, bank: HPBank) -> np.ndarray:
-        """HP trends of `v[lo:]` for every lambda, side by side (rows: speeds)."""
+    def trends(self, v: np.ndarray, g0: int, lo: int, bank: HPBank, part: slice | None = None,
+               rows: TrendRows | None = None) -> np.ndarray:
+        """HP trends of `v[lo:]` for every lambda, side by side (rows: speeds). With `part`,
+        only those lambdas' columns are solved (the others are left as they are), into the
+        work rows of `rows` (taken on its first use): a part per call gives the same numbers
+        as one call for all."""
         start = g0 - self.base
+        n_lam = len(self.lams)
+        lam0, lam1, _ = (part or slice(0, n_lam)).indices(n_lam)
         if start + len(v) >= 5:
             pre, off, conv = packed_factors(self.lams)
-            rows = start + len(v) - min(start + lo, self.done)
-            trends: np.ndarray = hp_tail(v, start, lo, self.done, self.y, pre, off, conv,
-                                         self.lams, self.work.get(rows, len(self.lams)))
+            scratch = rows.rows if rows is not None else None
+            if scratch is None:
+                scratch = self.work.get(start + len(v) - min(start + lo, self.done), n_lam)
+                if rows is not None:
+                    rows.rows = scratch
+            trends: np.ndarray = hp_tail_part(v, start, lo, self.done, self.y, pre, off, conv,
+                                              self.lams, scratch, lam0, lam1)
             return trends
         # a system too short for the corner formulas (start is 0): whole solves
-        return np.stack([bank.solve(v, j)[lo:] for j in range(len(self.lams))], axis=1)
+        return np.stack([bank.solve(v, j)[lo:] for j in range(n_lam)], axis=1)
+
+
+class TrendRows:
+    """The work rows of one analysis' trends between its two trend stages (the first part of
+    the lambdas solved, the rest to come). Derived: pickled empty, and then the trend stage
+    solves every lambda."""
+
+    def __init__(self) -> None:
+        self.rows: np.ndarray | None = None
+
+    def __reduce__(self) -> tuple[type, tuple[()]]:
+        return (TrendRows, ())
 
 
 class CutoffSample:
     """The Ward + Mojena cut-off's memory: intensities (as decided) of the candidates decided
     in the last `span` frames, with a warm-up rule while it is small."""
 
-    def __init__(self, span: int, lookahead: int, mojena_k: float, warmup: int) -> None:
+    def __init__(self, span: int, lookahead: int, mojena_k: float, warmup: int,
+                 cut: str = "quantile") -> None:
+        self.cut = cut  # the keypose cut (`speed_chains.CUTS`)
         self.span = span  # frames of decided candidates kept (`cutoff_history`)
         self.lookahead = lookahead  # frames from a candidate to its decision
         self.mojena_k = mojena_k  # Mojena's k
@@ -146,7 +176,7 @@ class CutoffSample:
 
     def emptied(self) -> CutoffSample:
         """A sample with the same parameters and nothing in it."""
-        return CutoffSample(self.span, self.lookahead, self.mojena_k, self.warmup)
+        return CutoffSample(self.span, self.lookahead, self.mojena_k, self.warmup, self.cut)
 
     def resume(self, first_seq: int) -> None:
         """The first frame after a restart: if the source started over, the kept history is
@@ -180,8 +210,21 @@ class CutoffSample:
         """Ward + Mojena threshold over a cut-off sample: the candidates decided in the last
         `span` frames (intensities as decided), the ones being decided and the window's
         pending ones (current intensities). Warm-up (not `final`): a one-cluster verdict on
-        fewer than `warmup` values becomes Ward cut into two clusters."""
-        res = mojena_threshold(sample, self.mojena_k)
+        fewer than `warmup` values becomes Ward cut into two clusters (the Mojena cut only).
+        The quantile cut needs no warm-up rule: the threshold of a few values is already
+        fractions of their largest."""
+        return self.warmed(sample, self.verdict(sample), final)
+
+    def verdict(self, sample: np.ndarray) -> MojenaResult | float:
+        """The cut on `sample`: Ward + Mojena's result, or the quantile cut's threshold."""
+        if self.cut == "mojena":
+            return mojena_threshold(sample, self.mojena_k)
+        return quantile_threshold(sample)
+
+    def warmed(self, sample: np.ndarray, res: MojenaResult | float, final: bool) -> float:
+        """`threshold` from the verdict `res` on `sample` (in two steps)."""
+        if not isinstance(res, MojenaResult):
+            return res
         if res.n_clusters == 1 and not final and len(sample) < self.warmup:
             return two_cluster_threshold(sample)
         return res.threshold
@@ -261,7 +304,7 @@ class StageMinima:
 
 
 class Analysis:
-    """One regular re-analysis in four stages (`Online.STAGES`), run in order over the frames
+    """One regular re-analysis in stages (`Online.STAGES`), run in order over the frames
     after its anchor, each stage when its share of the estimated cost is due."""
 
     def __init__(self, inputs: AnalysisInput, cost: np.ndarray) -> None:
@@ -269,5 +312,9 @@ class Analysis:
         self.cum: list[int] = np.cumsum(cost).tolist()  # cumulative stage costs (µs, integers)
         self.done = 0  # stages run
         self.speeds: StageSpeeds | None = None  # after stage 1
-        self.minima: StageMinima | None = None  # after stage 2
-        self.total: np.ndarray | None = None  # after stage 3: the candidates' intensities
+        self.rows = TrendRows()  # the trends between the two trend stages (derived)
+        self.split = 0  # the first lambda of the second trend stage
+        self.minima: StageMinima | None = None  # after the trend stages
+        self.total: np.ndarray | None = None  # after the chains: the candidates' intensities
+        self.cut: np.ndarray | None = None  # the cut-off sample of the decisions
+        self.verdict: MojenaResult | float | None = None  # the cut on it
