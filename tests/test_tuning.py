@@ -41,6 +41,7 @@ OPTION = {
     "update_every": ("--update-every", "600", 600), "history": ("--history", "900", 900),
     "f_c": ("--f-c", "6", 6.0), "f_max": ("--f-max", "5", 5.0), "f_min": ("--f-min", "0.5", 0.5),
     "r": ("--scale-ratio", "0.9", 0.9), "mojena_k": ("--mojena-k", "2", 2.0),
+    "cut": ("--cut", "mojena", "mojena"),
     "hop": ("--hop", "6", 6), "cutoff_history": ("--cutoff-history", "3000", 3000),
     "warmup_candidates": ("--warmup-candidates", "10", 10),
     "segment_statistics": ("--segment-statistics", None, True),

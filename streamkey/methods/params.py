@@ -81,8 +81,11 @@ SPEED = (
     Param("f_min", "number", "coarsest scale (default 0.2 Hz)", unit="HZ", default=0.2),
     Param("r", "number", "ratio of successive scales (default 0.95)", unit="R", default=0.95,
           flag="--scale-ratio"),
-    Param("mojena_k", "number", "Mojena constant of the Ward cut-off, larger: fewer keys "
-          "(default 2.75)", unit="K", default=2.75),
+    Param("cut", "choice", "keypose cut: quantile (default: U above 0.4 x the 95th "
+          "percentile of the candidates' intensities) or mojena (Miura's Ward + Mojena cut)",
+          choices=("quantile", "mojena"), default="quantile"),
+    Param("mojena_k", "number", "with --cut mojena: Mojena constant of the Ward cut-off, "
+          "larger: fewer keys (default 2.75)", unit="K", default=2.75),
     Param("cutoff_history", "duration", "online: how far back candidates feed the cut-off "
           "(default 60 s)", unit="FRAMES", default=Duration.seconds(60.0), integer=True,
           online_only=True),
