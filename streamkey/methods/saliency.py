@@ -113,6 +113,7 @@ from .saliency_math import (
     normalisation,
     pca_basis,
     scale_maps,
+    smooth_curves,
     support_radius,
     time_step,
     widths,
@@ -168,7 +169,7 @@ def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: boo
     """Curves and maps of the rows `xs`; the PCA from the `moving` rows (default: all)."""
     basis = pca_basis(moments(xs if moving is None else xs[moving]), k, variance_rule)
     basis = fit_k(basis, k, contact)
-    d = curves_of(basis, xs, feet, contact)
+    d = smooth_curves(curves_of(basis, xs, feet, contact), fps)
     s = maps_of(curvature(d, time_step(fps)), sigma, contact, frames_at(FOOT_SIGMA, fps))
     weights, foot = curve_weights(basis, contact)
     return _Curves(d, s, weights, foot, basis)

@@ -79,6 +79,7 @@ from .saliency_math import (
     end_curvature,
     frames_at,
     kernel_bank,
+    lowpass,
     moments,
     support_radius,
     time_step,
@@ -129,11 +130,12 @@ def _setup(sigma: float, k: int, contact: bool, variance_rule: bool, fps: float,
     bank2 = np.hstack([kernel_bank(sigma, radius), kernel_bank(foot_sigma, radius)])
     full = bank2 / bank2.sum(axis=0)
     diff_bank = np.hstack([full[:, 0:4] - full[:, 4:8], full[:, 8:12] - full[:, 12:16]])
+    lp_b, lp_a = lowpass(fps)
     setup = OnlineSetup(sigma=sigma, k=k, contact=contact, variance_rule=variance_rule,
                         foot_sigma=foot_sigma, step=time_step(fps), radius=radius, cmax=cmax,
                         clen=cluster_length(sigma), min_lookahead=min_lookahead,
                         update_every=every, window=window, columns=columns, bank2=bank2,
-                        diff_bank=diff_bank)
+                        diff_bank=diff_bank, lp_b=lp_b, lp_a=lp_a)
     return setup, look, hist
 
 

@@ -42,6 +42,8 @@ class OnlineSetup:
     columns: int  # rotation channels per frame
     bank2: np.ndarray  # unnormalised kernels: main curves in columns 0-7, foot curves 8-15
     diff_bank: np.ndarray  # normalised kernel differences G(s_i) - G(2 s_i), main then foot
+    lp_b: np.ndarray  # the curves' low-pass (`saliency_math.lowpass`): numerator
+    lp_a: np.ndarray  # and denominator
 
     @property
     def h2(self) -> float:
@@ -58,7 +60,7 @@ class WindowBuffers:
     """The ring of the newest frames: row r holds frame `base` + r. The per-curve arrays have
     no columns until the first basis (`alloc_curves`)."""
 
-    PER_CURVE = ("curves", "curvatures", "maps", "peaks")
+    PER_CURVE = ("raw", "curves", "curvatures", "maps", "peaks")
 
     def __init__(self, cap: int, columns: int) -> None:
         self.cap = cap  # rows
@@ -67,7 +69,8 @@ class WindowBuffers:
         self.feet = np.zeros((cap, 2))  # foot heights / body height
         self.times = np.zeros(cap)  # frame times, s
         self.moving = np.ones(cap, dtype=bool)  # in a take (not a calibration hold or still)
-        self.curves = np.zeros((cap, 0))  # curve values D (PCA projections, foot heights)
+        self.raw = np.zeros((cap, 0))  # curve values (PCA projections, foot heights)
+        self.curves = np.zeros((cap, 0))  # curve values D: `raw` low-passed
         self.curvatures = np.zeros((cap, 0))  # curvature C of each curve
         self.maps = np.zeros((cap, 0, 4))  # scale maps S_i of each curve
         self.peaks = np.zeros((cap, 0, 4), dtype=bool)  # local-maximum flags of the maps
@@ -80,6 +83,7 @@ class WindowBuffers:
         """(Re)allocate the per-curve arrays for `kk` curves, remapping kept columns."""
         had = self.maps.shape[1] > 0
         old_maps, old_peaks = self.maps, self.peaks
+        self.raw = np.zeros((self.cap, kk))
         self.curves = np.zeros((self.cap, kk))
         self.curvatures = np.zeros((self.cap, kk))
         if perm is not None and had:
@@ -173,7 +177,8 @@ class BasisUpdate:
     corr: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # correlation
     basis: Basis | None = None  # the new basis, matched
     perm: np.ndarray | None = None  # old curve each new curve continues
-    d: np.ndarray | None = None  # curves of frames lo..u
+    d: np.ndarray | None = None  # raw curves of frames lo..u
+    y: np.ndarray | None = None  # their low-pass
     c: np.ndarray | None = None  # their curvatures
     s: np.ndarray | None = None  # their maps (filled block by block)
     maps: int = 0  # next frame to map
