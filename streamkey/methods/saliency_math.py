@@ -49,8 +49,8 @@ SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
 VARIANCE_SHARE = 0.9
 # Low-pass of the curves before their curvature, a cut-off in Hz (the same at any rate): the
 # curvature of the raw curves is mostly content above the Nyquist frequency of a 30 Hz take.
-CURVE_CUTOFF_HZ = 4.0
-CURVE_ORDER = 4
+CURVE_CUTOFF_HZ = 3.5
+CURVE_ORDER = 6
 _MIN_VAR = 1e-10
 _TIE = 1e-9
 

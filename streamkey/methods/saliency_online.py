@@ -143,7 +143,9 @@ class Online(WindowAnalysis):
     """Online multiscale saliency: `push` frames, get keyframe events within `lookahead`.
 
     Running statistics replace the global ones (module docstring). Between basis updates a
-    new frame costs one projection, one curvature row and one row of maps (compiled loops,
+    new frame costs one projection, one low-pass row (`saliency_math.smooth_curves`, the
+    same recursion as offline, restarted at rest at the window's first frame when a basis
+    update recomputes the window), one curvature row and one row of maps (compiled loops,
     `saliency_kernels.ring_curves` / `ring_maps_of`), computed in `idle()` after its decisions
     (or first thing at the next frame), so that a deciding frame computes its own row only; a
     basis update's work runs in `idle()` too. A deciding frame classifies and clusters its
