@@ -104,23 +104,16 @@ def test_compiled_ring_rows_match_the_batch_curves_maps_and_statistics() -> None
     xs = f.rotations - f.rotations[0]
     feet = f.foot_heights / f.body_height
     basis = saliency_math.fit_k(saliency.pca_basis(saliency.moments(xs), 7, False), 7, True)
-    raw_ref = saliency.curves_of(basis, xs, feet, True)
-    d_ref = saliency_math.smooth_curves(raw_ref, 120.0)
+    d_ref = saliency.curves_of(basis, xs, feet, True)
     c_ref = saliency.curvature(d_ref)
     n, k, R = len(xs), d_ref.shape[1], saliency.support_radius(10.0, True, FOOT)
-    raw, d, c = np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))
+    d, c = np.zeros((n, k)), np.zeros((n, k))
     keep = basis.keep
-    b, a = saliency_math.lowpass(120.0)
-    d[:2] = d_ref[:2]  # the stream's first rows (frame by frame in the keyframer)
-    raw[:2] = raw_ref[:2]
     saliency_math.ring_curves(xs, feet, keep, basis.mean[keep], basis.sd[keep],
-                              np.ascontiguousarray(basis.vectors[:, :-2]), True, raw, d, c, 2,
-                              n, 1.0, b, a)
-    assert np.allclose(raw, raw_ref, rtol=1e-12, atol=1e-12)
-    # (the low-pass's recursion carries the projections' last-bit differences: ~1e-12 here)
-    assert np.allclose(d, d_ref, rtol=1e-9, atol=1e-12 * np.abs(d_ref).max())
-    c_twin = saliency.curvature(d)  # the curvature twin on the same curves
-    assert np.allclose(c[1:-1], c_twin[1:-1], rtol=1e-9, atol=1e-15)  # the interior rule
+                              np.ascontiguousarray(basis.vectors[:, :-2]), True, d, c, 0, n,
+                              1.0)
+    assert np.allclose(d, d_ref, rtol=1e-12, atol=1e-12)
+    assert np.allclose(c[1:-1], c_ref[1:-1], rtol=1e-9, atol=1e-15)  # the interior rule
     bank = np.hstack([saliency.kernel_bank(10.0, R), saliency.kernel_bank(FOOT, R)])
     full = bank / bank.sum(axis=0)
     diff = np.hstack([full[:, 0:4] - full[:, 4:8], full[:, 8:12] - full[:, 12:16]])

@@ -24,9 +24,10 @@ Offline: `extract(motion)`. Definitions this module settles (where they differ f
   at 120 Hz). They take the eigenvalues of
   the two components they replace as cluster weights, so the weights still sum to the
   variance of k components.
-- Low-pass of the curves (not in the thesis): before their curvature, the k curves go through
-  a causal 6th-order Butterworth low-pass at `CURVE_CUTOFF_HZ` (3.5 Hz), started at rest on
-  the first frame, the same recursion offline and online (`saliency_math.smooth_curves`).
+- Low-pass of the curves (not in the thesis): their input (the rotation channels and the foot
+  heights; the curves are affine in them) goes through a causal 6th-order Butterworth
+  low-pass at `CURVE_CUTOFF_HZ` (3.5 Hz), started at rest on the first frame, the same
+  recursion offline and online (`saliency_math.smooth_curves`); the moments (PCA) stay raw.
   The curvature of the raw curves is mostly content above the 15 Hz Nyquist frequency of a
   30 Hz take (the mean |D''| falls 3x at 60 Hz, 9x at 30 Hz), so the same motion gave other
   extrema at another rate; a cut-off in Hz makes the curvature describe the motion, not the
@@ -182,7 +183,7 @@ def _curves(xs: np.ndarray, feet: np.ndarray, sigma: float, k: int, contact: boo
     """Curves and maps of the rows `xs`; the PCA from the `moving` rows (default: all)."""
     basis = pca_basis(moments(xs if moving is None else xs[moving]), k, variance_rule)
     basis = fit_k(basis, k, contact)
-    d = smooth_curves(curves_of(basis, xs, feet, contact), fps)
+    d = curves_of(basis, smooth_curves(xs, fps), smooth_curves(feet, fps), contact)
     s = maps_of(curvature(d, time_step(fps)), sigma, contact, frames_at(FOOT_SIGMA, fps))
     weights, foot = curve_weights(basis, contact)
     return _Curves(d, s, weights, foot, basis)

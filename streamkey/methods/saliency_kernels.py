@@ -199,7 +199,7 @@ def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
 @compiled
 def smooth_rows(x: np.ndarray, y: np.ndarray, r0: int, r1: int, start: int, b: np.ndarray,
                 a: np.ndarray) -> None:
-    """Rows r0..r1-1 of `y`: the causal low-pass (b, a) (a[0] = 1) of the curves `x`, row by
+    """Rows r0..r1-1 of `y`: the causal low-pass (b, a) (a[0] = 1) of the rows of `x`, row by
     row in direct form, `start` the first row of the recursion (rows before it taken as
     x[start], the steady state of a constant signal). The filter of
     `saliency_math.smooth_curves`."""
@@ -220,14 +220,12 @@ def smooth_rows(x: np.ndarray, y: np.ndarray, r0: int, r1: int, start: int, b: n
 
 @compiled
 def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarray,
-                sd: np.ndarray, vec: np.ndarray, contact: bool, raw: np.ndarray,
-                d: np.ndarray, c: np.ndarray, a0: int, a1: int, step: float, b: np.ndarray,
-                a: np.ndarray) -> None:
-    """Online rows between basis updates, one compiled loop: raw curve rows a0..a1-1 of the
-    ring (projection of the kept columns, the foot heights last with contact), their
-    low-pass `d` (`smooth_rows`, rows a0-2.. exist) and the interior curvatures (eq. 3.4,
-    `step` as `curvature`'s) of rows a0-1..a1-2. Row by row, so any block split gives the
-    same bits."""
+                sd: np.ndarray, vec: np.ndarray, contact: bool, d: np.ndarray, c: np.ndarray,
+                a0: int, a1: int, step: float) -> None:
+    """Online rows between basis updates, one compiled loop: curve rows a0..a1-1 of the ring
+    (projection of the kept columns, the foot heights last with contact) and the interior
+    curvatures (eq. 3.4, `step` as `curvature`'s) of rows a0-1..a1-2. Row by row, so any
+    block split gives the same bits."""
     npca = vec.shape[1]
     h2, hh = 2.0 * step, step * step
     for r in range(a0, a1):
@@ -235,11 +233,10 @@ def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarr
             acc = 0.0
             for q in range(len(keep)):
                 acc += (xs[r, keep[q]] - mean[q]) / sd[q] * vec[q, j]
-            raw[r, j] = acc
+            d[r, j] = acc
         if contact:
-            raw[r, raw.shape[1] - 2] = ft[r, 0]
-            raw[r, raw.shape[1] - 1] = ft[r, 1]
-        smooth_rows(raw, d, r, r + 1, 0, b, a)
+            d[r, d.shape[1] - 2] = ft[r, 0]
+            d[r, d.shape[1] - 1] = ft[r, 1]
     for r in range(a0 - 1, a1 - 1):
         for j in range(d.shape[1]):
             d1 = (d[r + 1, j] - d[r - 1, j]) / h2
@@ -291,9 +288,9 @@ def _warm() -> None:
     xs, ft = np.zeros((8, 3)), np.zeros((8, 2))
     d, c = np.zeros((8, 3)), np.zeros((8, 3))
     keep = np.arange(3, dtype=np.int64)
+    ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8, 1.0)
     ba = np.array([1.0, 0.0, 0.0])
-    ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d.copy(), d, c,
-                2, 8, 1.0, ba, ba)
+    smooth_rows(xs, d, 0, 8, 0, ba, ba)
     z = np.zeros((3, 4))
     ring_maps_of(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
                  np.ones((3, 12)), 4 * np.arange(3), z, z.copy(),

@@ -42,7 +42,7 @@ class OnlineSetup:
     columns: int  # rotation channels per frame
     bank2: np.ndarray  # unnormalised kernels: main curves in columns 0-7, foot curves 8-15
     diff_bank: np.ndarray  # normalised kernel differences G(s_i) - G(2 s_i), main then foot
-    lp_b: np.ndarray  # the curves' low-pass (`saliency_math.lowpass`): numerator
+    lp_b: np.ndarray  # the low-pass of the curves' inputs (`saliency_math.lowpass`): numerator
     lp_a: np.ndarray  # and denominator
 
     @property
@@ -60,17 +60,18 @@ class WindowBuffers:
     """The ring of the newest frames: row r holds frame `base` + r. The per-curve arrays have
     no columns until the first basis (`alloc_curves`)."""
 
-    PER_CURVE = ("raw", "curves", "curvatures", "maps", "peaks")
+    PER_CURVE = ("curves", "curvatures", "maps", "peaks")
 
     def __init__(self, cap: int, columns: int) -> None:
         self.cap = cap  # rows
         self.base = 0  # frame of row 0
         self.rotations = np.zeros((cap, columns))  # rotation channels minus the first frame's
         self.feet = np.zeros((cap, 2))  # foot heights / body height
+        self.srot = np.zeros((cap, columns))  # `rotations` low-passed (the curves' input)
+        self.sfeet = np.zeros((cap, 2))  # `feet` low-passed
         self.times = np.zeros(cap)  # frame times, s
         self.moving = np.ones(cap, dtype=bool)  # in a take (not a calibration hold or still)
-        self.raw = np.zeros((cap, 0))  # curve values (PCA projections, foot heights)
-        self.curves = np.zeros((cap, 0))  # curve values D: `raw` low-passed
+        self.curves = np.zeros((cap, 0))  # curve values D (PCA projections, foot heights)
         self.curvatures = np.zeros((cap, 0))  # curvature C of each curve
         self.maps = np.zeros((cap, 0, 4))  # scale maps S_i of each curve
         self.peaks = np.zeros((cap, 0, 4), dtype=bool)  # local-maximum flags of the maps
@@ -83,7 +84,6 @@ class WindowBuffers:
         """(Re)allocate the per-curve arrays for `kk` curves, remapping kept columns."""
         had = self.maps.shape[1] > 0
         old_maps, old_peaks = self.maps, self.peaks
-        self.raw = np.zeros((self.cap, kk))
         self.curves = np.zeros((self.cap, kk))
         self.curvatures = np.zeros((self.cap, kk))
         if perm is not None and had:
@@ -96,7 +96,7 @@ class WindowBuffers:
     def move(self, lo: int, t: int, cap: int) -> None:
         """Rows of frames lo..t-1 to the front of arrays of `cap` rows: frame lo is row 0."""
         keep = t - lo
-        for name in ("rotations", "feet", "times", "moving", *self.PER_CURVE):
+        for name in ("rotations", "feet", "srot", "sfeet", "times", "moving", *self.PER_CURVE):
             arr = getattr(self, name)
             new = np.zeros((cap,) + arr.shape[1:], dtype=arr.dtype)
             new[:keep] = arr[lo - self.base : t - self.base]
@@ -172,13 +172,13 @@ class BasisUpdate:
     lo: int  # first frame of the window at the switch
     mom: Moments  # moments so far
     xs: np.ndarray  # rotation rows w0..u
-    ft: np.ndarray  # foot rows lo..u
+    ft: np.ndarray  # low-passed foot rows lo..u
     moving: np.ndarray  # which rows w0..u are motion (in a take)
+    sxs: np.ndarray  # low-passed rotation rows lo..u (the curves' input)
     corr: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # correlation
     basis: Basis | None = None  # the new basis, matched
     perm: np.ndarray | None = None  # old curve each new curve continues
-    d: np.ndarray | None = None  # raw curves of frames lo..u
-    y: np.ndarray | None = None  # their low-pass
+    d: np.ndarray | None = None  # curves of frames lo..u
     c: np.ndarray | None = None  # their curvatures
     s: np.ndarray | None = None  # their maps (filled block by block)
     maps: int = 0  # next frame to map

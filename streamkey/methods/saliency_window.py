@@ -28,8 +28,6 @@ from .saliency_math import (
     moments,
     pca_basis,
     remap_stats,
-    smooth_rows,
-    smooth_with,
 )
 from .saliency_state import (
     BasisUpdate,
@@ -139,11 +137,10 @@ class WindowAnalysis(OnlineKeyframer):
         """Frame t's curve row and frame t-1's curvature (frame by frame)."""
         ring, r, su = self.ring, t - self.ring.base, self.setup
         keep, mean, sd, vec = self.curves.proj
-        row = ring.raw[r]
-        row[: vec.shape[1]] = ((ring.rotations[r, keep] - mean) / sd) @ vec
+        row = ring.curves[r]
+        row[: vec.shape[1]] = ((ring.srot[r, keep] - mean) / sd) @ vec
         if su.contact:
-            row[-2:] = ring.feet[r]
-        smooth_rows(ring.raw, ring.curves, r, r + 1, 0, su.lp_b, su.lp_a)
+            row[-2:] = ring.sfeet[r]
         dd = ring.curves[r - 2 : r + 1]
         d1 = np.subtract(dd[2], dd[0])
         d1 /= su.h2
@@ -195,10 +192,8 @@ class WindowAnalysis(OnlineKeyframer):
         """Curve rows of frames p..upto and curvature rows of frames p-1..upto-1."""
         ring, base = self.ring, self.ring.base
         keep, mean, sd, vec = self.curves.proj
-        su = self.setup
-        ring_curves(ring.rotations, ring.feet, keep, mean, sd, vec, su.contact, ring.raw,
-                    ring.curves, ring.curvatures, p - base, upto - base + 1, su.step, su.lp_b,
-                    su.lp_a)
+        ring_curves(ring.srot, ring.sfeet, keep, mean, sd, vec, self.setup.contact,
+                    ring.curves, ring.curvatures, p - base, upto - base + 1, self.setup.step)
 
     def _window_maps(self, c: np.ndarray, r0: int, n: int, pick: np.ndarray, out: np.ndarray
                      ) -> None:
@@ -224,13 +219,12 @@ class WindowAnalysis(OnlineKeyframer):
             self._new_basis(st.folded_moments + moments(ring.rotations[a:e][self._motion(a, e)]))
             basis = self.curves.basis
             assert basis is not None
-            raw = curves_of(basis, ring.rotations[a:e], ring.feet[a:e], su.contact)
-            d = smooth_with(raw, su.lp_b, su.lp_a)
+            d = curves_of(basis, ring.srot[a:e], ring.sfeet[a:e], su.contact)
             c = curvature(d, su.step)
             s = maps_of(c, su.sigma, su.contact, su.foot_sigma)
         else:
-            raw, d, c, s = self._spread_rows(spread, a, e)
-        ring.raw[a:e], ring.curves[a:e], ring.curvatures[a:e] = raw, d, c
+            d, c, s = self._spread_rows(spread, a, e)
+        ring.curves[a:e], ring.curvatures[a:e] = d, c
         # Rows whose Gaussian windows lie inside the window (all of them at stream start) get
         # new maps; older rows keep theirs. At flush the stream's end is a real end.
         hi = t if final else t - su.radius - 1
@@ -259,20 +253,17 @@ class WindowAnalysis(OnlineKeyframer):
             self.next_update = t + 1 + min(t + 1, su.update_every)
 
     def _spread_rows(self, sp: BasisUpdate, a: int, e: int
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Switch to the spread update's basis; raw and low-passed curves, curvatures and
-        maps of the window (ring rows a..e-1, frames lo .. u + SPREAD - 1): the spread's
-        rows, completed by the frames after u and the maps that reach them."""
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Switch to the spread update's basis; curves, curvatures and maps of the window
+        (ring rows a..e-1, frames lo .. u + SPREAD - 1): the spread's rows, completed by the
+        frames after u and the maps that reach them."""
         assert sp.basis is not None and sp.d is not None and sp.c is not None
-        assert sp.s is not None and sp.y is not None
+        assert sp.s is not None
         self._set_basis(sp.basis, sp.perm)
         ring, su, n = self.ring, self.setup, len(sp.d)
         R = su.radius
-        d_new = curves_of(sp.basis, ring.rotations[a + n : e], ring.feet[a + n : e], su.contact)
-        raw = np.concatenate([sp.d, d_new])
-        d = np.empty_like(raw)
-        d[:n] = sp.y
-        smooth_rows(raw, d, n, len(raw), 0, su.lp_b, su.lp_a)
+        d_new = curves_of(sp.basis, ring.srot[a + n : e], ring.sfeet[a + n : e], su.contact)
+        d = np.concatenate([sp.d, d_new])
         c_new = curvature(d[n - 2 :], su.step)  # frames u - 1 .. t; the first: an edge row
         c = np.concatenate([sp.c[: n - 1], c_new[1:]])
         s = np.concatenate([sp.s, np.zeros((e - a - n,) + sp.s.shape[1:])])
@@ -280,7 +271,7 @@ class WindowAnalysis(OnlineKeyframer):
         cnt = len(c) - R - f0  # up to frame t - radius (the windows inside the window)
         if cnt > 0:
             self._window_maps(c, f0 - R, cnt, self.curves.pick, s[f0 : f0 + cnt])
-        return raw, d, c, s
+        return d, c, s
 
     def _motion(self, a: int, e: int) -> np.ndarray:
         """Which ring rows a..e-1 enter the moments: the motion rows, or every row while no
@@ -347,7 +338,8 @@ class WindowAnalysis(OnlineKeyframer):
         a, e = w0 - ring.base, u - ring.base + 1
         self.spread = BasisUpdate(u, w0, lo, self.stats.folded_moments,
                                   ring.rotations[a:e].copy(),
-                                  ring.feet[lo - ring.base : e].copy(), ring.moving[a:e].copy())
+                                  ring.sfeet[lo - ring.base : e].copy(), ring.moving[a:e].copy(),
+                                  ring.srot[lo - ring.base : e].copy())
         self.next_update = u + 1 + min(u + 1, self.setup.update_every)
 
     def _spread_step(self, t: int) -> None:
@@ -374,8 +366,7 @@ class WindowAnalysis(OnlineKeyframer):
             self._spread_curves(sp, k == 5)
         elif k == 7:  # their curvatures (the last row, frame u's: at the switch)
             assert sp.d is not None
-            sp.y = smooth_with(sp.d, su.lp_b, su.lp_a)
-            sp.c = curvature(sp.y, su.step)
+            sp.c = curvature(sp.d, su.step)
             sp.s = np.zeros((len(sp.d), sp.d.shape[1], 4))
             sp.maps = sp.lo + su.radius + 1 if sp.lo > 0 else 0  # next frame to map
         elif sp.maps == 0:  # stream start: the first radius rows, windows cut at frame 0
@@ -399,7 +390,7 @@ class WindowAnalysis(OnlineKeyframer):
         h = n // 2
         rows = slice(0, h) if first else slice(h, n)
         assert sp.basis is not None
-        d = curves_of(sp.basis, sp.xs[sp.lo - sp.w0 :][rows], sp.ft[rows], self.setup.contact)
+        d = curves_of(sp.basis, sp.sxs[rows], sp.ft[rows], self.setup.contact)
         if first:
             sp.d = np.empty((n, d.shape[1]))
         assert sp.d is not None
