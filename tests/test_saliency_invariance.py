@@ -311,5 +311,5 @@ def test_the_curves_low_pass_is_the_same_filter_in_seconds_at_every_rate() -> No
         late = t >= 2.0
         assert 0.99 <= np.abs(slow[late]).max() <= 1.01  # body motion passes
         assert np.abs(fast[late]).max() <= 1e-2  # what a 30 Hz take cannot hold does not
-    b, a = saliency_math.lowpass(20.0)  # the cut-off at or above Nyquist: off
+    b, a = saliency_math.lowpass(6.0)  # the cut-off at or above the Nyquist frequency: off
     assert b[0] == 1.0 and not b[1:].any() and not a[1:].any()
