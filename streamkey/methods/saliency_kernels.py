@@ -16,7 +16,7 @@ from ..jit import kernel as compiled
 from ..jit import warmer
 
 __all__ = ["Clusterer", "pick_keyframe", "cuts", "itti_factors", "classify_terms",
-           "classify_block", "ring_curves", "ring_maps_of"]
+           "classify_block", "ring_curves", "ring_maps_of", "smooth_rows"]
 
 _TIE = 1e-9  # keyframe distances within this are ties (the earlier frame wins)
 
@@ -197,6 +197,28 @@ def classify_block(s: np.ndarray, a: np.ndarray, thr: np.ndarray, thr_safe: np.n
 # --------------------------------------------------------------------------- online ring rows
 
 @compiled
+def smooth_rows(x: np.ndarray, y: np.ndarray, r0: int, r1: int, start: int, b: np.ndarray,
+                a: np.ndarray) -> None:
+    """Rows r0..r1-1 of `y`: the causal low-pass (b, a) (a[0] = 1) of the rows of `x`, row by
+    row in direct form, `start` the first row of the recursion (rows before it taken as
+    x[start], the steady state of a constant signal). The filter of
+    `saliency_math.smooth_curves`."""
+    order = len(a) - 1
+    for r in range(r0, r1):
+        for j in range(x.shape[1]):
+            acc = b[0] * x[r, j]
+            for i in range(1, order + 1):
+                p = r - i
+                if p >= start:
+                    acc += b[i] * x[p, j]
+                    acc -= a[i] * y[p, j]
+                else:
+                    acc += b[i] * x[start, j]
+                    acc -= a[i] * x[start, j]
+            y[r, j] = acc
+
+
+@compiled
 def ring_curves(xs: np.ndarray, ft: np.ndarray, keep: np.ndarray, mean: np.ndarray,
                 sd: np.ndarray, vec: np.ndarray, contact: bool, d: np.ndarray, c: np.ndarray,
                 a0: int, a1: int, step: float) -> None:
@@ -267,6 +289,8 @@ def _warm() -> None:
     d, c = np.zeros((8, 3)), np.zeros((8, 3))
     keep = np.arange(3, dtype=np.int64)
     ring_curves(xs, ft, keep, np.zeros(3), np.ones(3), np.ones((3, 1)), True, d, c, 2, 8, 1.0)
+    ba = np.array([1.0, 0.0, 0.0])
+    smooth_rows(xs, d, 0, 8, 0, ba, ba)
     z = np.zeros((3, 4))
     ring_maps_of(c, np.zeros((8, 3, 4)), np.zeros((8, 3, 4), dtype=bool), 3, 4,
                  np.ones((3, 12)), 4 * np.arange(3), z, z.copy(),

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import eigh
 from scipy.ndimage import correlate1d
+from scipy.signal import butter
 
 from ..units import Duration, DurationLike, frames_of
 from .saliency_kernels import (
@@ -24,6 +25,7 @@ from .saliency_kernels import (
     pick_keyframe,
     ring_curves,
     ring_maps_of,
+    smooth_rows,
 )
 
 __all__ = ["REFERENCE_FPS", "FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "Moments",
@@ -36,7 +38,8 @@ __all__ = ["REFERENCE_FPS", "FOOT_SIGMA", "SCALES", "VARIANCE_SHARE", "Basis", "
            "cluster_size", "cluster_length", "cuts", "support_radius", "itti_factors",
            "classify_terms",
            "classify_block",
-           "ring_curves", "ring_maps_of"]
+           "ring_curves", "ring_maps_of", "CURVE_CUTOFF_HZ", "CURVE_ORDER", "lowpass",
+           "smooth_curves", "smooth_with", "smooth_rows"]
 
 # Derivatives are taken per frame of 120 Hz (the CMU rate, on which the defaults were tuned), so
 # that a take at any rate has the curvatures of the same motion and 120 Hz those per frame.
@@ -44,6 +47,10 @@ REFERENCE_FPS = 120.0
 FOOT_SIGMA = Duration.seconds(3.0 / REFERENCE_FPS)  # Halit sec. 3.3: 3 frames of 120 Hz
 SCALES = (1.0, 1.5, 2.0, 2.5)  # Halit eq. 3.7
 VARIANCE_SHARE = 0.9
+# Low-pass of the curves before their curvature, a cut-off in Hz (the same at any rate): the
+# curvature of the raw curves is mostly content above the Nyquist frequency of a 30 Hz take.
+CURVE_CUTOFF_HZ = 3.5
+CURVE_ORDER = 6
 _MIN_VAR = 1e-10
 _TIE = 1e-9
 
@@ -179,6 +186,35 @@ def curvature(d: np.ndarray, step: float = 1.0) -> np.ndarray:
     d2[-1] = d2[-2]
     kappa: np.ndarray = np.abs(d2) / (1.0 + d1 * d1) ** 1.5
     return kappa
+
+
+def lowpass(fps: float, cutoff_hz: float | None = CURVE_CUTOFF_HZ, order: int = CURVE_ORDER
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(b, a) of the curves' causal Butterworth low-pass at `cutoff_hz` for a stream at `fps`
+    (S. Butterworth, "On the theory of filter amplifiers", 1930; bilinear transform); the
+    identity (1, 0, ...) when off or at or above the Nyquist frequency."""
+    if cutoff_hz is None or not 0.0 < cutoff_hz < 0.5 * float(fps):
+        one = np.zeros(order + 1)
+        one[0] = 1.0
+        return one, one.copy()
+    b, a = butter(order, cutoff_hz, fs=float(fps))
+    return np.asarray(b, dtype=np.float64), np.asarray(a, dtype=np.float64)
+
+
+def smooth_curves(d: np.ndarray, fps: float, cutoff_hz: float | None = CURVE_CUTOFF_HZ
+                  ) -> np.ndarray:
+    """The curves `d` (n, k) low-passed in time (`lowpass`, from the first row, which starts
+    at rest), so that their curvature describes the motion, not the sampling: the same
+    motion at 30, 60 or 120 Hz gets the same curvature extrema."""
+    return smooth_with(d, *lowpass(fps, cutoff_hz))
+
+
+def smooth_with(d: np.ndarray, b: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """`smooth_curves` with the filter (b, a) given."""
+    x = np.ascontiguousarray(d, dtype=np.float64)
+    y = np.empty_like(x)
+    smooth_rows(x, y, 0, len(x), 0, b, a)
+    return y
 
 
 def kernel(s: float) -> np.ndarray:

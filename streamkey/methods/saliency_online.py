@@ -71,7 +71,7 @@ from ..motion import Skeleton
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock
 from ..segments import SegmentDetector, SegmentEvent
 from ..units import Duration, DurationLike, whole_frames
-from .saliency_kernels import Clusterer, classify_block, itti_factors
+from .saliency_kernels import Clusterer, classify_block, itti_factors, smooth_rows
 from .saliency_math import (
     FOOT_SIGMA,
     cluster_length,
@@ -79,6 +79,7 @@ from .saliency_math import (
     end_curvature,
     frames_at,
     kernel_bank,
+    lowpass,
     moments,
     support_radius,
     time_step,
@@ -129,11 +130,12 @@ def _setup(sigma: float, k: int, contact: bool, variance_rule: bool, fps: float,
     bank2 = np.hstack([kernel_bank(sigma, radius), kernel_bank(foot_sigma, radius)])
     full = bank2 / bank2.sum(axis=0)
     diff_bank = np.hstack([full[:, 0:4] - full[:, 4:8], full[:, 8:12] - full[:, 12:16]])
+    lp_b, lp_a = lowpass(fps)
     setup = OnlineSetup(sigma=sigma, k=k, contact=contact, variance_rule=variance_rule,
                         foot_sigma=foot_sigma, step=time_step(fps), radius=radius, cmax=cmax,
                         clen=cluster_length(sigma), min_lookahead=min_lookahead,
                         update_every=every, window=window, columns=columns, bank2=bank2,
-                        diff_bank=diff_bank)
+                        diff_bank=diff_bank, lp_b=lp_b, lp_a=lp_a)
     return setup, look, hist
 
 
@@ -141,7 +143,10 @@ class Online(WindowAnalysis):
     """Online multiscale saliency: `push` frames, get keyframe events within `lookahead`.
 
     Running statistics replace the global ones (module docstring). Between basis updates a
-    new frame costs one projection, one curvature row and one row of maps (compiled loops,
+    new frame costs one low-pass row of its rotations and foot heights
+    (`saliency_math.smooth_curves`, the same recursion as offline; the curves are affine in
+    them, so a new basis needs no new filtering), one projection, one curvature row and one
+    row of maps (compiled loops,
     `saliency_kernels.ring_curves` / `ring_maps_of`), computed in `idle()` after its decisions
     (or first thing at the next frame), so that a deciding frame computes its own row only; a
     basis update's work runs in `idle()` too. A deciding frame classifies and clusters its
@@ -306,6 +311,9 @@ class Online(WindowAnalysis):
         r = t - ring.base
         ring.rotations[r] = x
         ring.feet[r] = foot
+        su = self.setup  # the curves' input low-passed as it arrives (as offline)
+        smooth_rows(ring.rotations, ring.srot, r, r + 1, 0, su.lp_b, su.lp_a)
+        smooth_rows(ring.feet, ring.sfeet, r, r + 1, 0, su.lp_b, su.lp_a)
         ring.times[r] = time
         moving, until = self.label
         ring.moving[r] = moving if until is None or self.seq0 + t <= until else True

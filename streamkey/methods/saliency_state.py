@@ -42,6 +42,8 @@ class OnlineSetup:
     columns: int  # rotation channels per frame
     bank2: np.ndarray  # unnormalised kernels: main curves in columns 0-7, foot curves 8-15
     diff_bank: np.ndarray  # normalised kernel differences G(s_i) - G(2 s_i), main then foot
+    lp_b: np.ndarray  # the low-pass of the curves' inputs (`saliency_math.lowpass`): numerator
+    lp_a: np.ndarray  # and denominator
 
     @property
     def h2(self) -> float:
@@ -65,6 +67,8 @@ class WindowBuffers:
         self.base = 0  # frame of row 0
         self.rotations = np.zeros((cap, columns))  # rotation channels minus the first frame's
         self.feet = np.zeros((cap, 2))  # foot heights / body height
+        self.srot = np.zeros((cap, columns))  # `rotations` low-passed (the curves' input)
+        self.sfeet = np.zeros((cap, 2))  # `feet` low-passed
         self.times = np.zeros(cap)  # frame times, s
         self.moving = np.ones(cap, dtype=bool)  # in a take (not a calibration hold or still)
         self.curves = np.zeros((cap, 0))  # curve values D (PCA projections, foot heights)
@@ -92,7 +96,7 @@ class WindowBuffers:
     def move(self, lo: int, t: int, cap: int) -> None:
         """Rows of frames lo..t-1 to the front of arrays of `cap` rows: frame lo is row 0."""
         keep = t - lo
-        for name in ("rotations", "feet", "times", "moving", *self.PER_CURVE):
+        for name in ("rotations", "feet", "srot", "sfeet", "times", "moving", *self.PER_CURVE):
             arr = getattr(self, name)
             new = np.zeros((cap,) + arr.shape[1:], dtype=arr.dtype)
             new[:keep] = arr[lo - self.base : t - self.base]
@@ -168,8 +172,9 @@ class BasisUpdate:
     lo: int  # first frame of the window at the switch
     mom: Moments  # moments so far
     xs: np.ndarray  # rotation rows w0..u
-    ft: np.ndarray  # foot rows lo..u
+    ft: np.ndarray  # low-passed foot rows lo..u
     moving: np.ndarray  # which rows w0..u are motion (in a take)
+    sxs: np.ndarray  # low-passed rotation rows lo..u (the curves' input)
     corr: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # correlation
     basis: Basis | None = None  # the new basis, matched
     perm: np.ndarray | None = None  # old curve each new curve continues

@@ -138,9 +138,9 @@ class WindowAnalysis(OnlineKeyframer):
         ring, r, su = self.ring, t - self.ring.base, self.setup
         keep, mean, sd, vec = self.curves.proj
         row = ring.curves[r]
-        row[: vec.shape[1]] = ((ring.rotations[r, keep] - mean) / sd) @ vec
+        row[: vec.shape[1]] = ((ring.srot[r, keep] - mean) / sd) @ vec
         if su.contact:
-            row[-2:] = ring.feet[r]
+            row[-2:] = ring.sfeet[r]
         dd = ring.curves[r - 2 : r + 1]
         d1 = np.subtract(dd[2], dd[0])
         d1 /= su.h2
@@ -192,7 +192,7 @@ class WindowAnalysis(OnlineKeyframer):
         """Curve rows of frames p..upto and curvature rows of frames p-1..upto-1."""
         ring, base = self.ring, self.ring.base
         keep, mean, sd, vec = self.curves.proj
-        ring_curves(ring.rotations, ring.feet, keep, mean, sd, vec, self.setup.contact,
+        ring_curves(ring.srot, ring.sfeet, keep, mean, sd, vec, self.setup.contact,
                     ring.curves, ring.curvatures, p - base, upto - base + 1, self.setup.step)
 
     def _window_maps(self, c: np.ndarray, r0: int, n: int, pick: np.ndarray, out: np.ndarray
@@ -219,7 +219,7 @@ class WindowAnalysis(OnlineKeyframer):
             self._new_basis(st.folded_moments + moments(ring.rotations[a:e][self._motion(a, e)]))
             basis = self.curves.basis
             assert basis is not None
-            d = curves_of(basis, ring.rotations[a:e], ring.feet[a:e], su.contact)
+            d = curves_of(basis, ring.srot[a:e], ring.sfeet[a:e], su.contact)
             c = curvature(d, su.step)
             s = maps_of(c, su.sigma, su.contact, su.foot_sigma)
         else:
@@ -262,7 +262,7 @@ class WindowAnalysis(OnlineKeyframer):
         self._set_basis(sp.basis, sp.perm)
         ring, su, n = self.ring, self.setup, len(sp.d)
         R = su.radius
-        d_new = curves_of(sp.basis, ring.rotations[a + n : e], ring.feet[a + n : e], su.contact)
+        d_new = curves_of(sp.basis, ring.srot[a + n : e], ring.sfeet[a + n : e], su.contact)
         d = np.concatenate([sp.d, d_new])
         c_new = curvature(d[n - 2 :], su.step)  # frames u - 1 .. t; the first: an edge row
         c = np.concatenate([sp.c[: n - 1], c_new[1:]])
@@ -338,7 +338,8 @@ class WindowAnalysis(OnlineKeyframer):
         a, e = w0 - ring.base, u - ring.base + 1
         self.spread = BasisUpdate(u, w0, lo, self.stats.folded_moments,
                                   ring.rotations[a:e].copy(),
-                                  ring.feet[lo - ring.base : e].copy(), ring.moving[a:e].copy())
+                                  ring.sfeet[lo - ring.base : e].copy(), ring.moving[a:e].copy(),
+                                  ring.srot[lo - ring.base : e].copy())
         self.next_update = u + 1 + min(u + 1, self.setup.update_every)
 
     def _spread_step(self, t: int) -> None:
@@ -389,7 +390,7 @@ class WindowAnalysis(OnlineKeyframer):
         h = n // 2
         rows = slice(0, h) if first else slice(h, n)
         assert sp.basis is not None
-        d = curves_of(sp.basis, sp.xs[sp.lo - sp.w0 :][rows], sp.ft[rows], self.setup.contact)
+        d = curves_of(sp.basis, sp.sxs[rows], sp.ft[rows], self.setup.contact)
         if first:
             sp.d = np.empty((n, d.shape[1]))
         assert sp.d is not None
