@@ -277,7 +277,7 @@ def _latency_fields(results: Path) -> dict[str, str]:
     data = _json(results, "bench_latency.json")
     rows = data["rows"]
     methods = sorted({key.removesuffix("_p99_ms") for r in rows for key in r
-                      if key.endswith("_p99_ms") and not key.startswith("run_")})
+                      if key.endswith("_p99_ms") and not key.startswith(("run_", "target_"))})
     names = {"osc": "OSC", "zmq": "ZeroMQ"}
     out = []
     for r in rows:
