@@ -303,6 +303,13 @@ def _latency_fields(results: Path) -> dict[str, str]:
 # --------------------------------------------------------------------------- online
 
 
+def _duration(seconds: float) -> str:
+    """"1 h", "3.3 min", "45 s": the stream's length at its capture rate."""
+    if seconds >= 3600:
+        return f"{seconds / 3600:.3g} h"
+    return f"{seconds / 60:.2g} min" if seconds >= 60 else f"{seconds:.2g} s"
+
+
 def _online_fields(results: Path) -> dict[str, str]:
     data = _json(results, "bench_online.json")
     mem = data["memory"]
@@ -310,7 +317,7 @@ def _online_fields(results: Path) -> dict[str, str]:
     methods = mem.get("methods")
     return {
         "date": _date(data.get("date")), "stream_frames": _int(mem["stream_frames"]),
-        "hours": f"{mem['stream_frames'] / rate / 3600:g}", "rate": f"{rate:g}",
+        "duration": _duration(mem["stream_frames"] / rate), "rate": f"{rate:g}",
         "warmup_frames": _int(mem["warmup_frames"]),
         "methods": ", ".join(methods) if methods else "every online keyframer",
         "growth_mb": _f(mem["growth_after_warmup_mb"])}
