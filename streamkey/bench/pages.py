@@ -5,15 +5,17 @@ filled from a file the benches write. `tests/test_results_pages.py` renders the 
 committed files and fails when it differs from the committed docs/results.md, and checks that
 the template holds no figure of its own.
 
-Regenerate, from the repository root (clips in ../shared/data/cmu; times on this project's
-2-core VM, alone on it; the last two on a quiet machine only):
+Regenerate, from the repository root (clips in ../shared/data/cmu). Costs on this project's
+2-core VM: CPU time of the bench alone (wall time grows with the machine's other work; a
+fresh checkout first compiles the numba kernels, several minutes under load); the last two
+only on a quiet machine, since they measure time:
 
-    .venv/bin/streamkey eval ../shared/data/cmu -o results/eval   # about 1-2 min
+    .venv/bin/streamkey eval ../shared/data/cmu -o results/eval   # ~1 CPU-min
     .venv/bin/streamkey bench --agreement -o results             # 2-3 CPU-min
-    .venv/bin/streamkey bench --robustness -o results            # about 4-6 CPU-min
-    .venv/bin/streamkey bench --online -o results                # about 5-10 min
-    .venv/bin/streamkey bench --perf -o results                  # about 10 min, quiet machine
-    .venv/bin/streamkey bench --latency -o results               # about 5 min, quiet machine
+    .venv/bin/streamkey bench --robustness -o results            # ~4-6 CPU-min
+    .venv/bin/streamkey bench --online -o results                # ~8 CPU-min (1-hour stream)
+    .venv/bin/streamkey bench --perf -o results                  # ~13 min wall, quiet machine
+    .venv/bin/streamkey bench --latency -o results               # ~5 min wall, quiet machine
     .venv/bin/python -P -m streamkey.bench.pages                 # writes docs/results.md
 
 `python -P -m streamkey.bench.pages --check` renders without writing and exits 1 when the
