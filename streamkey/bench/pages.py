@@ -13,7 +13,7 @@ only on a quiet machine, since they measure time:
     .venv/bin/streamkey eval ../shared/data/cmu -o results/eval   # ~1 CPU-min
     .venv/bin/streamkey bench --agreement -o results             # 2-3 CPU-min
     .venv/bin/streamkey bench --robustness -o results            # ~4-6 CPU-min
-    .venv/bin/streamkey bench --online -o results                # ~8 CPU-min (1-hour stream)
+    .venv/bin/streamkey bench --online -o results                # ~11 CPU-min (1-hour stream)
     .venv/bin/streamkey bench --perf -o results                  # ~13 min wall, quiet machine
     .venv/bin/streamkey bench --latency -o results               # ~5 min wall, quiet machine
     .venv/bin/python -P -m streamkey.bench.pages                 # writes docs/results.md
