@@ -201,6 +201,7 @@ def bench_online(data: Path | None, stream_frames: int = 432_000,
                      **_push_costs(make, long_frames)})
     say(f"bench online: memory over a {stream_frames:,}-frame looped stream ...")
     memory = _stream_memory(pipeline, motion, stream_frames, say)
+    memory.update(methods=list(ONLINE_METHODS), rate_hz=motion.fps)  # what the stream was
     say(f"bench online: growth after warm-up {memory['growth_after_warmup_mb']:.3g} MB; "
         "engine latency at 120 Hz ...")
     seconds = 60.0 if stream_frames >= 100_000 else 15.0
