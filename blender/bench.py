@@ -57,16 +57,23 @@ def equal_error_frames(ctx: Any, obj: Any, act: Any, motion: Any, ref: Any, star
                        target: float, low: int) -> int:
     """Fewest keyed frames of FIT reduction (optimal count search) with error <= target."""
     captured = motion.n_frames - motion.first_frame
+    seen: dict[int, tuple[float, int]] = {}
+
+    def fit(count: int) -> tuple[float, int]:
+        if count not in seen:
+            seen[count] = _fit_error(ctx, obj, act, motion, ref, start, count)
+        return seen[count]
+
     lo, hi = 2, low
-    while _fit_error(ctx, obj, act, motion, ref, start, hi)[0] > target and hi < captured:
+    while fit(hi)[0] > target and hi < captured:
         lo, hi = hi, min(2 * hi, captured)
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        if _fit_error(ctx, obj, act, motion, ref, start, mid)[0] <= target:
+        if fit(mid)[0] <= target:
             hi = mid
         else:
             lo = mid
-    return _fit_error(ctx, obj, act, motion, ref, start, hi)[1]
+    return fit(hi)[1]
 
 
 def measure_clip(name: str, counts: list[int]) -> list[dict[str, Any]]:
