@@ -87,7 +87,7 @@ def _position_change(a: Motion, b: Motion) -> float:
     pb = forward_kinematics(b.skeleton, b.channels).positions
     if pa.shape != pb.shape:
         raise ValueError(f"{a.name}: {pa.shape} joint positions against {pb.shape}")
-    return float(np.max(np.abs(pa - pb))) / body_height(a.skeleton)
+    return float(np.max(np.abs(pa - pb)) / body_height(a.skeleton))
 
 
 def amc_as_bvh(name: str, folder: Path) -> tuple[Path, float]:

@@ -79,6 +79,7 @@ def vmcp_frames(motion: Motion) -> list[list[Any]]:
     """Each frame as vmcp messages: the root, every bone (local transform in Unity's axes:
     BVH -> Unity is the mirror x -> -x, quaternion (qx, -qy, -qz, qw)) and the frame time."""
     skel = motion.skeleton
+    assert skel.rotation_order is not None
     bones = [Bone(name) for name in skel.names]  # vmcp knows every humanoid bone name
     out = []
     for i, row in enumerate(motion.channels):
