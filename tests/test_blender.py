@@ -318,6 +318,9 @@ def test_marker_example_runs_through_the_extension(tmp_path: Path) -> None:
     spec.loader.exec_module(example)
     assert example.main([str(path), "--method", "saliency"]) == 0
     assert _markers("saliency") == [1 + int(f) for f in found.frames]
+    assert example.main([str(path), "--method", "saliency", "--markers", "pose"]) == 0
+    action = bpy.context.active_object.animation_data.action
+    assert _pose_markers(action, "saliency") == [1 + int(f) for f in found.frames]
 
 
 def test_blenders_importer_reads_the_keys_only_export_frame_aligned(tmp_path: Path) -> None:
