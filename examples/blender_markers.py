@@ -3,7 +3,7 @@
 Run inside Blender after importing the clip's BVH (File > Import > Motion Capture (.bvh)):
 
     blender --python examples/blender_markers.py -- keys.json [--method saliency]
-            [--file 07_01] [--start 1] [--scale-fps]
+            [--file 07_01] [--start 1] [--scale-fps] [--markers timeline|pose|both]
 
 `keys.json` is the output of `streamkey extract` (or the `OUT.keys.json` sidecar of
 `--export-bvh`). Blender's BVH importer puts BVH frame i at scene frame `start + i`
@@ -12,7 +12,8 @@ the file's own numbering lands on marker frame `start + frame`; with the importe
 FPS" option use `--scale-fps` to rescale by scene fps / file fps.
 
 The markers are placed by the streamkey Blender extension (`blender/streamkey_blender`, its
-`keys.set_markers`): one per keyframe, named `<method> <strength>`, the method's earlier
+`keys.set_markers`, or `keys.set_pose_markers` for the active armature's action with
+`--markers pose`): one per keyframe, named `<method> <strength>`, the method's earlier
 markers replaced. Installed, the extension's "Mark Keyposes" operator finds the keys inside
 Blender without a JSON file; this script is for keys found elsewhere.
 
@@ -100,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--start", type=int, default=1, help="the importer's Start Frame")
     parser.add_argument("--scale-fps", action="store_true",
                         help="the BVH was imported with Scale FPS")
+    parser.add_argument("--markers", choices=("timeline", "pose", "both"), default="timeline",
+                        help="the scene's timeline markers, the active object's action's pose"
+                             " markers, or both")
     args = parser.parse_args(argv)
     data = json.loads(Path(args.keys).read_text(encoding="utf-8"))
     scene = bpy.context.scene
@@ -112,7 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     for name, strength in strengths.items():
         frames = [f - args.start for n, f in markers if n.split(" ")[0] == name]
         found = Keyframes(name, frames, [0.0] * len(frames), {}, 0, strength=strength)
-        keys.set_markers(scene, found, args.start)
+        if args.markers in ("timeline", "both"):
+            keys.set_markers(scene, found, args.start)
+        if args.markers in ("pose", "both"):
+            keys.set_pose_markers(bpy.context.active_object.animation_data.action, found,
+                                  args.start)
     print(f"blender_markers: added {len(markers)} markers")
     return 0
 

@@ -77,6 +77,35 @@ def test_marks_keyposes_at_exactly_the_extracted_frames() -> None:
     assert len(_markers("optimal")) == 8
 
 
+def _pose_markers(action: Any, method: str) -> list[int]:
+    return sorted(m.frame for m in action.pose_markers if m.name.split(" ")[0] == method)
+
+
+def test_marks_keyposes_as_pose_markers_at_exactly_the_extracted_frames() -> None:
+    """Pose markers of the action (instead of, or as well as, timeline markers): one per
+    key, at 1 + file frame, named by method with the strength; the method's old ones
+    replaced; the timeline left alone when only pose markers are asked for."""
+    obj = import_clip(bpy, "09_06")
+    action = obj.animation_data.action
+    original = read_bvh(clip_path("09_06"))
+    expected = extract_motion(original, ["saliency", "optimal"], {"optimal": {"count": 12}})
+    assert bpy.ops.streamkey.mark_keyposes(method="saliency", target="POSE") == {"FINISHED"}
+    assert _pose_markers(action, "saliency") == [1 + int(f) for f in expected["saliency"].frames]
+    assert _markers("saliency") == []
+    assert bpy.ops.streamkey.mark_keyposes(method="optimal", count=12,
+                                           target="BOTH") == {"FINISHED"}
+    frames = [1 + int(f) for f in expected["optimal"].frames]
+    assert _pose_markers(action, "optimal") == frames == _markers("optimal")
+    strengths = [float(m.name.split(" ")[1]) for m in action.pose_markers
+                 if m.name.startswith("optimal ")]
+    assert len(strengths) == 12 and all(0.0 <= s <= 1.0 for s in strengths)
+    assert bpy.ops.streamkey.mark_keyposes(method="optimal", count=6,
+                                           target="POSE") == {"FINISHED"}
+    assert len(_pose_markers(action, "optimal")) == 6  # replaced, not added
+    assert len(_markers("optimal")) == 12  # the timeline's untouched
+    assert len(_pose_markers(action, "saliency")) == len(expected["saliency"].frames)
+
+
 def test_reduce_keys_beats_linear_auto_and_bake_action() -> None:
     """Reduce keys: a new action keyed only on the pose frames, the original untouched;
     by Blender's evaluation the fitted Bezier beats linear, auto-clamped and Bake Action's
@@ -289,6 +318,9 @@ def test_marker_example_runs_through_the_extension(tmp_path: Path) -> None:
     spec.loader.exec_module(example)
     assert example.main([str(path), "--method", "saliency"]) == 0
     assert _markers("saliency") == [1 + int(f) for f in found.frames]
+    assert example.main([str(path), "--method", "saliency", "--markers", "pose"]) == 0
+    action = bpy.context.active_object.animation_data.action
+    assert _pose_markers(action, "saliency") == [1 + int(f) for f in found.frames]
 
 
 def test_blenders_importer_reads_the_keys_only_export_frame_aligned(tmp_path: Path) -> None:

@@ -3,7 +3,8 @@
 Operators (View3D sidebar, tab "streamkey"):
 
 - `streamkey.mark_keyposes`: run a streamkey method (offline, or its online keyframer as if
-  streamed) on the active armature's action; timeline markers `method strength` at the keys.
+  streamed) on the active armature's action; timeline markers `method strength` at the keys,
+  or the action's pose markers, or both.
 - `streamkey.reduce_keys`: a new action keyed only on the method's pose frames (LINEAR, AUTO
   or FIT Bezier handles), assigned to the armature; the original kept; reports the error as
   Blender evaluates it.
@@ -29,6 +30,9 @@ _METHODS = [(m, m, f"streamkey method {m}") for m in OFFLINE_METHODS]
 _MODES = [("FIT", "Fitted Bezier", "Bezier handles fitted to the original curve"),
           ("AUTO", "Auto-clamped Bezier", "Blender's default handles"),
           ("LINEAR", "Linear", "Straight lines between pose keys")]
+_TARGETS = [("TIMELINE", "Timeline", "Markers on the scene's timeline"),
+            ("POSE", "Pose", "Pose markers of the action (shown in the Action Editor)"),
+            ("BOTH", "Both", "Timeline markers and the action's pose markers")]
 TIMER_SECONDS = 0.05
 
 
@@ -72,6 +76,14 @@ def _method_params(method: str, count: int, rate: float, tolerance: float) -> di
     return {}
 
 
+def _show_pose_markers(context: Any) -> None:
+    """Let the open Action Editors show pose markers (they show timeline markers otherwise)."""
+    screen = getattr(context, "screen", None)
+    for area in screen.areas if screen else ():
+        if area.type == "DOPESHEET_EDITOR":
+            area.spaces.active.show_pose_markers = True
+
+
 class _KeyOperator:
     """Shared properties: the method and its count / rate / tolerance."""
 
@@ -101,6 +113,7 @@ class STREAMKEY_OT_mark_keyposes(_KeyOperator, bpy.types.Operator):  # type: ign
 
     online: BoolProperty(name="Online", default=False,  # type: ignore[valid-type]
                          description="Run the online keyframer as if the action were streamed")
+    target: EnumProperty(name="Markers", items=_TARGETS, default="TIMELINE")  # type: ignore[valid-type]
 
     def execute(self, context: Any) -> set[str]:
         """Find the keys and place the markers."""
@@ -109,12 +122,18 @@ class STREAMKEY_OT_mark_keyposes(_KeyOperator, bpy.types.Operator):  # type: ign
                                    f" {', '.join(ONLINE_METHODS)}")
             return {"CANCELLED"}
         try:
-            _, _, found, start = self._keys(context, self.online)
+            obj, _, found, start = self._keys(context, self.online)
         except (rig.ArmatureError, StreamkeyError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        frames = keys.set_markers(context.scene, found, start)
-        self.report({"INFO"}, f"{self.method}: {len(frames)} keypose markers")
+        if self.target in ("TIMELINE", "BOTH"):
+            frames = keys.set_markers(context.scene, found, start)
+        if self.target in ("POSE", "BOTH"):
+            frames = keys.set_pose_markers(obj.animation_data.action, found, start)
+            _show_pose_markers(context)
+        where = {"TIMELINE": "timeline", "POSE": "pose", "BOTH": "timeline and pose"}
+        self.report({"INFO"}, f"{self.method}: {len(frames)} keypose {where[self.target]}"
+                              " markers")
         return {"FINISHED"}
 
 

@@ -30,7 +30,8 @@ from streamkey.keyframes import Keyframes
 from streamkey.motion import Motion
 from streamkey.streaming import run_online
 
-__all__ = ["MODES", "find_keys", "marker_name", "set_markers", "clear_markers",
+__all__ = ["MODES", "find_keys", "marker_name", "set_markers", "set_pose_markers",
+           "clear_markers",
            "reduce_action", "fit_span", "Reduced"]
 
 MODES = ("LINEAR", "AUTO", "FIT")
@@ -55,11 +56,13 @@ def _is_mine(name: str, method: str) -> bool:
     return head in (method, f"{method}?")
 
 
-def clear_markers(scene: Any, method: str) -> int:
-    """Remove the markers `set_markers` or the live listener made for `method`."""
-    mine = [m for m in scene.timeline_markers if _is_mine(m.name, method)]
+def clear_markers(scene: Any, method: str, markers: Any = None) -> int:
+    """Remove the markers `set_markers` or the live listener made for `method` (from the
+    scene's timeline, or from `markers`, e.g. an action's pose markers)."""
+    store = scene.timeline_markers if markers is None else markers
+    mine = [m for m in store if _is_mine(m.name, method)]
     for marker in mine:
-        scene.timeline_markers.remove(marker)
+        store.remove(marker)
     return len(mine)
 
 
@@ -70,6 +73,19 @@ def set_markers(scene: Any, keys: Keyframes, start: int) -> list[int]:
     frames = [start + int(f) for f in keys.frames]
     for f, s in zip(frames, strength, strict=True):
         scene.timeline_markers.new(marker_name(keys.method, float(s)), frame=f)
+    return frames
+
+
+def set_pose_markers(action: Any, keys: Keyframes, start: int) -> list[int]:
+    """Pose markers of `action` (its pose library / Action Editor markers) at `start + frame`
+    for every key, named as the timeline markers (the method's old ones replaced): they
+    travel with the action, not the scene."""
+    clear_markers(None, keys.method, action.pose_markers)
+    strength = np.asarray(keys.strength)
+    frames = [start + int(f) for f in keys.frames]
+    for f, s in zip(frames, strength, strict=True):
+        marker = action.pose_markers.new(marker_name(keys.method, float(s)))
+        marker.frame = f
     return frames
 
 

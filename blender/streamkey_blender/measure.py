@@ -46,7 +46,7 @@ def blender_error(context: Any, obj: Any, action: Any, ref: Reference) -> float:
     finally:
         obj.animation_data.action = old
     diff = p - ref.positions
-    return float(np.mean(np.sum(diff * diff, axis=-1))) / ref.height**2
+    return float(np.mean(np.sum(diff * diff, axis=-1)) / ref.height**2)
 
 
 def keyframe_points(action: Any) -> int:
