@@ -41,11 +41,11 @@ import numpy as np  # noqa: E402
 from streamkey_blender import keys, measure, rig  # noqa: E402
 
 from streamkey.amc import read_amc  # noqa: E402
-from streamkey.bvh import read_bvh, write_bvh  # noqa: E402
+from streamkey.bvh import read_bvh  # noqa: E402
 from streamkey.evaluate import error_e, reconstruct  # noqa: E402
 from streamkey.export import export_keyframes_bvh  # noqa: E402
 from streamkey.kinematics import body_height, forward_kinematics  # noqa: E402
-from streamkey.motion import Motion, Skeleton  # noqa: E402
+from streamkey.motion import Motion  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "cmu"
@@ -60,27 +60,6 @@ EQUAL_ERROR_GAP = 0.1  # the equal-error search stops when its bracket is this c
 ROUND_TRIP_TOLERANCE = 1e-4  # AMC -> BVH: largest joint position change, body heights
 
 
-def three_rotations(motion: Motion) -> Motion:
-    """The same motion with every joint's rotation channels padded to three (the missing
-    axes appended at zero angle, which leaves each rotation as it is): Blender's BVH
-    importer reads only joints with three rotation channels, and an AMC bone has 0-3."""
-    skel = motion.skeleton
-    channels: list[list[str]] = []
-    columns: list[np.ndarray] = []
-    zero = np.zeros(motion.n_frames)
-    for j, chans in enumerate(skel.channels):
-        start = skel.channel_start[j]
-        have = [c for c in chans if c.endswith("rotation")]
-        missing = [c for c in ("Zrotation", "Yrotation", "Xrotation") if c not in have]
-        channels.append(list(chans) + missing)
-        columns += [motion.channels[:, start + i] for i in range(len(chans))]
-        columns += [zero] * len(missing)
-    padded = Skeleton(list(skel.names), list(skel.parents), skel.offsets.copy(), channels,
-                      dict(skel.end_sites))
-    return Motion(padded, np.stack(columns, axis=1), motion.fps, motion.first_frame,
-                  motion.name)
-
-
 def _position_change(a: Motion, b: Motion) -> float:
     """Largest world joint position difference of two motions, in body heights."""
     pa = forward_kinematics(a.skeleton, a.channels).positions
@@ -93,15 +72,13 @@ def _position_change(a: Motion, b: Motion) -> float:
 def amc_as_bvh(name: str, folder: Path) -> tuple[Path, float]:
     """The AMC clip `name` as a BVH file Blender's importer reads, and the largest change of a
     world joint position (body heights) from the AMC reader's: written by streamkey's export
-    (`export_keyframes_bvh`, every frame), read back, its rotation channels padded to three
-    (`three_rotations`) and written again. A ValueError above `ROUND_TRIP_TOLERANCE`."""
+    (`export_keyframes_bvh`, every frame, rotation channels padded to three for importers) and
+    read back. A ValueError above `ROUND_TRIP_TOLERANCE`."""
     motion = read_amc(DATA / name)
     exported = folder / (Path(name).stem + "_export.bvh")
     export_keyframes_bvh(motion, np.arange(motion.n_frames), exported)
-    path = folder / (Path(name).stem + "_amc.bvh")
-    write_bvh(three_rotations(read_bvh(exported)), path)
-    change = max(_position_change(motion, read_bvh(exported)),
-                 _position_change(motion, read_bvh(path)))
+    path = exported
+    change = _position_change(motion, read_bvh(exported))
     if change > ROUND_TRIP_TOLERANCE:
         raise ValueError(f"{name}: the BVH export moves a joint by {change:.3g} body heights")
     return path, change

@@ -26,7 +26,7 @@ from .bvh import write_bvh
 from .errors import UsageError
 from .evaluate import reconstruct
 from .keyframes import SCHEMA_VERSION, Keyframes
-from .motion import Motion
+from .motion import Motion, Skeleton
 
 __all__ = ["keyframes_motion", "export_keyframes_bvh", "export_reconstructed_bvh",
            "export_results", "sidecar_path"]
@@ -55,11 +55,32 @@ def sidecar_path(path: str | os.PathLike[str]) -> Path:
     return p.with_name(p.stem + ".keys.json")
 
 
+def three_rotations(motion: Motion) -> Motion:
+    """The same motion with every joint's rotation channels padded to three (the missing
+    axes appended at zero angle, which leaves each rotation as it is): BVH importers such as
+    Blender's read only joints with three rotation channels, and an AMC bone has 0-3."""
+    skel = motion.skeleton
+    channels: list[list[str]] = []
+    columns: list[np.ndarray] = []
+    zero = np.zeros(motion.n_frames)
+    for j, chans in enumerate(skel.channels):
+        start = skel.channel_start[j]
+        have = [c for c in chans if c.endswith("rotation")]
+        missing = [c for c in ("Zrotation", "Yrotation", "Xrotation") if c not in have]
+        channels.append(list(chans) + missing)
+        columns += [motion.channels[:, start + i] for i in range(len(chans))]
+        columns += [zero] * len(missing)
+    padded = Skeleton(list(skel.names), list(skel.parents), skel.offsets.copy(), channels,
+                      dict(skel.end_sites))
+    return Motion(padded, np.stack(columns, axis=1), motion.fps, motion.first_frame,
+                  motion.name)
+
+
 def export_keyframes_bvh(motion: Motion, keys: Keyframes | list[int] | np.ndarray,
                          path: str | os.PathLike[str], method: str | None = None) -> Path:
     """Write the keyposes-only BVH and its `.keys.json` sidecar; returns the BVH path."""
     frames = _frames(motion, keys)
-    write_bvh(bvh_equivalent(motion), path, frames)
+    write_bvh(three_rotations(bvh_equivalent(motion)), path, frames)
     meta: dict[str, Any] = {
         "schema": SCHEMA_VERSION, "source": motion.name,
         "method": method or (keys.method if isinstance(keys, Keyframes) else None),
@@ -73,8 +94,8 @@ def export_reconstructed_bvh(motion: Motion, keys: Keyframes | list[int] | np.nd
                              path: str | os.PathLike[str], mode: str = "slerp") -> Path:
     """Write the full-length motion interpolated from the keyframes only."""
     rebuilt = reconstruct(motion, _frames(motion, keys), mode)
-    write_bvh(bvh_equivalent(Motion(motion.skeleton, rebuilt, motion.fps, motion.first_frame,
-                                    motion.name)), path)
+    write_bvh(three_rotations(bvh_equivalent(Motion(
+        motion.skeleton, rebuilt, motion.fps, motion.first_frame, motion.name))), path)
     return Path(path)
 
 

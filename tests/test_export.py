@@ -40,6 +40,25 @@ def test_keyframes_only_bvh_reloads_with_the_keyframe_count_and_the_original_pos
     np.testing.assert_allclose(meta["times"], keys.frames / motion.fps, atol=1e-6)
 
 
+def test_an_amc_clip_exports_three_rotation_channels_per_joint_and_the_same_poses(
+        data_dir: Path, tmp_path: Path) -> None:
+    """BVH importers (Blender's among them) read only joints with three rotation channels;
+    an AMC bone has 0-3, so the export pads the missing axes at zero angle."""
+    from streamkey.amc import read_amc
+    from streamkey.kinematics import forward_kinematics
+
+    motion = read_amc(data_dir / "35_01.amc")
+    assert any(len([c for c in chans if c.endswith("rotation")]) in (1, 2)
+               for chans in motion.skeleton.channels)  # some bones turn about 1-2 axes
+    frames = np.arange(0, motion.n_frames, 40)
+    back = read_bvh(export_keyframes_bvh(motion, frames, tmp_path / "keys.bvh"))
+    assert all(len([c for c in chans if c.endswith("rotation")]) == 3
+               for chans in back.skeleton.channels)
+    np.testing.assert_allclose(
+        forward_kinematics(back.skeleton, back.channels).positions,
+        forward_kinematics(motion.skeleton, motion.channels[frames]).positions, atol=1e-3)
+
+
 def test_reconstructed_bvh_is_the_interpolation_with_the_keys_exact(walk, tmp_path: Path) -> None:
     motion, keys = walk
     back = read_bvh(export_reconstructed_bvh(motion, keys, tmp_path / "rebuilt.bvh"))
