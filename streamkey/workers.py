@@ -32,8 +32,10 @@ import os
 import signal
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
+from types import SimpleNamespace
 from typing import Any
 
 from .engine import Engine, EngineConfig
@@ -75,6 +77,9 @@ class WorkerConfig:
     skeleton: Skeleton | None = None  # a skeleton given up front serves every stream
     fps: float | None = None
     segments: bool = True  # send segment events
+    # makes a worker's explainer of refused input (`cli.input_watch.InputWatch`, given by
+    # the caller so the library does not import the CLI): it watches the streams' guards
+    input_watch: Callable[[], Any] | None = None
 
 
 # ---------------------------------------------------------------------- worker side
@@ -154,16 +159,45 @@ def _worker_main(conn: Connection, cfg: WorkerConfig) -> None:
             conn.send(("say", line))
 
     source = _PipeSource(conn, cfg)
+    watch = cfg.input_watch() if cfg.input_watch is not None else None
     engine = Engine(source, keyframers, [_PipeSink(conn)], EngineConfig(
         stream=cfg.stream, on_ready=say, reset_on_gap=cfg.reset_on_gap,
         max_streams=cfg.max_streams, stream_idle=cfg.stream_idle, freeze_gc=cfg.freeze_gc,
-        segments=cfg.segments))
-    summary = asyncio.run(engine.run())
+        segments=cfg.segments, on_frame=watch.on_frame if watch is not None else None))
+    summary = asyncio.run(_watched(engine, watch))
     summary.sinks = {}
     summary.scheduler["cpu_seconds"] = round(time.process_time(), 3)
     with contextlib.suppress(OSError):
+        if watch is not None:
+            conn.send(("input", dict(watch.counts)))
         conn.send(("summary", summary))
     conn.close()
+
+
+async def _watched(engine: Engine, watch: Any) -> RunSummary:
+    """`engine.run()` with `watch` (an input explainer, or None) reading its counters."""
+    if watch is None:
+        return await engine.run()
+    watch.engine = engine
+    task = asyncio.create_task(watch.watch())
+    try:
+        return await engine.run()
+    finally:
+        task.cancel()
+        watch.check(final=True)
+
+
+class _SourceView:
+    """What an input explainer reads of an engine, for the workers' parent: the source's
+    counters (refused packets, wrong addresses); the streams' guards are in the workers,
+    whose own explainers watch them. Its status events go to the parent's sinks."""
+
+    def __init__(self, pool: WorkerPool) -> None:
+        self.source = pool.source
+        self.sinks = pool.sinks
+        self.table = SimpleNamespace(live={}, waiting={})
+        self.config = SimpleNamespace(stream=pool.cfg.stream, on_event=None)
+        self.summary = SimpleNamespace(events=pool.input_events)
 
 
 # ---------------------------------------------------------------------- parent side
@@ -189,8 +223,11 @@ class WorkerPool:
     summary."""
 
     def __init__(self, source: Source, sinks: list[Sink], cfg: WorkerConfig, workers: int,
-                 on_ready: Any = None, idle_exit: float | None = None) -> None:
+                 on_ready: Any = None, idle_exit: float | None = None,
+                 input_watch: Any = None) -> None:
         self.source, self.cfg, self.n = source, cfg, workers
+        self.watch = input_watch  # explains the source's refusals; counts the workers' too
+        self.input_events: Counter[str] = Counter()  # its status events, for the summary
         self._say = on_ready or (lambda line: None)
         self.sinks = SinkFanout(sinks, self._say)
         self.idle_exit = idle_exit
@@ -216,6 +253,7 @@ class WorkerPool:
         """Start the workers, route the source's frames, end cleanly; the merged summary."""
         started = time.monotonic()
         self._start_workers()
+        watching: asyncio.Task[None] | None = None
         try:
             await self.sinks.start()
             await asyncio.wait_for(self._all_ready.wait(), READY_TIMEOUT)
@@ -224,9 +262,15 @@ class WorkerPool:
             self._say(f"{self.n} workers ready (pids "
                       f"{', '.join(str(w.process.pid) for w in self.workers)})")
             self._say(f"listening on {await self.source.start()}")
+            if self.watch is not None:
+                self.watch.engine = _SourceView(self)
+                watching = asyncio.create_task(self.watch.watch())
             if not self._stopping:
                 await self._route()
         finally:
+            if watching is not None:
+                watching.cancel()
+                self.watch.check(final=True)
             await self.source.close()
             await self._end_workers()
             await self.sinks.close()
@@ -274,6 +318,8 @@ class WorkerPool:
                 self.source.forget_stream(message[1])  # it may come back with its skeleton
         elif kind == "say":
             self._say(message[1])
+        elif kind == "input" and self.watch is not None:
+            self.watch.counts.update(message[1])
         elif kind == "summary":
             w.summary = message[1]
             self._check_done()
@@ -393,6 +439,7 @@ class WorkerPool:
         out.refused_streams += len(self.refused)
         out.refused_frames += self.refused_frames
         out.max_streams = self.cfg.max_streams
+        out.events.update(self.input_events)
         out.sinks = self.sinks.stats()
         out.scheduler["workers"] = [
             {"pid": w.process.pid, "streams_placed": w.placed, "frames_in": p.frames_in,
@@ -443,17 +490,21 @@ async def run_workers(source: Source, methods: list[str], to: list[str], workers
                       stream: str = "default", idle_exit: float | None = None,
                       reset_on_gap: bool = False, max_streams: int = DEFAULT_MAX_STREAMS,
                       stream_idle: float | None = None,
-                      on_ready: Any = None, segments: bool = True) -> RunSummary:
+                      on_ready: Any = None, segments: bool = True,
+                      input_watch: Any = None,
+                      worker_watch: Callable[[], Any] | None = None) -> RunSummary:
     """`run --workers N` from a listening `source` to the sinks at `to` until the source
-    ends, `idle_exit`, SIGINT or SIGTERM; the merged summary."""
+    ends, `idle_exit`, SIGINT or SIGTERM; the merged summary. `input_watch`: an explainer of
+    the source's refused input (`cli.input_watch.InputWatch`); `worker_watch`: makes one per
+    worker, for the streams' guards."""
     from .adapters import make_sink, parse_address
     from .live import _ready
 
     sinks = [make_sink(parse_address(a), listen) for a in to]
     cfg = WorkerConfig(methods, params or {}, lookahead, stream, reset_on_gap, max_streams,
                        stream_idle, True, source.skeleton if source.shared_skeleton else None,
-                       source.fps if source.shared_skeleton else None, segments)
-    pool = WorkerPool(source, sinks, cfg, workers, on_ready or _ready, idle_exit)
+                       source.fps if source.shared_skeleton else None, segments, worker_watch)
+    pool = WorkerPool(source, sinks, cfg, workers, on_ready or _ready, idle_exit, input_watch)
     loop = asyncio.get_running_loop()
     handled = []
     for sig in (signal.SIGINT, signal.SIGTERM):

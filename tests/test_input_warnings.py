@@ -49,10 +49,20 @@ def _run(port: int, *extra: str) -> subprocess.Popen:
 
 
 def test_wrong_address_and_channel_count_are_explained_once_then_counted(tmp_path):
+    _address_and_channels(tmp_path)
+
+
+def test_with_worker_processes_refused_input_is_explained_the_same(tmp_path):
+    """`--workers 2`: the source's refusals explained by the parent, a stream's by the
+    worker that serves it; one end line counts both."""
+    _address_and_channels(tmp_path, "--workers", "2")
+
+
+def _address_and_channels(tmp_path: Any, *extra: str) -> None:
     port = free_port()
     n = read_motion(str(CLIP)).skeleton.n_channels
     summary = tmp_path / "summary.json"
-    proc = _run(port, "--skeleton", str(CLIP), "--summary", str(summary))
+    proc = _run(port, "--skeleton", str(CLIP), "--summary", str(summary), *extra)
     try:
         _send(port, osc_string("/foo/bar") + osc_string(",i") + b"\0\0\0\1")
         line, took = _line_with(proc, "warning: input refused (address)")

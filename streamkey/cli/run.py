@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 from typing import Any
@@ -125,7 +126,8 @@ def run(args: argparse.Namespace) -> int:
             source, methods, args.to or ["-"], args.workers, online_params(args), None,
             args.listen, args.stream, idle_exit=args.idle_exit, reset_on_gap=args.reset_on_gap,
             max_streams=args.max_streams, stream_idle=args.stream_idle,
-            segments=not args.no_segments))
+            segments=not args.no_segments, input_watch=watch,
+            worker_watch=functools.partial(InputWatch, quiet=args.quiet)))
     else:
         summary = asyncio.run(_run_watched(args, source, methods, watch))
     print(summary.text(), file=sys.stderr)
