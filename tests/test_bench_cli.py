@@ -11,9 +11,16 @@ import sys
 from cmu import DATA
 
 
+def _sigint_default() -> None:
+    """In the child: Ctrl-C's default action, even when this test runs as a background job
+    (whose shell ignores SIGINT for it, and Python then installs no KeyboardInterrupt)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _bench(*args: str) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "streamkey", "bench", "--data", str(DATA),
-                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_sigint_default)
 
 
 def test_bench_reports_progress_and_writes_every_row(tmp_path):

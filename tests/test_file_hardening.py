@@ -6,6 +6,7 @@ batch on the code before the fix) on a mutated copy of a real CMU clip.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -311,7 +312,6 @@ def test_a_still_pose_gets_every_counted_method_with_both_ends(tmp_path, capsys)
                      + (body.splitlines()[7] + "\n") * 200)
     code, out, err = cli(capsys, "extract", str(still), "--method", "saliency,uniform,decimate")
     assert code == 0, err
-    import json
 
     methods = json.loads(out)["files"][0]["methods"]
     assert methods["saliency"]["keyframes"] == []
@@ -334,8 +334,6 @@ def batch_folder(tmp_path: Path) -> tuple[Path, Path, Path]:
 
 @pytest.mark.parametrize("online", [False, True])
 def test_extract_dir_with_broken_files_writes_the_good_results(tmp_path, capsys, online):
-    import json
-
     folder, bad, short = batch_folder(tmp_path)
     out = tmp_path / "keys.json"
     extra = ["--online", "--method", "all"] if online else ["--method", "all"]
@@ -347,9 +345,11 @@ def test_extract_dir_with_broken_files_writes_the_good_results(tmp_path, capsys,
     assert files["09_06.amc"]["methods"]["saliency"]["keyframes"]
     assert files["bad.bvh"]["error"].startswith(f"{bad}:")
     assert f"error: {bad}:" in err
-    if not online:  # a 1-frame clip cannot have the two ends the counted methods need
-        assert files["short.bvh"]["error"].startswith(f"{short}: ")
-        assert f"error: {short}: " in err
+    # a 1-frame clip is valid input offline as online: its one frame is every counted
+    # method's key
+    assert "error" not in files["short.bvh"] and f"error: {short}" not in err
+    assert files["short.bvh"]["methods"]["uniform" if not online else "simplify"][
+        "keyframes"] == [0]
 
 
 def test_eval_dir_with_a_broken_file_writes_the_tables_and_exits_2(tmp_path, capsys):
@@ -364,11 +364,14 @@ def test_eval_dir_with_a_broken_file_writes_the_tables_and_exits_2(tmp_path, cap
     assert "wrote" in stdout
 
 
-def test_a_clip_error_from_a_method_names_the_clip(tmp_path, capsys):
-    short = tmp_path / "three.bvh"
+def test_a_one_frame_clip_is_keyed_by_a_counted_method_as_online(tmp_path, capsys):
+    """One captured frame: uniform sampling (which needs two ends) keys that frame, as the
+    online keyframers do, instead of failing the clip."""
+    short = tmp_path / "one.bvh"
     short.write_text(frames_of(1))
-    code, _, err = cli(capsys, "extract", str(short), "--method", "uniform")
-    assert_named_error(code, err, short)
+    code, out, err = cli(capsys, "extract", str(short), "--method", "uniform")
+    assert code == 0 and TRACEBACK not in err and not err
+    assert json.loads(out)["files"][0]["methods"]["uniform"]["keyframes"] == [0]
 
 
 

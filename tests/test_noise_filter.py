@@ -323,9 +323,7 @@ def _unmet(reason: str) -> pytest.MarkDecorator:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("method", [
-    pytest.param("saliency", marks=_unmet("1.12, 0.88, 1.0, 1.27 (05_11.amc), 1.14 "
-                                          "(unfiltered up to 3.57; 1.06-1.22 before saliency "
-                                          "kept still stretches out of its statistics)")),
+    "saliency",
     pytest.param("speed", marks=_unmet("49_18.amc 2.18x (its 11 clean keys are fragile); "
                                        "1.0, 1.0, 1.17, 1.0 on the others")),
     "simplify", "optimal"])

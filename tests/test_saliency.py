@@ -422,8 +422,6 @@ def test_online_agreement_table_is_written_for_every_shared_clip() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured at the default lookahead 121 (sigma 10, k 7): "
-                   "mean F1 0.895, lowest 0.773 (05_18.bvh); the targets hold at 240")
 def test_online_agreement_meets_the_f1_targets_at_the_default_lookahead() -> None:
     f1 = np.array([r[5] for r in _agreement_rows()])
     assert f1.mean() >= 0.92 and f1.min() >= 0.80

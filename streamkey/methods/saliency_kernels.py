@@ -202,20 +202,23 @@ def smooth_rows(x: np.ndarray, y: np.ndarray, r0: int, r1: int, start: int, b: n
     """Rows r0..r1-1 of `y`: the causal low-pass (b, a) (a[0] = 1) of the rows of `x`, row by
     row in direct form, `start` the first row of the recursion (rows before it taken as
     x[start], the steady state of a constant signal). The filter of
-    `saliency_math.smooth_curves`."""
+    `saliency_math.smooth_curves`.
+
+    The recursion runs on the departure from x[start], so a signal that stays at its first
+    value comes out exactly as it went in: in direct form a 6th-order low-pass turns a
+    constant into one that wobbles by ~1e-9, which the curvature maps would normalise into
+    keys on a still pose."""
     order = len(a) - 1
     for r in range(r0, r1):
         for j in range(x.shape[1]):
-            acc = b[0] * x[r, j]
+            base = x[start, j]
+            acc = b[0] * (x[r, j] - base)
             for i in range(1, order + 1):
                 p = r - i
                 if p >= start:
-                    acc += b[i] * x[p, j]
-                    acc -= a[i] * y[p, j]
-                else:
-                    acc += b[i] * x[start, j]
-                    acc -= a[i] * x[start, j]
-            y[r, j] = acc
+                    acc += b[i] * (x[p, j] - base)
+                    acc -= a[i] * (y[p, j] - base)
+            y[r, j] = base + acc
 
 
 @compiled
