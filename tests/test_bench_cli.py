@@ -73,3 +73,23 @@ def test_perf_rows_carry_goals_streams_per_core_and_load(tmp_path):
     rows = {row["target"]: row for row in offline["rows"]}
     assert set(rows) == {"features", "speed", "decimate"}
     assert all(row["s@1500"] > 0 and row["met"] is False for row in rows.values())  # < 100k
+
+
+def test_latency_bench_names_each_run_before_it_starts(monkeypatch):
+    """`bench --latency` is minutes of live runs: each starts with a line saying which run of
+    how many and the time left (the runs themselves are the live tests' business)."""
+    from streamkey.bench import live
+
+    done: list[tuple[str, bool]] = []
+    lines: list[str] = []
+
+    def one(transport, clip, frames, realtime=False):
+        done.append((transport, realtime))
+        assert len(lines) == len(done)  # its line came first
+        return {"transport": transport}
+
+    monkeypatch.setattr(live, "_latency_one", one)
+    live.run_live_bench("latency", DATA, True, lines.append)
+    assert done == [("osc", False), ("zmq", False), ("osc", True), ("zmq", True)]
+    assert lines[0].startswith("bench latency: run 1/4: osc, normal priority, 20 s of frames")
+    assert lines[3].startswith("bench latency: run 4/4: zmq, SCHED_RR")

@@ -345,7 +345,7 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
                 written += _bench_agreement(data_dir, output)
                 continue
             if kind in LIVE_KINDS:  # live engine benches (memory, latency, ws_clients)
-                result = run_live_bench(kind, data_dir, quick)
+                result = run_live_bench(kind, data_dir, quick, say)
             elif kind == "streams":  # many streams in one engine, due-first on and off
                 from .streams import bench_streams
 

@@ -28,6 +28,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -307,15 +308,23 @@ def _latency_one(transport: str, clip: Path, frames: int, realtime: bool = False
             "target_p99_ms": 3.0, "met": p99 is not None and p99 <= 3.0}
 
 
-def bench_latency(data: Path | None, quick: bool = False) -> dict[str, Any]:
+def bench_latency(data: Path | None, quick: bool = False,
+                  say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """External-receiver latency over OSC and ZeroMQ (replay and run as processes), at the
-    run's normal priority and with `run --realtime`; each row says the load average."""
+    run's normal priority and with `run --realtime`; each row says the load average.
+    `say`: a progress line per run (which run of how many, its length)."""
     clip = (data / _LATENCY_CLIP) if data is not None else None
     if clip is None or not clip.exists():
         raise RuntimeError("bench --latency needs the shared clips (--data)")
     frames = 2400 if quick else 7200  # 20 s or 60 s at 120 Hz
-    rows = [_latency_one(t, clip, frames, realtime) for realtime in (False, True)
-            for t in ("osc", "zmq")]
+    runs = [(t, realtime) for realtime in (False, True) for t in ("osc", "zmq")]
+    rows = []
+    for i, (transport, realtime) in enumerate(runs, 1):
+        if say is not None:
+            say(f"bench latency: run {i}/{len(runs)}: {transport}, "
+                f"{'SCHED_RR' if realtime else 'normal priority'}, {frames / 120:.0f} s of "
+                f"frames (about {len(runs) - i + 1} x {frames / 120 + 5:.0f} s left)")
+        rows.append(_latency_one(transport, clip, frames, realtime))
     return {"rows": rows, "clip": str(clip), "rate_hz": 120, "methods": "all",
             "cpus": os.cpu_count(),
             "note": "latency: the frame leaving the replay (kernel stamp of its OSC copy) to "
@@ -395,7 +404,11 @@ def bench_ws_clients(data: Path | None, quick: bool = False) -> dict[str, Any]:
             "note": "clients read in another process on the same machine"}
 
 
-def run_live_bench(kind: str, data: Path | None, quick: bool) -> dict[str, Any]:
-    """One live benchmark by name (see `LIVE_KINDS`)."""
-    fn = {"memory": bench_memory, "latency": bench_latency, "ws_clients": bench_ws_clients}
+def run_live_bench(kind: str, data: Path | None, quick: bool,
+                   say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """One live benchmark by name (see `LIVE_KINDS`); `say`: progress lines, where the
+    benchmark has steps to tell."""
+    if kind == "latency":
+        return bench_latency(data, quick, say)
+    fn = {"memory": bench_memory, "ws_clients": bench_ws_clients}
     return fn[kind](data, quick)
