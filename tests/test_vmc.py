@@ -13,6 +13,7 @@ import sys
 import time
 from collections import Counter
 
+import humanoid_helpers
 import numpy as np
 import pytest
 from cmu import DATA
@@ -23,42 +24,15 @@ from scipy.spatial.transform import Rotation
 
 from streamkey.adapters.base import parse_address
 from streamkey.adapters.vmc import REQUIRED_BONES, VmcDecoder, VmcSource
-from streamkey.bvh import read_bvh, write_bvh
-from streamkey.kinematics import body_height
 from streamkey.methods import ONLINE_METHODS
 from streamkey.motion import Motion
 from streamkey.rigs import humanoid_skeleton
 
 CLIP = DATA / "07_01.bvh"
-# built-in humanoid bone <- CMU joint of 07_01 (Neck1 and the hip joints have no bone)
-FROM_CMU = {"Hips": "Hips", "Spine": "LowerBack", "Chest": "Spine", "UpperChest": "Spine1",
-            "Neck": "Neck", "Head": "Head"}
-for _s, _c in (("Left", "L"), ("Right", "R")):
-    FROM_CMU |= {f"{_s}UpperLeg": f"{_s}UpLeg", f"{_s}LowerLeg": f"{_s}Leg",
-                 f"{_s}Foot": f"{_s}Foot", f"{_s}Toes": f"{_s}ToeBase",
-                 f"{_s}Shoulder": f"{_s}Shoulder", f"{_s}UpperArm": f"{_s}Arm",
-                 f"{_s}LowerArm": f"{_s}ForeArm", f"{_s}Hand": f"{_s}Hand",
-                 f"{_s}ThumbProximal": f"{_c}Thumb", f"{_s}IndexProximal": f"{_s}FingerBase",
-                 f"{_s}IndexIntermediate": f"{_s}HandIndex1"}
-
-
 @pytest.fixture(scope="module")
 def humanoid_clip(tmp_path_factory) -> tuple:
     """07_01's motion on the built-in humanoid skeleton (metres), written and read back."""
-    cmu = read_bvh(CLIP)
-    skel = humanoid_skeleton()
-    channels = np.zeros((cmu.n_frames - cmu.first_frame, skel.n_channels))
-    for j, name in enumerate(skel.names):
-        src = cmu.skeleton.names.index(FROM_CMU[name])
-        n = len(skel.channels[j])
-        lo = cmu.skeleton.channel_start[src]
-        assert cmu.skeleton.channels[src] == skel.channels[j]
-        channels[:, skel.channel_start[j]: skel.channel_start[j] + n] = (
-            cmu.channels[cmu.first_frame:, lo: lo + n])
-    channels[:, :3] *= body_height(skel) / body_height(cmu.skeleton)
-    path = tmp_path_factory.mktemp("vmc") / "humanoid_07_01.bvh"
-    write_bvh(Motion(skel, channels, cmu.fps, 0, "humanoid_07_01"), path)
-    motion = read_bvh(path)
+    path, motion = humanoid_helpers.humanoid_clip(CLIP, tmp_path_factory.mktemp("vmc"))
     assert motion.first_frame == 0
     return path, motion
 

@@ -13,17 +13,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+import humanoid_helpers
 import pytest
 from cmu import DATA
 from live_helpers import MS, keyframes_of, read_jsonl, streamkey, wait_ready
 from scipy.spatial.transform import Rotation
 
-from streamkey.bvh import read_bvh, write_bvh
-from streamkey.kinematics import body_height
 from streamkey.methods import ONLINE_METHODS
 from streamkey.motion import Motion
-from streamkey.rigs import humanoid_skeleton
 
 try:
     from vmcp.osc import OSC
@@ -45,34 +42,12 @@ pytestmark = pytest.mark.filterwarnings(
 
 CLIP = "07_05"
 RATE = 240.0  # frames per second the sender keeps to at most
-# humanoid bone <- CMU joint (Neck1 and the hip joints have no humanoid bone)
-FROM_CMU = {"Hips": "Hips", "Spine": "LowerBack", "Chest": "Spine", "UpperChest": "Spine1",
-            "Neck": "Neck", "Head": "Head"}
-for _s, _c in (("Left", "L"), ("Right", "R")):
-    FROM_CMU |= {f"{_s}UpperLeg": f"{_s}UpLeg", f"{_s}LowerLeg": f"{_s}Leg",
-                 f"{_s}Foot": f"{_s}Foot", f"{_s}Toes": f"{_s}ToeBase",
-                 f"{_s}Shoulder": f"{_s}Shoulder", f"{_s}UpperArm": f"{_s}Arm",
-                 f"{_s}LowerArm": f"{_s}ForeArm", f"{_s}Hand": f"{_s}Hand",
-                 f"{_s}ThumbProximal": f"{_c}Thumb", f"{_s}IndexProximal": f"{_s}FingerBase",
-                 f"{_s}IndexIntermediate": f"{_s}HandIndex1"}
 
 
 @pytest.fixture(scope="module")
 def humanoid_clip(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Motion]:
     """The clip's motion on the built-in humanoid skeleton (metres), written and read back."""
-    cmu = read_bvh(DATA / f"{CLIP}.bvh")
-    skel = humanoid_skeleton()
-    channels = np.zeros((cmu.n_frames - cmu.first_frame, skel.n_channels))
-    for j, name in enumerate(skel.names):
-        src = cmu.skeleton.names.index(FROM_CMU[name])
-        assert cmu.skeleton.channels[src] == skel.channels[j]
-        n, lo = len(skel.channels[j]), cmu.skeleton.channel_start[src]
-        channels[:, skel.channel_start[j]: skel.channel_start[j] + n] = (
-            cmu.channels[cmu.first_frame:, lo: lo + n])
-    channels[:, :3] *= body_height(skel) / body_height(cmu.skeleton)
-    path = tmp_path_factory.mktemp("vmcp") / f"humanoid_{CLIP}.bvh"
-    write_bvh(Motion(skel, channels, cmu.fps, 0, f"humanoid_{CLIP}"), path)
-    return path, read_bvh(path)
+    return humanoid_helpers.humanoid_clip(DATA / f"{CLIP}.bvh", tmp_path_factory.mktemp("vmcp"))
 
 
 def vmcp_frames(motion: Motion) -> list[list[Any]]:
