@@ -18,9 +18,9 @@ from cluster_helpers import (
     wait_for,
 )
 
+from streamkey.cluster.framelog import FrameLogger
 from streamkey.cluster.live import (
     ClusterConfig,
-    FrameLogger,
     Placement,
     RedisKeys,
     ShardWorker,

@@ -32,11 +32,9 @@ transaction that forgets the stream.
 from __future__ import annotations
 
 import json
-import math
 import threading
 import time
 from collections import Counter
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,14 +50,15 @@ from ..motion import Frame, Skeleton
 from ..online import Pipeline
 from ..snapshot import pickled, seal
 from ..streamtable import LiveStream, StreamTable, keyframers_for
+from .notices import InputNotes, new_notices, notices_key
 from .placement import Placement, RedisKeys
+from .sealing import Sealer
 
-__all__ = ["ClusterConfig", "ShardWorker", "FrameLogger", "Placement", "split_topic",
+__all__ = ["ClusterConfig", "ShardWorker", "Placement", "split_topic",
            "stream_topic", "snapshot_pipeline", "restore_pipeline", "RedisKeys",
            "notices_key", "new_notices"]
 
 _LOG_BATCH = 512  # log entries per Redis round trip when replaying
-REPEAT_S = 5.0  # a kind of refused input is explained again at most this often (as `run`)
 
 
 @dataclass
@@ -198,10 +197,8 @@ class ShardWorker:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._adopt_tried: dict[str, float] = {}
-        self.input_problems: Counter[str] = Counter()  # refused input by kind
-        self._said_at: dict[str, float] = {}
-        self._sealer = ThreadPoolExecutor(1, thread_name_prefix=f"streamkey-seal-{shard}")
-        self._pending: list[Future[None]] = []
+        self.input_notes = InputNotes()  # refused input by kind, when last explained
+        self._sealer = Sealer(shard)  # snapshots compressed and stored off the loop
 
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
@@ -257,8 +254,7 @@ class ShardWorker:
         with self.lock:
             for stream in list(self.streams):
                 self.retire(stream)
-        self._sealed()
-        self._sealer.shutdown()
+        self._sealer.close()
         return self.status()
 
     def status(self) -> dict[str, Any]:
@@ -273,7 +269,7 @@ class ShardWorker:
                     "totals": totals,
                     "retired": list(self.retired), "counters": {**self.counters, **totals},
                     "rejects": dict(self.rejects), "errors": list(self.errors),
-                    "input_problems": dict(self.input_problems),
+                    "input_problems": dict(self.input_notes.counts),
                     "keyframer_errors": self.table.faults.count,
                     "keyframer_faults": list(self.table.faults.messages)}
 
@@ -353,14 +349,11 @@ class ShardWorker:
         self._explain(kind, None, f"input refused ({kind}): {str(exc)[:200]}{hint}")
 
     def _explain(self, kind: str, stream: str | None, message: str) -> None:
-        """Refused input, counted by kind and explained at most every `REPEAT_S` per kind:
-        a status event `input_<kind>` in the event stream, and the line in the run's notice
-        list (`notices_key`), which the driver prints on stderr."""
-        self.input_problems[kind] += 1
-        now = time.monotonic()
-        if now - self._said_at.get(kind, -math.inf) < REPEAT_S:
+        """Refused input, counted by kind and explained at most every `REPEAT_S` per kind
+        (`InputNotes`): a status event `input_<kind>` in the event stream, and the line in
+        the run's notice list (`notices_key`), which the driver prints on stderr."""
+        if not self.input_notes.note(kind):
             return
-        self._said_at[kind] = now
         st = self.streams.get(stream) if stream is not None else None
         seq = _last_seq(st.pipeline) if st is not None else None
         detail: dict[str, Any] = {"kind": kind, "message": message, "shard": self.shard}
@@ -507,14 +500,8 @@ class ShardWorker:
             self.counters["snapshots"] += 1
             self.counters["snapshot_bytes"] = len(data)
 
-        self._pending.append(self._sealer.submit(store))
+        self._sealer.submit(store)
 
-    def _sealed(self) -> None:
-        """Wait for every snapshot handed to the sealing thread (before keys are deleted
-        or the worker stops); a failed store raises here."""
-        pending, self._pending = self._pending, []
-        for future in pending:
-            future.result()
 
     def emit(self, events: list[Event]) -> None:
         """Append events to the Redis sink unless their id is already there."""
@@ -536,7 +523,7 @@ class ShardWorker:
         st = self.streams[stream]
         self.catch_up(stream, None)
         self.emit(self.table.step(st.live, None, st.pipeline.flush))
-        self._sealed()  # no snapshot of this stream written after its keys are deleted
+        self._sealer.wait()  # no snapshot of this stream written after its keys are deleted
         done = self.redis.pipeline(transaction=True)  # counted once, or restored and redone
         done.delete(self.keys.snapshot(stream), self.keys.log(stream), self.keys.skeleton(stream))
         done.srem(self.keys.shard(self.shard), stream)
@@ -547,104 +534,6 @@ class ShardWorker:
         self.retired.append(stream)
 
 
-def notices_key(run: str) -> str:
-    """Redis list of the run's explanations of refused input (one line each)."""
-    return f"{RedisKeys(run).prefix}:input-notices"
-
-
-def new_notices(redis: Any, run: str, seen: int) -> list[str]:
-    """The notice lines after the first `seen` (the driver prints them as they come)."""
-    return [line.decode("utf-8", "replace") for line in
-            redis.lrange(notices_key(run), seen, -1)]
-
-
 def _last_seq(pipeline: Pipeline) -> int | None:
     last = pipeline.guard.last
     return None if last is None else int(last.seq)
-
-
-class FrameLogger:
-    """The retained frame log: subscribes to every topic and appends each valid frame to its
-    stream's Redis Stream, trimmed to the snapshot interval plus `failover_seconds` at the
-    stream's rate; keeps each stream's skeleton and registers the stream with its shard.
-    Runs in the driver process (it must outlive the workers it covers for)."""
-
-    def __init__(self, config: ClusterConfig) -> None:
-        self.cfg = config
-        self.keys = RedisKeys(config.run)
-        self.redis = _redis(config.redis_url)
-        self.placement = Placement(self.redis, self.keys, config.shards)
-        self.logged = 0
-        self.rejects: Counter[str] = Counter()
-        self.last_frame_at: float | None = None
-        self.error: str | None = None  # why the logger stopped, if it failed
-        self.subscribed = threading.Event()
-        self._fps: dict[str, float] = {}
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._serve, name="streamkey-frame-log",
-                                        daemon=True)
-
-    def retain(self, stream: str) -> int:
-        """Frames kept in the stream's log."""
-        fps = self._fps.get(stream, self.cfg.skeleton_fps)
-        return self.cfg.snapshot_every + math.ceil(self.cfg.failover_seconds * fps)
-
-    def start(self) -> None:
-        """Place `--streams` ids (in their order), then start logging on a thread."""
-        self.placement.place(self.cfg.streams or [])
-        self._thread.start()
-        self.subscribed.wait(10.0)
-
-    def stop(self) -> None:
-        """Stop logging."""
-        self._stop.set()
-        self._thread.join(10.0)
-
-    def _serve(self) -> None:
-        sock: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.SUB)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.setsockopt(zmq.RCVHWM, 100_000)
-        for prefix in subscriptions(self.cfg.streams):
-            sock.setsockopt(zmq.SUBSCRIBE, prefix)
-        sock.connect(self.cfg.endpoint)
-        self.subscribed.set()
-        poller = zmq.Poller()
-        poller.register(sock, zmq.POLLIN)
-        try:
-            while not self._stop.is_set():
-                if not poller.poll(100):
-                    continue
-                pipe = self.redis.pipeline(transaction=False)
-                for _ in range(512):
-                    try:
-                        parts = sock.recv_multipart(zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
-                    self.log(parts, pipe)
-                pipe.execute()
-        except Exception as exc:  # Redis gone: the driver sees `error` and stops the run
-            self.error = f"frame log: {type(exc).__name__}: {exc}"
-        finally:
-            sock.close(linger=0)
-
-    def log(self, parts: list[bytes], pipe: Any) -> None:
-        """Queue one message's Redis writes on `pipe`; never raises (rejects counted)."""
-        try:
-            stream, body = split_topic(parts)
-            if body[0] == b"skeleton":
-                _, fps, bvh = parse_skeleton_message(body)
-                self._fps[stream] = fps
-                pipe.hset(self.keys.skeleton(stream), mapping={"bvh": bvh, "fps": repr(fps)})
-                pipe.sadd(self.keys.shard(self.placement.shard(stream)), stream)
-                return
-            if body[0] != b"frame":
-                self.rejects["topic"] += 1
-                return
-            frame = decode_frame_parts(body)
-        except (ValueError, TypeError, IndexError, RecursionError):
-            self.rejects["malformed"] += 1
-            return
-        pipe.xadd(self.keys.log(stream), {"seq": frame.seq, "h": body[1], "p": body[2]},
-                  maxlen=self.retain(stream), approximate=True)
-        self.logged += 1
-        self.last_frame_at = time.monotonic()

@@ -20,7 +20,8 @@ import ray
 
 from ..errors import StreamkeyError
 from ..threads import single_thread_defaults
-from .live import ClusterConfig, FrameLogger, RedisKeys, ShardWorker
+from .framelog import FrameLogger
+from .live import ClusterConfig, RedisKeys, ShardWorker
 
 __all__ = ["ClusterRun", "ShardActor"]
 
