@@ -49,10 +49,9 @@ __all__ = ["DEFAULT_NOISE_CUTOFF_HZ", "RECOMMENDED_NOISE_CUTOFF_HZ", "TRUNCATE",
            "Rows", "FrontEnd", "smooth", "warm_filters"]
 
 RECOMMENDED_NOISE_CUTOFF_HZ = 6.0  # Winter's cut-off for gait; human motion energy lies below
-# Off unless asked (`noise_cutoff_hz=6.0`, `--noise-cutoff 6`): on by default it moves the keys
-# of clean 120 Hz takes (speed's against heel-strike ground truth among them), so it is an
-# opt-in for noisy sources until every method is tuned on filtered input.
-DEFAULT_NOISE_CUTOFF_HZ: float | None = None
+# On by default, offline and online alike: the same take with a little sensor noise must get
+# the same keys (`noise_cutoff_hz=None` or `--noise-cutoff 0` turns it off).
+DEFAULT_NOISE_CUTOFF_HZ: float | None = RECOMMENDED_NOISE_CUTOFF_HZ
 TRUNCATE = 3.0  # taps kept: +-3 sigma (the dropped tails hold < 0.3 % of the weight)
 
 
