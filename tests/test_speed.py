@@ -111,6 +111,16 @@ def test_dp_correspondence_equals_brute_force_on_small_inputs() -> None:
             assert np.all(speed.match_minima(a, b) == -1)
 
 
+def test_an_extra_minimum_does_not_shift_its_neighbours_chains() -> None:
+    # One extra candidate (at 40) among steps whose minima match one to one: a matching that
+    # pairs every minimum shifted every later pair by one step; mutual nearest minima do not.
+    cand = np.array([10, 40, 60, 110, 160, 210])
+    minima = np.array([11, 61, 111, 161, 209, 260])
+    assert speed.nearest_pairs(cand, minima).tolist() == [0, -1, 1, 2, 3, 4]
+    shifted = speed.match_minima(cand, minima)
+    assert shifted.tolist() != [0, -1, 1, 2, 3, 4]
+
+
 def test_a_candidate_whose_chain_breaks_gets_no_more_speed_descent() -> None:
     cand = np.array([10, 30, 50])
     per_scale = [(np.array([11, 31, 49]), np.array([1.0, 2.0, 3.0])),

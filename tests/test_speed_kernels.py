@@ -11,7 +11,7 @@ from cmu import DATA
 from streamkey.bench import long_motion
 from streamkey.bvh import read_bvh
 from streamkey.features import compute_features
-from streamkey.methods import speed, speed_chains
+from streamkey.methods import speed
 from streamkey.methods import speed_kernels as kern
 from streamkey.roles import MIURA_ROLES
 from streamkey.signal import local_minima
@@ -109,8 +109,26 @@ def test_band_offsets_equal_the_numpy_band_dp() -> None:
         assert np.array_equal(kern.band_offsets(long_, short), numpy_band_dp(long_, short)), case
 
 
+def brute_mutual_nearest(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mutual nearest neighbours by full distance tables (ties: the earlier index)."""
+    if len(a) == 0 or len(b) == 0:
+        return np.full(len(a), -1)
+    d = np.abs(a[:, None] - b[None, :])
+    near_b, near_a = np.argmin(d, axis=1), np.argmin(d, axis=0)  # argmin: the first of ties
+    return np.where(near_a[near_b] == np.arange(len(a)), near_b, -1)
+
+
 @pytest.mark.numeric
-def test_chain_totals_equal_the_numpy_chains_on_a_clip(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_mutual_nearest_equals_brute_force() -> None:
+    rng = np.random.default_rng(19)
+    for case in range(2000):
+        a = np.sort(rng.choice(80, int(rng.integers(0, 12)), replace=False)).astype(np.int64)
+        b = np.sort(rng.choice(80, int(rng.integers(0, 12)), replace=False)).astype(np.int64)
+        assert np.array_equal(kern.mutual_nearest(a, b), brute_mutual_nearest(a, b)), case
+
+
+@pytest.mark.numeric
+def test_chain_totals_equal_the_numpy_chains_on_a_clip() -> None:
     v = clip_speed()
     bank = speed.HPBank(speed.scale_lambdas(speed.scale_frequencies(), 1.0 / 120.0))
     cand = local_minima(v)
@@ -118,9 +136,7 @@ def test_chain_totals_equal_the_numpy_chains_on_a_clip(monkeypatch: pytest.Monke
     minima = np.concatenate([m for m, _ in per_scale]).astype(np.int64)
     u = np.concatenate([x for _, x in per_scale])
     counts = np.array([len(m) for m, _ in per_scale], dtype=np.int64)
-    got = kern.chain_totals(cand, minima, u, counts, speed.BAND_BUDGET)
-    assert len(kern.chain_totals(cand, minima, u, counts, 10)) == 0  # over budget: not done
-    monkeypatch.setattr(speed_chains, "_band_dp", numpy_band_dp)
+    got = kern.chain_totals(cand, minima, u, counts)
     assert np.array_equal(got, speed.intensities(cand, per_scale))
     assert np.count_nonzero(got) > len(got) // 2
 
@@ -191,7 +207,8 @@ def test_carried_hp_passes_equal_lapack_solves_of_the_stream_so_far(window: int)
 def test_the_warmer_compiles_every_kernel() -> None:
     kern._warm()
     for fn in (kern.hp_advance, kern.hp_tail, kern.tail_minima, kern.chain_totals,
-               kern.band_offsets, kern.ward_levels, kern.ward_labels, kern.dropped_threshold):
+               kern.mutual_nearest, kern.band_offsets, kern.ward_levels, kern.ward_labels,
+               kern.dropped_threshold):
         assert fn.compiled is not None and fn.compiled.signatures
 
 

@@ -12,9 +12,15 @@ import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 
 from ..errors import UsageError
-from .speed_kernels import band_offsets, dropped_threshold, ward_labels, ward_levels
+from .speed_kernels import (
+    band_offsets,
+    dropped_threshold,
+    mutual_nearest,
+    ward_labels,
+    ward_levels,
+)
 
-__all__ = ["BAND_BUDGET", "match_minima", "intensities", "Chain", "MojenaResult",
+__all__ = ["BAND_BUDGET", "match_minima", "nearest_pairs", "intensities", "Chain", "MojenaResult",
            "WARD_1D_FROM", "ward_1d", "mojena_threshold", "two_cluster_threshold", "CUTS",
            "CUT_QUANTILE", "CUT_FRACTION", "quantile_threshold", "check_cut"]
 
@@ -123,6 +129,18 @@ def _band_dp(long_: np.ndarray, short: np.ndarray) -> np.ndarray:
     return offsets
 
 
+def nearest_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The correspondence of minima from scale to scale: per element of sorted `a`, the index
+    of its partner in sorted `b`, or -1. Two minima correspond when each is the other's
+    nearest (a tie: the earlier). Order-preserving in one dimension, and local: an extra or a
+    missing minimum leaves its neighbours' pairs as they are, where a matching that pairs
+    every element of the shorter list (`match_minima`) shifts every pair up to the next
+    surplus by one minimum."""
+    partner: np.ndarray = mutual_nearest(np.ascontiguousarray(a, dtype=np.int64),
+                                         np.ascontiguousarray(b, dtype=np.int64))
+    return partner
+
+
 def intensities(candidates: np.ndarray, per_scale: list[tuple[np.ndarray, np.ndarray]]
                 ) -> np.ndarray:
     """Intensity U of each candidate: u summed along its chain of matched minima (Miura 3.2)."""
@@ -142,13 +160,13 @@ class Chain:
         self.alive = np.ones(len(candidates), dtype=bool)
 
     def extend(self, minima: np.ndarray, u: np.ndarray) -> None:
-        """Match the next scale's minima to the chain ends; add their u to the live chains."""
-        if len(minima) != len(self.prev):  # equal lengths: each end matches its own rank
-            partner = match_minima(self.prev, minima)
-            alive = self.alive
-            self.chain = np.where(alive, partner[np.where(alive, self.chain, 0)]
-                                  if len(self.prev) else -1, -1)
-            self.alive = self.chain >= 0
+        """Match the next scale's minima to the chain ends (`nearest_pairs`); add their u to
+        the live chains."""
+        partner = nearest_pairs(self.prev, minima)
+        alive = self.alive
+        self.chain = np.where(alive, partner[np.where(alive, self.chain, 0)]
+                              if len(self.prev) else -1, -1)
+        self.alive = self.chain >= 0
         self.total[self.alive] += u[self.chain[self.alive]]
         self.prev = minima
 

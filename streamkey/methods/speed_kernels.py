@@ -7,8 +7,9 @@
   over its region. Rows are frames, columns lambdas (independent recursions side by side).
 - `tail_minima`: local minima of each scale's trend (the comparisons of
   `signal.local_minima`) at or above a rest speed, and the speed descent u there.
-- `chain_totals`: the candidates' chains of matched minima (`speed.Chain`, the band DP of
-  `speed._band_dp`, same ties): the same intensities, bit for bit.
+- `chain_totals`: the candidates' chains of matched minima (`speed.Chain`: mutual nearest
+  minima, `mutual_nearest`, same ties): the same intensities, bit for bit.
+- `band_offsets`: the band DP of `speed.match_minima` (the order-preserving matching).
 - `ward_levels`: `speed.ward_1d`'s greedy merging of sorted neighbours with an array heap.
   Merges pop in the order of the (level, left, right, size) tuples, like the heapq version,
   so the hierarchy and the levels are the same.
@@ -24,7 +25,7 @@ import numpy as np
 from ..jit import kernel, warmer
 
 __all__ = ["hp_advance", "hp_tail", "hp_tail_part", "tail_minima", "chain_totals", "band_offsets",
-           "ward_levels", "ward_labels", "dropped_threshold"]
+           "mutual_nearest", "ward_levels", "ward_labels", "dropped_threshold"]
 
 
 @kernel
@@ -214,17 +215,43 @@ def band_offsets(long_: np.ndarray, short: np.ndarray) -> np.ndarray:
 
 
 @kernel
+def _nearest(x: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Index of the element of sorted `x` nearest each of sorted `q` (a tie: the earlier)."""
+    out = np.empty(len(q), dtype=np.int64)
+    j = 0  # the first element of x at or after q[i] (len(x): none)
+    for i in range(len(q)):
+        while j < len(x) and x[j] < q[i]:
+            j += 1
+        if j == 0:
+            out[i] = 0
+        elif j == len(x) or q[i] - x[j - 1] <= x[j] - q[i]:
+            out[i] = j - 1
+        else:
+            out[i] = j
+    return out
+
+
+@kernel
+def mutual_nearest(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`speed.nearest_pairs`: per element of sorted `a`, the index of its partner in sorted
+    `b` when each is the other's nearest (ties: the earlier), else -1."""
+    partner = np.full(len(a), -1, dtype=np.int64)
+    if len(a) == 0 or len(b) == 0:
+        return partner
+    near_b = _nearest(b, a)
+    near_a = _nearest(a, b)
+    for i in range(len(a)):
+        if near_a[near_b[i]] == i:
+            partner[i] = near_b[i]
+    return partner
+
+
+@kernel
 def chain_totals(candidates: np.ndarray, minima: np.ndarray, u: np.ndarray,
-                 counts: np.ndarray, budget: int) -> np.ndarray:
-    """`speed.intensities` over flat per-scale minima: u summed along each candidate's chain.
-    Band DP matching only: if a scale's band table would exceed `budget` entries (where
-    `speed.match_minima` turns to its windowed DP), nothing is done and the result is empty."""
+                 counts: np.ndarray) -> np.ndarray:
+    """`speed.intensities` over flat per-scale minima: u summed along each candidate's chain
+    of mutual nearest minima (`mutual_nearest`), bit for bit."""
     n = len(candidates)
-    size = n
-    for s in range(len(counts)):
-        if (abs(counts[s] - size) + 1) * min(counts[s], size) > budget:
-            return np.zeros(0)
-        size = counts[s]
     total = np.zeros(n)
     chain = np.arange(n)
     alive = np.ones(n, dtype=np.bool_)
@@ -234,17 +261,10 @@ def chain_totals(candidates: np.ndarray, minima: np.ndarray, u: np.ndarray,
         cur = minima[at : at + counts[s]]
         cu = u[at : at + counts[s]]
         at += counts[s]
-        if len(cur) != len(prev):
-            partner = np.full(len(prev), -1, dtype=np.int64)
-            if len(prev) and len(cur):
-                if len(cur) > len(prev):
-                    partner[:] = np.arange(len(prev)) + band_offsets(cur, prev)
-                else:
-                    idx = np.arange(len(cur)) + band_offsets(prev, cur)
-                    partner[idx] = np.arange(len(cur))
-            for c in range(n):
-                chain[c] = partner[chain[c]] if alive[c] and len(prev) else -1
-                alive[c] = chain[c] >= 0
+        partner = mutual_nearest(prev, cur)
+        for c in range(n):
+            chain[c] = partner[chain[c]] if alive[c] and len(prev) else -1
+            alive[c] = chain[c] >= 0
         for c in range(n):
             if alive[c]:
                 total[c] += cu[chain[c]]
@@ -429,7 +449,7 @@ def _warm() -> None:
     trends = hp_tail(v, 0, 0, done, ys, pre, off, conv, lams, np.empty((9, 2)))
     m, u, c = tail_minima(trends, 1, 0, 1, 0.0)
     tail_minima(np.ascontiguousarray(trends), 1, 0, 1, 0.0)
-    chain_totals(np.array([1, 3], dtype=np.int64), m, u, c, 100)
+    chain_totals(np.array([1, 3], dtype=np.int64), m, u, c)
     band_offsets(np.array([1, 2, 3], dtype=np.int64), np.array([2], dtype=np.int64))
     alpha, bounds = ward_levels(np.array([0.0, 1.0, 3.0]), 2.0)
     labels = ward_labels(np.array([2, 0, 1], dtype=np.int64), alpha, bounds, 2)

@@ -21,8 +21,8 @@ sent yet. Windowed replacements of the offline global steps:
   plus 20 lambda^(1/4) frames of the window (the 0.1 Hz half-scale saw 20 s): the trends now
   see the whole stream, like the offline ones; on the shared clips looped to 30,000 frames
   the same keys, intensities within 5.4e-5 relative, and the same agreement table.
-- Candidate correspondence over the whole clip -> the same DP over the region (compiled,
-  `speed_kernels.chain_totals`: the band DP of `match_minima`, same ties, same sums).
+- Candidate correspondence over the whole clip -> the same mutual nearest minima over the
+  region (compiled, `speed_kernels.chain_totals`: `nearest_pairs`, same ties, same sums).
 - The keypose cut over all candidates (the quantile cut, or Ward + Mojena with
   `cut="mojena"`) -> one cut-off per update, re-derived from a bounded sample:
   the candidates decided in the last `cutoff_history` frames (intensities as decided), those
@@ -58,7 +58,7 @@ from ..segments import SegmentEvent
 from ..signal import hp_lambda
 from ..units import Duration, DurationLike, whole_frames
 from .ring import RingWindow
-from .speed_chains import BAND_BUDGET, check_cut, intensities
+from .speed_chains import check_cut, intensities
 from .speed_kernels import chain_totals, tail_minima
 from .speed_scales import (
     METHOD,
@@ -427,12 +427,7 @@ class Online(OnlineKeyframer):
         """Stage 3: the chains of matched minima, the candidates' intensities."""
         sp, mn = job.speeds, job.minima
         assert sp is not None and mn is not None
-        total = chain_totals(sp.cand, mn.minima, mn.u, mn.counts, BAND_BUDGET)
-        if len(total) != len(sp.cand):  # long lookaheads: the windowed DP
-            cuts = np.cumsum(mn.counts)[:-1]
-            total = intensities(sp.cand, list(zip(np.split(mn.minima, cuts),
-                                                  np.split(mn.u, cuts), strict=True)))
-        job.total = total
+        job.total = chain_totals(sp.cand, mn.minima, mn.u, mn.counts)
 
     def _stage_cutoff(self, job: Analysis) -> None:
         """Stage 5: the cut over the cut-off sample (Ward + Mojena's, or the quantile's)."""
