@@ -175,7 +175,7 @@ def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10
     params: dict[str, Any] = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r,
                               "mojena_k": mojena_k, "cut": cut}
     dt = motion.frame_time
-    off = _first_captured(motion)
+    off = _first_captured(features.motion)  # the frames online sees: filtered
     v = speed_signal(_positions(motion, features, off), dt, f_c)
     freqs = scale_frequencies(f_max, f_min, r)
     bank = HPBank(scale_lambdas(freqs, dt))
