@@ -58,16 +58,16 @@ def test_a_variant_keeps_the_clean_takes_key_count_and_error_on_every_clip(which
     check(clips(), which, mode)
 
 
-def test_duration_defaults_are_the_old_frame_counts_at_120_hz_and_follow_the_rate() -> None:
+def test_duration_defaults_in_frames_at_120_hz_follow_the_rate() -> None:
     m = load("07_05.bvh")
     at120 = simplify.Online(m.skeleton, 120.0)
     assert (at120.lookahead, at120.history, at120.hop, at120.merge, at120.max_span) == (
-        60, 120, 8, 8, 480)
+        60, 240, 8, 8, 480)
     at30 = simplify.Online(m.skeleton, 30.0)
     assert (at30.lookahead, at30.history, at30.hop, at30.merge, at30.max_span) == (
-        15, 30, 2, 2, 120)
+        15, 60, 2, 2, 120)
     mixed = simplify.Online(m.skeleton, 30.0, lookahead=60, merge=Duration.seconds(0.2))
-    assert (mixed.lookahead, mixed.merge, mixed.history) == (60, 6, 120)  # numbers: frames
+    assert (mixed.lookahead, mixed.merge, mixed.history) == (60, 6, 240)  # numbers: frames
     with pytest.raises(UsageError, match="max_span"):
         simplify.Online(m.skeleton, 30.0, max_span=Duration.seconds(0.1))
 
