@@ -24,15 +24,20 @@ XFAIL: dict[tuple[str, str], str] = {
                                 "recursion's first chords start at the calibration pose",
     ("calibration", "online"): "measured: counts 0.88-1.20, E ratio 1.16 (09_12)",
 }
-XFAIL_ALL: dict[tuple[str, str], str] = {  # key counts within 0.80-1.21 everywhere
-    ("60 Hz", "offline"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.22 (05_11)",
-    ("60 Hz", "online"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.16 (05_11)",
-    ("30 Hz", "offline"): "measured: E ratio above 1.10 on 3 of 35 clips, at most 1.22 (05_11)",
-    ("30 Hz", "online"): "measured: E ratio above 1.10 on 3 of 35 clips, at most 1.21 (05_06)",
-    ("calibration", "offline"): "measured: E ratio above 1.10 on 10 of 35, at most 1.97 "
-                                "(07_01): the hold before the take moves the frame numbers, "
-                                "so the split grid lies elsewhere in the take",
-    ("calibration", "online"): "measured: E ratio above 1.10 on 11 of 35, at most 1.97 (07_01)",
+XFAIL_ALL: dict[tuple[str, str], str] = {  # key counts within 0.80-1.31 everywhere
+    ("60 Hz", "offline"): "measured: E ratio above 1.10 on 1 of 35 clips, 1.15 (35_01.amc)",
+    ("60 Hz", "online"): "measured: E ratio above 1.10 on 1 of 35 clips, 1.15 (35_01.amc)",
+    ("30 Hz", "offline"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.23 (03_01): "
+                          "the take's last 3 frames are not in the 30 Hz take, and the last "
+                          "chord without them meets the tolerance",
+    ("30 Hz", "online"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.23 (03_01)",
+    ("calibration", "offline"): "measured: counts 0.80-1.31, E ratio above 1.10 on 10 of 35, at "
+                                "most 1.97 (07_01): the hold before the take moves the frame "
+                                "numbers, so the split grid lies elsewhere in the take",
+    ("calibration", "online"): "measured: E ratio above 1.10 on 10 of 35, at most 1.97 (07_01)",
+    ("stillness", "offline"): "measured: E ratio above 1.10 on 1 of 35, 1.14 (35_01.amc): with "
+                              "stillness after it the take's last frame is no key (352, not 357)",
+    ("stillness", "online"): "measured: E ratio above 1.10 on 1 of 35, 1.14 (35_01.amc)",
 }
 
 
