@@ -241,7 +241,14 @@ def online_keys(name: str, lookahead: int | Duration = simplify.DEFAULT_LOOKAHEA
     events = on.push_block(m.frames()) + on.flush()
     frames = np.array([e.frame for e in events])
     assert np.all(np.diff(frames) > 0), name
+    assert all(e.lookahead == on.lookahead + on.features.delay for e in events), name
     return frames, np.array([e.latency_frames for e in events])
+
+
+def front_end_delay(fps: float) -> int:
+    """Frames the default noise front end holds each frame at `fps`: it is in every event's
+    latency on top of the keyframer's lookahead (the event's `lookahead` field says both)."""
+    return simplify.Online(load("07_01.bvh").skeleton, fps).features.delay
 
 
 @pytest.mark.slow
@@ -275,7 +282,7 @@ def test_online_keeps_the_guarantee_latency_and_count_bounds_on_every_clip():
         assert frames[0] == m.first_frame and frames[-1] == m.n_frames - 1, name
         err = simplify.max_chord_error(x, frames - m.first_frame).max()
         assert err <= simplify.DEFAULT_TOLERANCE[simplify.DEFAULT_SPACE] + _slack(x), name
-        assert latency.max() <= LOOKAHEAD_120, name
+        assert latency.max() <= LOOKAHEAD_120 + front_end_delay(120.0), name
         n_off, n_on, p, r, f1 = agreement(name)
         assert n_on <= MAX_COUNT_RATIO * n_off, (name, n_on, n_off)
         rows.append(f"| {name} | {n_off} | {n_on} | {n_on / n_off:.2f} | {p:.2f} | {r:.2f} "
@@ -343,7 +350,7 @@ def test_online_keeps_the_guarantee_in_channel_space(name):
     x = simplify.curve(m, "channels", features(name))
     err = simplify.max_chord_error(x, frames - m.first_frame).max()
     assert err <= simplify.DEFAULT_TOLERANCE["channels"] + _slack(x)
-    assert latency.max() <= LOOKAHEAD_120
+    assert latency.max() <= LOOKAHEAD_120 + front_end_delay(120.0)
 
 
 @pytest.mark.parametrize(("lookahead", "hop", "max_span"), [(1, 1, 2), (5, 3, 6), (17, 8, 40),
@@ -359,7 +366,8 @@ def test_online_guarantee_and_latency_hold_for_short_lookaheads_and_spans(lookah
         assert np.all(np.diff(frames) > 0) and frames[-1] == m.n_frames - 1, name
         err = simplify.max_chord_error(x, frames - m.first_frame).max()
         assert err <= simplify.DEFAULT_TOLERANCE[simplify.DEFAULT_SPACE] + _slack(x), name
-        assert max(e.latency_frames for e in events) <= lookahead, name
+        assert all(e.lookahead == lookahead + on.features.delay for e in events), name
+        assert max(e.latency_frames for e in events) <= lookahead + on.features.delay, name
 
 
 def test_online_ratio_rule_keeps_onders_bound():
@@ -403,8 +411,12 @@ def test_position_space_error_falls_with_k_where_channel_space_chases_euler_flip
     flips = np.flatnonzero(jump > 140.0) + 0.5  # between rows i and i + 1
     assert len(flips) < 0.04 * len(x)
 
+    # measured on the raw curves: the noise front end spreads each jump over its +-delay
+    # frames (with it on, 15 of 38 channel-space keys lie within 2 frames of a flip)
+    raw = compute_features(m, noise_cutoff_hz=None)
+
     def on_flips(space: str) -> int:
-        order, _ = simplify.split_order(simplify.curve(m, space, features("06_15.bvh")), 40)
+        order, _ = simplify.split_order(simplify.curve(m, space, raw), 40)
         return sum(np.min(np.abs(flips - r)) <= 2.5 for r in order[2:])
 
     assert on_flips("channels") >= 0.75 * 38 and on_flips("positions") <= 0.25 * 38

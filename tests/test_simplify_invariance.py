@@ -24,15 +24,20 @@ XFAIL: dict[tuple[str, str], str] = {
                                 "recursion's first chords start at the calibration pose",
     ("calibration", "online"): "measured: counts 0.88-1.20, E ratio 1.16 (09_12)",
 }
-XFAIL_ALL: dict[tuple[str, str], str] = {  # key counts within 0.80-1.21 everywhere
-    ("60 Hz", "offline"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.22 (05_11)",
-    ("60 Hz", "online"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.16 (05_11)",
-    ("30 Hz", "offline"): "measured: E ratio above 1.10 on 3 of 35 clips, at most 1.22 (05_11)",
-    ("30 Hz", "online"): "measured: E ratio above 1.10 on 3 of 35 clips, at most 1.21 (05_06)",
-    ("calibration", "offline"): "measured: E ratio above 1.10 on 10 of 35, at most 1.97 "
-                                "(07_01): the hold before the take moves the frame numbers, "
-                                "so the split grid lies elsewhere in the take",
-    ("calibration", "online"): "measured: E ratio above 1.10 on 11 of 35, at most 1.97 (07_01)",
+XFAIL_ALL: dict[tuple[str, str], str] = {  # key counts within 0.80-1.31 everywhere
+    ("60 Hz", "offline"): "measured: E ratio above 1.10 on 1 of 35 clips, 1.15 (35_01.amc)",
+    ("60 Hz", "online"): "measured: E ratio above 1.10 on 1 of 35 clips, 1.15 (35_01.amc)",
+    ("30 Hz", "offline"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.23 (03_01): "
+                          "the take's last 3 frames are not in the 30 Hz take, and the last "
+                          "chord without them meets the tolerance",
+    ("30 Hz", "online"): "measured: E ratio above 1.10 on 2 of 35 clips, at most 1.23 (03_01)",
+    ("calibration", "offline"): "measured: counts 0.80-1.31, E ratio above 1.10 on 10 of 35, at "
+                                "most 1.97 (07_01): the hold before the take moves the frame "
+                                "numbers, so the split grid lies elsewhere in the take",
+    ("calibration", "online"): "measured: E ratio above 1.10 on 10 of 35, at most 1.97 (07_01)",
+    ("stillness", "offline"): "measured: E ratio above 1.10 on 1 of 35, 1.14 (35_01.amc): with "
+                              "stillness after it the take's last frame is no key (352, not 357)",
+    ("stillness", "online"): "measured: E ratio above 1.10 on 1 of 35, 1.14 (35_01.amc)",
 }
 
 
@@ -58,16 +63,16 @@ def test_a_variant_keeps_the_clean_takes_key_count_and_error_on_every_clip(which
     check(clips(), which, mode)
 
 
-def test_duration_defaults_are_the_old_frame_counts_at_120_hz_and_follow_the_rate() -> None:
+def test_duration_defaults_in_frames_at_120_hz_follow_the_rate() -> None:
     m = load("07_05.bvh")
     at120 = simplify.Online(m.skeleton, 120.0)
     assert (at120.lookahead, at120.history, at120.hop, at120.merge, at120.max_span) == (
-        60, 120, 8, 8, 480)
+        60, 240, 8, 8, 480)
     at30 = simplify.Online(m.skeleton, 30.0)
     assert (at30.lookahead, at30.history, at30.hop, at30.merge, at30.max_span) == (
-        15, 30, 2, 2, 120)
+        15, 60, 2, 2, 120)
     mixed = simplify.Online(m.skeleton, 30.0, lookahead=60, merge=Duration.seconds(0.2))
-    assert (mixed.lookahead, mixed.merge, mixed.history) == (60, 6, 120)  # numbers: frames
+    assert (mixed.lookahead, mixed.merge, mixed.history) == (60, 6, 240)  # numbers: frames
     with pytest.raises(UsageError, match="max_span"):
         simplify.Online(m.skeleton, 30.0, max_span=Duration.seconds(0.1))
 
