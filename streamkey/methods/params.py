@@ -164,7 +164,7 @@ SHARED_PARAMS: tuple[tuple[Param, tuple[str, ...]], ...] = (
            unit="FRAMES", integer=True, online_only=True),
      ("saliency", "speed", "simplify", "optimal")),
     (Param("history", "duration", "past motion kept: saliency (default 10 s), speed (20 s), "
-           "simplify (2 x lookahead)", unit="FRAMES", integer=True, online_only=True),
+           "simplify (4 x lookahead)", unit="FRAMES", integer=True, online_only=True),
      ("saliency", "speed", "simplify")),
     (Param("hop", "duration", "time between re-analyses: speed (default lookahead / 5, "
            "at most 0.2 s), simplify (1/15 s)", unit="FRAMES", integer=True, online_only=True),
