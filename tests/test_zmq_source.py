@@ -199,3 +199,53 @@ async def test_both_readers_deliver_every_frame_of_a_paced_stream(reader):
 def test_an_unknown_reader_is_a_usage_error_naming_the_choices():
     with pytest.raises(UsageError, match="reader must be loop or thread"):
         ZmqSource(parse_address("zmq+tcp://127.0.0.1:9?reader=fast"))
+
+
+async def test_the_loop_reader_reads_between_turns_while_a_backlog_is_computed():
+    """Drain before compute, with the loop reader: 300 frames of stream a queued, each push
+    made 0.5 ms dearer; a frame of stream b pushed to the socket when the 10th is pushed
+    is read within a few turns, not after the whole backlog."""
+    from streamkey.engine import Engine
+    from streamkey.framequeue import FrameQueue
+    from streamkey.methods import speed
+
+    class Dear(speed.Online):
+        def process(self, block):
+            until_ns = time.thread_time_ns() + 500_000
+            while time.thread_time_ns() < until_ns:
+                pass
+            return super().process(block)
+
+    port = free_port(1)
+    source = ZmqSource(parse_address(f"zmq+tcp://127.0.0.1:{port}?pattern=pull"), None,
+                       CLIP.skeleton, CLIP.fps)
+    source.frames = FrameQueue(source.stats, maxsize=0)
+    for seq in range(300):
+        source.frames.put(frame(seq), None, "a")
+    source.frames.put(None)
+    push = zmq.Context.instance().socket(zmq.PUSH)
+    push.setsockopt(zmq.LINGER, 0)
+    read_at: list[int] = []
+    handle = source.handle
+
+    def handled(parts, arrival_ns=None):  # type: ignore[no-untyped-def]
+        read_at.append(engine.summary.frames_in)
+        handle(parts, arrival_ns)
+
+    source.handle = handled  # type: ignore[method-assign]
+
+    def on_frame(_frame: Frame) -> None:
+        if engine.summary.frames_in == 1:
+            push.connect(f"tcp://127.0.0.1:{port}")
+        if engine.summary.frames_in == 10:
+            push.send_multipart(encode_frame_parts(frame(0), "<f8", "b"))
+
+    engine = Engine(source, lambda spec: [Dear(spec.skeleton, spec.fps, stream=spec.stream)],
+                    [], on_frame=on_frame)
+    try:
+        summary = await engine.run()
+    finally:
+        push.close(linger=0)
+    assert summary.frames_in == 300 and read_at, "the frame of b was never read"
+    assert read_at[0] <= 10 + 40, f"read after {read_at[0]} frames, sent after 10"
+    assert summary.scheduler["turns"] >= 300 * 0.5 / 1.0 / 2
