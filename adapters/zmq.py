@@ -144,9 +144,10 @@ class ZmqSource(Source):
     event loop watches the socket's descriptor and reads every waiting message between two
     turns of the engine's work, with no thread hand-over; the loop stamps a frame when it
     reads it (an external receiver measures the whole path either way). Measured paired
-    on a 2-core machine at load 8-13, external receiver, all methods, 20 s runs: the loop
-    reader's p99 was 0.66-4.1x the thread's (median 3.6x over 5 pairs), so it is not the
-    default; on a quiet machine it had measured 0.67-0.73 ms against 0.75 ms.
+    on a 2-core machine at load 8-13 (external receiver, all methods, 20 s runs, 11 pairs),
+    the loop reader against the thread: p50 0.84x, p99 1.9x (pairs 0.03-52x: the load
+    decided the tails), CPU 0.95-1.01x; so the thread stays the default. The source hop
+    alone (a synthetic 0.3 ms push, 10 pairs): p50 0.89x, p99 0.78x, max 1.00x.
 
     Where frames can be lost, and how each loss is counted:
     - a SUB socket's queue is full (`RCVHWM`, 256 messages) or the publisher's queue for
