@@ -335,9 +335,12 @@ class ZmqSource(Source):
         self.set_skeleton(skeleton, float(fps), stream, raw=parts[1])
 
     def counters(self) -> SourceStats:
+        """The counters; a message the thread's hand-over queue dropped arrived (received)
+        and was dropped (a queue drop), so the summary's accounting adds up."""
         fresh = self.inbox_drops - self._inbox_counted  # the reader thread only ever adds
         self._inbox_counted += fresh
         self.stats.queue_drops += fresh
+        self.stats.received += fresh
         return self.stats
 
     async def close(self) -> None:

@@ -104,13 +104,12 @@ async def test_a_sub_socket_overflow_while_the_loop_is_busy_is_counted_frame_by_
     # each frame the thread reader's hand-over queue dropped, counted there too)
     assert a["never_arrived"] > 0, (a, blocked)
     assert a["processed"] + a["never_arrived"] == total, a
-    assert a["arrived"] == a["processed"], a
+    assert a["arrived"] == a["processed"] + a["queue_drops"], a  # the accounting adds up
     if reader == "loop":  # it reads only what the frame queue has room for
         assert a["queue_drops"] == 0, a
     else:  # the thread read on: its hand-over queue dropped the oldest, each a seq hole too
         assert 0 < a["queue_drops"] <= a["never_arrived"], a
     assert summary.streams["default"].guard["lost"] == a["never_arrived"]
-    assert summary.source["received"] == summary.frames_in
 
 
 async def test_with_the_loop_reader_a_pull_socket_never_drops_its_senders_wait():
