@@ -38,3 +38,33 @@ def test_an_external_row_measures_a_real_run_from_outside():
     assert row["phases"] == "spread" and row["load_1min_before"] >= 0
     assert capacity([row], 1)["streams"] == (2 if row["met"] else 0)
     assert capacity([row], 1, "together")["streams"] == 0  # no row of that kind
+
+
+def test_bench_streams_names_each_row_before_it_starts(monkeypatch):
+    """`bench --streams` is many minutes of live rows: each starts with a line saying which
+    row of how many, what it measures and the time left; the scheduling model says so too
+    (the rows themselves are the test above's business)."""
+    from cmu import DATA
+
+    from streamkey.bench import streams
+
+    done: list[tuple[int, int, str]] = []
+    lines: list[str] = []
+
+    def row(n, w, seconds, clip, phases="spread", python=None, realtime=False):
+        done.append((n, w, phases))
+        assert len(lines) == len(done)  # its line came first
+        return {"streams": n, "workers": w, "phases": phases, "met": True,
+                "load_1min_before": 1.0, "load_1min_after": 1.0}
+
+    monkeypatch.setattr(streams, "external_row", row)
+    monkeypatch.setattr(streams, "_simulated_rows", lambda motions, seconds: [])
+    monkeypatch.setattr(streams.os, "cpu_count", lambda: 2)
+    streams.bench_streams(DATA, quick=True, say=lines.append)
+    assert len(done) == 16 and done[0] == (1, 1, "spread") and done[-1] == (16, 2, "together")
+    assert lines[0] == ("bench streams: row 1/16: 1 stream, spread phases, 1 worker, 10 s of "
+                        "frames (about 6 min left)")
+    assert lines[5].startswith("bench streams: row 6/16: 4 streams, spread phases, 2 workers")
+    assert lines[15].endswith("16 streams, together phases, 2 workers, 10 s of frames "
+                              "(about 22 s left)")
+    assert lines[16].startswith("bench streams: the scheduling model")

@@ -349,7 +349,7 @@ def run_bench(kinds: list[str], output: Path, frames: int = 100_000,
             elif kind == "streams":  # many streams in one engine, due-first on and off
                 from .streams import bench_streams
 
-                result = bench_streams(data_dir, quick)
+                result = bench_streams(data_dir, quick, say)
             elif kind == "offline":
                 result = bench_offline(frames, data_dir, rows, say)
             elif kind == "perf":

@@ -34,6 +34,7 @@ import itertools
 import os
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -188,14 +189,19 @@ def _simulated_rows(motions: list[Motion], seconds: float) -> list[dict[str, Any
     return rows
 
 
-def bench_streams(data: Path | None, quick: bool = False) -> dict[str, Any]:
+def bench_streams(data: Path | None, quick: bool = False,
+                  say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The capacity measured outside the run (`bench_streams_external`: 1-32 streams, one
     worker and one per core), and the scheduling model's due-event p50 / p99 for 1-16
-    streams, due-first on and off."""
+    streams, due-first on and off. `say`: a line before each external row (which of how
+    many, the time left) and before the model."""
     seconds = 8.0 if quick else 20.0
     motions = _clips(data, max(STREAM_COUNTS))
     load = os.getloadavg()[0]
-    external = bench_streams_external(data, quick)
+    external = bench_streams_external(data, quick, say=say)
+    if say is not None:
+        say(f"bench streams: the scheduling model, {len(STREAM_COUNTS)} stream counts, "
+            f"due-first on and off, {seconds:.0f} s of frames each")
     rows = _simulated_rows(motions, seconds)
     return {**external, "rows": rows, "seconds_per_row": seconds, "rate_hz": RATE,
             "methods": METHODS,
@@ -449,6 +455,14 @@ def _realtime(pid: int) -> None:
         os.sched_setscheduler(pid, os.SCHED_RR, os.sched_param(REALTIME_PRIORITY))
 
 
+ROW_OVERHEAD_S = 12.0  # a row's start (the run loads its kernels) and end (idle exit, flush)
+
+
+def _minutes(seconds: float) -> str:
+    """`45 s` or `12 min`: a time left as a person reads it."""
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
+
+
 def capacity(rows: list[dict[str, Any]], workers: int, phases: str = "spread"
              ) -> dict[str, Any]:
     """The largest stream count that met the target with `workers` and `phases`, and per
@@ -466,13 +480,15 @@ def bench_streams_external(data: Path | None, quick: bool = False,
                            counts: tuple[int, ...] | None = None,
                            workers: tuple[int, ...] | None = None,
                            realtime: bool = False,
-                           phases: tuple[str, ...] = PHASES) -> dict[str, Any]:
+                           phases: tuple[str, ...] = PHASES,
+                           say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Due-event latency measured outside the run (sender, run, receiver: three processes)
     for every stream count, one worker and one per core, phases spread as independent
     devices' and all on one tick; the capacity: the largest count at p99 <= 5 ms, max <=
     20 ms, no frame lost. Counts above the first that misses are still measured (a shared
     machine is noisy). `realtime`: see `external_row`. Every row records the load average
-    before and after it: on a busy machine the counts say what this process got."""
+    before and after it: on a busy machine the counts say what this process got. `say`: a
+    line before each row (which of how many, the time left)."""
     seconds = 10.0 if quick else 60.0
     counts = counts or ((1, 4, 8, 16) if quick else EXTERNAL_COUNTS)
     clip = (data / "01_06.bvh") if data is not None and (data / "01_06.bvh").exists() else None
@@ -481,8 +497,14 @@ def bench_streams_external(data: Path | None, quick: bool = False,
     cores = os.cpu_count() or 1
     workers = workers or tuple(sorted({1, cores}))
     load = os.getloadavg()
-    rows = [external_row(n, w, seconds, clip, phases=ph, realtime=realtime)
-            for ph in phases for w in workers for n in counts]
+    plan = [(ph, w, n) for ph in phases for w in workers for n in counts]
+    rows = []
+    for i, (ph, w, n) in enumerate(plan, 1):
+        if say is not None:
+            say(f"bench streams: row {i}/{len(plan)}: {n} stream{'s' * (n != 1)}, {ph} "
+                f"phases, {w} worker{'s' * (w != 1)}, {seconds:.0f} s of frames (about "
+                f"{_minutes((len(plan) - i + 1) * (seconds + ROW_OVERHEAD_S))} left)")
+        rows.append(external_row(n, w, seconds, clip, phases=ph, realtime=realtime))
     return {"external_rows": rows,
             "capacity": [capacity(rows, w, ph) for ph in phases for w in workers],
             "target_p99_ms": TARGET_P99_MS, "target_max_ms": TARGET_MAX_MS, "cores": cores,
