@@ -64,8 +64,8 @@ still stretch (`streamkey.segments`: the body's speed below 0.07 body heights a 
 0.5 s) weigh nothing (`optimal_solver.MotionFrames`). Online a keyframer-owned
 `SegmentDetector` reads the same feature blocks; a frame's status is final
 `settle_frames` later (0.5 s + 0.2 s), and the controller counts a chunk of frames once
-all of them are final, chunk after chunk, so its sums are offline's bit for bit; a chunk
-not final yet does not count. In a
+all of them are final, chunk after chunk, so its sums are offline's bit for bit; until
+then the chunk counts provisionally, as motion unless inside a hold already found. In a
 `Pipeline` the keyframer takes the pipeline's segment events instead (`note_segment`; its
 own detector then stops): the same segments by the same chunk ends, so the same keys.
 (49_18, balancing on one leg, holds still for 6 of its 9 s: λ 1.44·10⁻³ instead of
@@ -77,18 +77,14 @@ newly found or closed hold changes is solved again. Only calibration holds are k
 they are long (49_18: 11 keys, E 25x; 05_02, 05_18: 2.2x). At stream start λ is the
 prior; the data takes over as the stream goes on, which keeps λ steady on short takes (a
 moving λ spends keys unevenly).
-λ is causal: each chunk's frames are solved with the estimate from the chunks counted when
-the chunk completes (the frames before it whose status is final), and keep that λ (a key
-at frame b costs the λ of b's chunk; `DPRows.lam`), offline and online alike. Offline is
-then exactly the online result at an unbounded lookahead, and at the default lookahead the
-two differ only by the deadline decisions. (Before, offline used the λ of the whole take,
-which the online estimate reached only at its end: a take whose busy or quiet part comes
-late got its early keys at another λ online, F1 online against offline 0.55 on 49_18, 0.70
-on 02_10, and in sessions 0.73 after 10 s.) What comes after a frame no longer moves its
-keys: stillness after the take leaves them as they were. Since a newly found hold may still
-re-solve frames, converged chains are not final in rate mode and keys are decided at the
-deadline. The key count follows the rate only as far as the estimate is right (0.3–1.7 ×
-on the shared clips, most within ±15 %).
+Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
+solved again with it; since λ still moves, converged chains are not final in rate mode and
+keys are decided at the deadline. Offline, λ is the estimate after the whole take (one
+penalised pass); with an unbounded lookahead `flush()` solves everything with that same λ,
+so the two agree exactly. The key count follows the rate only as far as the estimate is
+right (0.3–1.7 × on the shared clips, most within ±15 %); the same take at 60 or 30 Hz,
+after a calibration hold or followed by stillness gets 0.83–1.09 × the clean take's keys
+on every shared clip, offline and online.
 
 Deadlines are checked once a chunk, deciding every frame whose deadline falls before the
 next chunk is complete (so the effective lookahead is `lookahead` − (chunk − 1) frames to
@@ -194,12 +190,6 @@ def _lookahead_frames(lookahead: DurationLike, fps: float) -> int:
     return frames
 
 
-def settle_frames(det: SegmentDetector) -> int:
-    """Frames after which a frame's segment status is final: a still stretch is confirmed
-    `min_still` after it starts, its speed known `half` frames after each frame."""
-    return int(det.min_still - 1 + det.half)
-
-
 def _hold_param(hold_keys: bool) -> dict[str, bool]:
     """`hold_keys` in the parameters only when set (the default leaves them as they were)."""
     return {"hold_keys": True} if hold_keys else {}
@@ -255,10 +245,9 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
         err = om.pair_costs(x, rows[:-1], rows[1:])
     elif "rate" in mode:
         found = holds(motion, features)
-        rows, err, info["lambda"] = rate_keys(
-            x, max_len, mode["rate"] / motion.fps, ticks, chunk_frames(motion.fps), found,
-            hold_keys, holds(motion, features, KEYLESS),
-            settle_frames(SegmentDetector(motion.skeleton, motion.fps)))
+        rows, err, info["lambda"] = rate_keys(x, max_len, mode["rate"] / motion.fps, ticks,
+                                              chunk_frames(motion.fps), found, hold_keys,
+                                              holds(motion, features, KEYLESS))
     else:
         rows, err = solve_all(x, max_len, ticks, **mode)
     info["error"] = float(err.sum() / n)  # mean per-frame error, body heights^2 (lerp proxy)
@@ -327,7 +316,9 @@ class Online(OnlineKeyframer):
         # None once a pipeline notes them (`note_segment`: its detector is the same one)
         det = SegmentDetector(skeleton, fps, stream=stream, role_mapping=role_mapping)
         self.segments: SegmentDetector | None = det
-        self.settle_frames = settle_frames(det)  # frames until a frame's status is final
+        # frames after which a frame's segment status is final: a still stretch is confirmed
+        # `min_still` after it starts, its speed known `half` frames after each frame
+        self.settle_frames = det.min_still - 1 + det.half
         self.reset()
 
     def reset(self) -> None:

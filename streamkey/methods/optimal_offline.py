@@ -39,53 +39,41 @@ def solve_all(x: np.ndarray, max_len: int, ticks: float,
 
 def rate_keys(x: np.ndarray, max_len: int, rate: float, ticks: float, chunk: int,
               holds: Sequence[tuple[int, int]] = (), hold_keys: bool = False,
-              keyless: Sequence[tuple[int, int]] | None = None, settle: int = 0
+              keyless: Sequence[tuple[int, int]] | None = None
               ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Offline rate: each chunk's rows get the λ of the costs before them (as the online
-    controller has it when the chunk completes: chunks whose frames' status is final,
-    `settle` frames back), then one penalised pass (keys, segment costs as frame sums, the
-    last λ in ticks x body heights²). `holds`: the calibration holds and still stretches
-    (first, last row), out of λ and, `keyless` (default: `holds`) unless `hold_keys`, with
-    no key strictly inside (`Solver.hold`). Same costs and chunks as `Solver`, so
-    bit-identical to it."""
-    n = len(x)
+    """Offline rate: λ from every frame's cost (as the online controller ends up with), then
+    one penalised pass (keys, segment costs as frame sums, λ in ticks x body heights²).
+    `holds`: the calibration holds and still stretches (first, last row), out of λ and,
+    `keyless` (default: `holds`) unless `hold_keys`, with no key strictly inside
+    (`Solver.hold`). Same costs and chunks as `Solver`, so bit-identical to it."""
     solver = Solver(max_len, rate=rate, ticks=ticks, chunk=chunk)
     assert solver.rate is not None
+    solver.rate.motion.known = len(x)
     for first, last in holds:
         solver.rate.motion.hold(first, last)
-    band = np.empty((n, max_len))
-    lams = np.empty(n)
-    lam = solver.lam
-    for b0 in range(0, n, chunk):
-        b1 = min(n, b0 + chunk)
+    band = np.empty((len(x), max_len))
+    for b0 in range(0, len(x), chunk):
+        b1 = min(len(x), b0 + chunk)
         band[b0:b1] = solver.pricer.price(x, 0, b0, b1)
-        lams[b0:b1] = lam
-        solver.rate.motion.known = b1 - settle if b1 % chunk == 0 else n
         lam = solver.rate.observe(band[b0:b1], b0)
-    marks = om.no_marks(n)
+    marks = om.no_marks(len(x))
     keyless = holds if keyless is None else keyless
     if keyless and not hold_keys:
-        marks = (*mark_rows(list(keyless), 0, n, 0), marks[2])
+        marks = (*mark_rows(list(keyless), 0, len(x), 0), marks[2])
         om.edge_costs(np.ascontiguousarray(x, dtype=np.float64), marks[1], marks[2], 0,
-                      n, max_len)
-    keys, f = _penalised(band, lams, marks)
-    errors = np.maximum(np.diff(f[keys]) - lams[keys[1:]], 0.0)
-    return keys, errors, solver.rate.estimate()
+                      len(x), max_len)
+    keys, f = _penalised(band, lam, marks)
+    return keys, _segment_errors(f, keys, lam), solver.rate.estimate()
 
 
-def _penalised(band: np.ndarray, lam: float | np.ndarray,
+def _penalised(band: np.ndarray, lam: float,
                marks: om.Marks | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The penalised DP over the whole band: λ one number, or one a row (in runs)."""
     n = len(band)
     f = np.full(n, np.inf)
     bp = np.full(n, -1, dtype=np.int64)
     keys = np.zeros(n, dtype=np.int64)
     f[0], keys[0] = 0.0, 1
-    lams = np.full(n, float(lam)) if np.isscalar(lam) else np.asarray(lam)
-    cuts = [1, *(1 + np.flatnonzero(np.diff(lams[1:])) + 1).tolist(), n]
-    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-        if b > a:
-            om.dp_rows(band, f, bp, keys, a, b, float(lams[a]), marks=marks)
+    om.dp_rows(band, f, bp, keys, 1, n, lam, marks=marks)
     return np.array(om.chain(bp, n - 1), dtype=np.int64), f
 
 

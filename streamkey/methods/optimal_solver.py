@@ -102,11 +102,13 @@ class RateController:
         self.log_n = 0.0  # Σ w: motion ticks seen
         self.motion = MotionFrames()  # which frames are motion
         self.pending: deque[tuple[int, np.ndarray]] = deque()  # chunks not counted yet
+        self.ahead = 0.0, 0.0  # the pending chunks' provisional (log_sum, log_n)
 
     def new_window(self) -> None:
         """A new window of the stream (indices from 0 again): keep the sums."""
         self.motion = MotionFrames()
         self.pending.clear()
+        self.ahead = 0.0, 0.0
 
     def observe(self, costs: np.ndarray, start: int) -> float:
         """Take in the band rows of the newly priced frames start, start + 1, ..; count every
@@ -124,6 +126,10 @@ class RateController:
             self.log_sum, self.log_n = self._count(c, self.motion.moving(start, start + len(c)),
                                                    self.log_sum, self.log_n)
             self.motion.forget_before(start + len(c))
+        ahead = 0.0, 0.0
+        for start, c in self.pending:  # as far as known: frames not in a hold are motion
+            ahead = self._count(c, self.motion.moving(start, start + len(c)), *ahead)
+        self.ahead = ahead
         return self.estimate() / self.ticks
 
     def _count(self, c: np.ndarray, moving: np.ndarray, log_sum: float,
@@ -143,12 +149,13 @@ class RateController:
         return log_sum, log_n
 
     def estimate(self) -> float:
-        """λ (ticks x body heights²) from the costs counted so far (frames whose status is
-        final), shrunk towards the prior."""
+        """λ (ticks x body heights²) from the costs counted so far and, provisionally, those
+        of the pending chunks, shrunk towards the prior."""
         prior_weight = PRIOR_SECONDS * TICKS_PER_SECOND
         prior = math.log(DEFAULT_LAMBDA / RATE_FACTOR * (self.span * self.ticks / 20.0) ** 5)
-        weight = prior_weight + self.log_n
-        mean = (prior_weight * prior + self.log_sum) / weight if weight else prior
+        log_sum, log_n = self.log_sum + self.ahead[0], self.log_n + self.ahead[1]
+        weight = prior_weight + log_n
+        mean = (prior_weight * prior + log_sum) / weight if weight else prior
         return RATE_FACTOR * math.exp(mean)
 
 
@@ -164,7 +171,6 @@ class DPRows:
         self.f = np.empty(0)  # F: best penalised cost of a chain ending at the row
         self.bp = np.empty(0, dtype=np.int64)  # back-pointers (row indices)
         self.keys = np.empty(0, dtype=np.int64)  # keys on the chain
-        self.lam = np.empty(0)  # λ of a key at the row (the DP's, when the row was solved)
         self.costs = np.empty((0, max_len))  # bands (online only)
         self.marks = om.no_marks(0)  # keyable, hold edge (row), its cost (`om.dp_rows`)
 
@@ -175,17 +181,16 @@ class DPRows:
             return
         shift = keep - self.base if self.keep_costs else 0
         size = max(64, 2 * (held - shift + need))
-        old = (self.x, self.f, self.bp, self.keys, self.lam, self.costs, *self.marks)
+        old = (self.x, self.f, self.bp, self.keys, self.costs, *self.marks)
         self.x = np.empty((size, width))
         self.f = np.full(size, np.inf)
         self.bp = np.full(size, -1, dtype=np.int64)
         self.keys = np.zeros(size, dtype=np.int64)
-        self.lam = np.zeros(size)
         self.costs = np.empty((size if self.keep_costs else 0, self.max_len))
         self.marks = om.no_marks(size)
         rows = held - shift
-        for new, prev in zip((self.x, self.f, self.bp, self.keys, self.lam, self.costs,
-                              *self.marks), old, strict=True):
+        for new, prev in zip((self.x, self.f, self.bp, self.keys, self.costs, *self.marks), old,
+                             strict=True):
             if len(new) and rows:
                 new[:rows] = prev[shift:held]
         self.bp[:rows] -= shift
@@ -269,11 +274,12 @@ class Solver:
         if self.done == 0:
             r.f[0], r.bp[0], r.keys[0] = 0.0, -1, 1
             start = 1
-        r.lam[b0:b1] = self.lam
         self._dp(costs, start, b1, b0)
         first, self.done = self.done, end
-        if self.rate is not None:  # the next chunk's λ; solved rows keep theirs
-            self.lam = self.rate.observe(costs, first)
+        if self.rate is not None:
+            lam = self.rate.observe(costs, first)
+            if self.keep_costs and abs(math.log(lam / self.lam)) > RESOLVE:
+                self.resolve(lam)
 
     def price(self, end: int | None = None) -> None:
         """Online: price the frames appended and not priced yet (up to `end`), so a chunk's
@@ -286,13 +292,11 @@ class Solver:
             self.priced = end
 
     def resolve(self, lam: float) -> None:
-        """Solve every undecided frame again with penalty `lam` (from now on)."""
+        """Solve every undecided frame again with penalty `lam`."""
         self.settle()
         self.lam = lam
         r = self.rows
-        lo = self.floor + 1 - r.base
-        r.lam[lo : self.done - r.base] = lam
-        self._dp(r.costs, lo, self.done - r.base)
+        self._dp(r.costs, self.floor + 1 - r.base, self.done - r.base)
 
     def _dp(self, costs: np.ndarray, lo: int, hi: int, c0: int = 0) -> None:
         """The DP over rows lo .. hi − 1 with the current λ, floor and holds; rows up to the
@@ -301,12 +305,8 @@ class Solver:
         lo = max(lo, self.decided + 1 - r.base)
         if self.holds:
             om.edge_costs(r.x, r.marks[1], r.marks[2], lo, hi, self.max_len)
-        if hi <= lo:
-            return
-        cuts = [lo, *(lo + 1 + np.flatnonzero(np.diff(r.lam[lo:hi]))).tolist(), hi]
-        for a, b in zip(cuts[:-1], cuts[1:], strict=True):  # runs of rows with one λ
-            om.dp_rows(costs, r.f, r.bp, r.keys, a, b, float(r.lam[a]), self.floor - r.base,
-                       self.tolerance, c0=c0, marks=r.marks)
+        om.dp_rows(costs, r.f, r.bp, r.keys, lo, hi, self.lam, self.floor - r.base,
+                   self.tolerance, c0=c0, marks=r.marks)
 
     def hold(self, start: int, end: int | None) -> None:
         """No key strictly inside frames start .. end (stream indices; None: open, up to the
@@ -396,6 +396,10 @@ class Solver:
             return []
         if self.done < self.n:
             self._solve(self.n)
+        if self.rate is not None and self.keep_costs:
+            lam = self.rate.absorb()
+            if lam != self.lam:
+                self.resolve(lam)
         r = self.rows
         path = om.chain(r.bp, self.n - 1 - r.base, self.decided - r.base)
         return [k + r.base for k in path]
