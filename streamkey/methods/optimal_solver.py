@@ -13,8 +13,8 @@ import numpy as np
 from . import optimal_math as om
 
 __all__ = ["DEFAULT_LAMBDA", "TICKS_PER_SECOND", "PRIOR_SECONDS", "RESOLVE", "RATE_FACTOR",
-           "STILL_COST", "LEAD_TICKS", "DPRows", "MotionFrames", "mark_rows", "RateController",
-           "Solver", "motion_weights"]
+           "STILL_COST", "DPRows", "MotionFrames", "mark_rows", "RateController", "Solver",
+           "motion_weights"]
 
 DEFAULT_LAMBDA = 3.5e-3  # ticks x body heights^2 (a tick: 1/120 s)
 TICKS_PER_SECOND = 120.0  # the time unit of costs and lambda: 1/120 s, a frame at 120 Hz
@@ -24,7 +24,6 @@ RATE_FACTOR = 3.2  # lambda / geometric mean cost of key-spaced segments (shared
 STILL_COST = 1e-8  # body heights^2: mean squared departure from a straight line below which
 #                    a key-spaced stretch is still (RMS 1e-4 body heights, about 0.2 mm)
 _LOG_FLOOR = 1e-12  # smallest segment cost in the geometric mean
-LEAD_TICKS = 20.0  # deadline decisions: the newest 1/6 s of frames may lead (`Solver._lead`)
 
 
 def motion_weights(costs: np.ndarray, span: int, ticks: float) -> np.ndarray:
@@ -361,7 +360,7 @@ class Solver:
         self.settle()
         r = self.rows
         base = r.base
-        path = om.chain(r.bp, self._lead() - base, self.decided - base)
+        path = om.chain(r.bp, self.done - 1 - base, self.decided - base)
         keys = [k + base for k in path if k + base <= d]
         if keys:
             self.floor = keys[-1]
@@ -381,23 +380,6 @@ class Solver:
             if d + 1 < self.done:
                 self.stale = (d + 1, self.done)
         return keys
-
-    def _lead(self) -> int:
-        """The frame whose chain a deadline decision follows: among the newest `LEAD_TICKS`
-        (1/6 s) of solved frames after the decided part, the best end of a chain b by F(b) +
-        ρ·(t − b), the rest up to the newest frame t counted at ρ, the mean penalised cost
-        per frame since the last decided key (the newest frame's own chain would force a key
-        at t, which pulls the keys just before it)."""
-        t = self.done - 1
-        r = self.rows
-        base = r.base
-        lo = max(self.decided + 1, self.floor + 1, t - int(round(LEAD_TICKS / self.ticks)))
-        span = t - self.floor
-        if lo >= t or span <= 0 or not math.isfinite(r.f[t - base]):
-            return t
-        rho = (r.f[t - base] - r.f[self.floor - base]) / span
-        score = r.f[lo - base : t + 1 - base] + rho * np.arange(t - lo, -1, -1)
-        return lo + int(np.argmin(np.where(np.isfinite(score), score, np.inf)))
 
     def settle(self) -> None:
         """Solve again the frames a deadline decision left stale (`force`), if any."""
