@@ -78,12 +78,14 @@ they are long (49_18: 11 keys, E 25x; 05_02, 05_18: 2.2x). At stream start λ is
 prior; the data takes over as the stream goes on, which keeps λ steady on short takes (a
 moving λ spends keys unevenly).
 Online, whenever the estimate moves by more than 5 % (`RESOLVE`) every undecided frame is
-solved again with it; since λ still moves, converged chains are not final in rate mode and
+solved again with it (frames a deadline decided without a key stay keyless: a re-solve that
+reopened them let a later chain pass through one, whose key was then never sent); since λ
+still moves, converged chains are not final in rate mode and
 keys are decided at the deadline. Offline, λ is the estimate after the whole take (one
 penalised pass); with an unbounded lookahead `flush()` solves everything with that same λ,
 so the two agree exactly. The key count follows the rate only as far as the estimate is
 right (0.3–1.7 × on the shared clips, most within ±15 %); the same take at 60 or 30 Hz,
-after a calibration hold or followed by stillness gets 0.83–1.09 × the clean take's keys
+after a calibration hold or followed by stillness gets 0.91–1.07 × the clean take's keys
 on every shared clip, offline and online.
 
 Deadlines are checked once a chunk, deciding every frame whose deadline falls before the

@@ -299,8 +299,10 @@ class Solver:
         self._dp(r.costs, self.floor + 1 - r.base, self.done - r.base)
 
     def _dp(self, costs: np.ndarray, lo: int, hi: int, c0: int = 0) -> None:
-        """The DP over rows lo .. hi − 1 with the current λ, floor and holds."""
+        """The DP over rows lo .. hi − 1 with the current λ, floor and holds; rows up to the
+        last deadline decision stay as it left them (no key after the floor up to it)."""
         r = self.rows
+        lo = max(lo, self.decided + 1 - r.base)
         if self.holds:
             om.edge_costs(r.x, r.marks[1], r.marks[2], lo, hi, self.max_len)
         om.dp_rows(costs, r.f, r.bp, r.keys, lo, hi, self.lam, self.floor - r.base,
