@@ -148,8 +148,9 @@ class FeatureStage:
     state is carried between blocks and across long gaps) and low-passes them and the root
     position at `noise_cutoff_hz` (the library default, `DEFAULT_NOISE_CUTOFF_HZ`; None or
     0: off), which holds each frame `delay` frames: a block's features are those of the
-    frames now complete, `delay` frames behind the last frame in. `drain()` gives the rest at the end of a window. FK composes the points some
-    keyframer on this stream reads (`fk_points`; None: every point) in one pass a block.
+    frames now complete, `delay` frames behind the last frame in. `drain()` gives the rest
+    at the end of a window. FK composes the points some keyframer on this stream reads
+    (`fk_points`; None: every point) in one pass a block.
     """
 
     def __init__(self, skeleton: Skeleton, fps: float,
