@@ -22,7 +22,7 @@ from .methods import COUNTED_METHODS, offline_method
 from .methods.params import to_method_units
 from .motion import Motion
 from .playable import debounce
-from .streaming import MinIntervalLike, common_params, run_online_with_segments
+from .streaming import MinIntervalLike, common_params, noise_cutoff, run_online_with_segments
 from .units import DurationLike
 
 __all__ = ["MOTION_SUFFIXES", "find_motion_files", "extract_motion", "FileResult",
@@ -112,7 +112,7 @@ def extract_motion(motion: Motion, methods: list[str],
     """
     params = {name: to_method_units(name, kwargs, motion.fps) if name != "*" else kwargs
               for name, kwargs in common_params(params, max_gap, min_interval).items()}
-    features = compute_features(motion, noise_cutoff_hz=params.get("*", {}).get("noise_cutoff_hz"))
+    features = compute_features(motion, noise_cutoff_hz=noise_cutoff(params))
     results: dict[str, Keyframes] = {}
     order = sorted(methods, key=lambda m: m in COUNTED_METHODS)
     for name in order:
@@ -213,12 +213,11 @@ def extract_one(path: Path, methods: list[str], params: dict[str, dict[str, Any]
 
 def _offline_result(path: Path, motion: Motion, methods: list[str],
                     params: dict[str, dict[str, Any]] | None) -> FileResult:
-    """One file through the offline methods; with a noise cut-off (`params["*"]`), its
-    segments behind the same filter, as the online pipeline finds them."""
+    """One file through the offline methods, and its segments behind the same noise filter
+    (`noise_cutoff`), as the online pipeline finds them."""
     from .segments import detect_segments
 
-    cutoff = (params or {}).get("*", {}).get("noise_cutoff_hz")
-    segments = None if cutoff is None else detect_segments(motion, noise_cutoff_hz=cutoff)
+    segments = detect_segments(motion, noise_cutoff_hz=noise_cutoff(params))
     return FileResult(path, motion, extract_motion(motion, methods, params), segments=segments)
 
 

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from .errors import UsageError
-from .filters import FrontEnd, Rows, warm_filters
+from .filters import DEFAULT_NOISE_CUTOFF_HZ, FrontEnd, Rows, warm_filters
 from .jit import warm_up
 from .keyframes import CancelEvent, Event, KeyframeEvent, ProvisionalEvent, SegmentEvent
 from .kinematics import (
@@ -146,15 +146,16 @@ class FeatureStage:
 
     The front end (`filters.FrontEnd`, `front`) unwraps the rotation channels (its unwrap
     state is carried between blocks and across long gaps) and low-passes them and the root
-    position at `noise_cutoff_hz` (None: off), which holds each frame `delay` frames: a
-    block's features are those of the frames now complete, `delay` frames behind the last
-    frame in. `drain()` gives the rest at the end of a window. FK composes the points some
-    keyframer on this stream reads (`fk_points`; None: every point) in one pass a block.
+    position at `noise_cutoff_hz` (the library default, `DEFAULT_NOISE_CUTOFF_HZ`; None or
+    0: off), which holds each frame `delay` frames: a block's features are those of the
+    frames now complete, `delay` frames behind the last frame in. `drain()` gives the rest
+    at the end of a window. FK composes the points some keyframer on this stream reads
+    (`fk_points`; None: every point) in one pass a block.
     """
 
     def __init__(self, skeleton: Skeleton, fps: float,
                  role_mapping: dict[str, str] | None = None,
-                 noise_cutoff_hz: float | None = None) -> None:
+                 noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> None:
         self.skeleton = skeleton
         self.fps = float(fps)
         self.role_mapping = role_mapping  # given roles (None: the skeleton's own)

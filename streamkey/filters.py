@@ -27,6 +27,12 @@ streaming object, and the offline path runs the whole clip through it as one blo
 needs no lookahead but lags by a speed-dependent amount, which moves keys in time; a
 zero-phase filter does not.
 
+The front end is on by default (`DEFAULT_NOISE_CUTOFF_HZ`, 6 Hz), offline and online, in
+the library and on every command: the same take with a little sensor noise must get the same
+keys. At 6 Hz the delay is 12 frames at 120 Hz, 6 at 60 Hz, 4 at 30 Hz (100, 100 and
+133 ms), counted in every online event's latency bound. `noise_cutoff_hz=None` (or 0;
+`--noise-cutoff 0` on the command line) turns it off.
+
 `FrontEnd` is the per-stream stage before the features: it unwraps the rotation channels,
 low-passes them and the root position, and holds each frame for `delay` frames. The
 session-state stage (`segments.SegmentDetector`: calibration holds, still stretches, takes),

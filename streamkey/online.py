@@ -19,9 +19,10 @@ Flow of one frame::
 The segment detector (`Pipeline(segments=True)`, the default; `streamkey.segments`) sends
 the session's calibration holds, still stretches and takes as they are found.
 
-The noise filter (`filters.FrontEnd`, off by default, `noise_cutoff_hz=6.0` to use it) is the
-same offline (`features.compute_features`) and online, so the keyframers see the same
-numbers; it holds each frame `delay` frames (its half-width, from the cut-off and the rate).
+The noise filter (`filters.FrontEnd`, on by default at `filters.DEFAULT_NOISE_CUTOFF_HZ`,
+6 Hz; `noise_cutoff_hz=None` or 0 turns it off) is the same offline
+(`features.compute_features`) and online, so the keyframers see the same numbers; it holds
+each frame `delay` frames (its half-width, from the cut-off and the rate).
 Keyframers decide on filtered frames as before; each event is then restated once, here: a
 decision made on filtered frame d was made when frame d + delay arrived (or at the last
 frame in, when the window ends), and its `lookahead` (the latency bound) is the keyframer's

@@ -64,6 +64,7 @@ from typing import Any
 import numpy as np
 
 from .errors import UsageError
+from .filters import DEFAULT_NOISE_CUTOFF_HZ
 from .jit import kernel, warm_up, warmer
 from .keyframes import Segment, SegmentEvent, SegmentKind
 from .motion import Frame, Motion, Skeleton
@@ -298,7 +299,7 @@ class SegmentDetector:
                  still_speed: float = STILL_SPEED, motion_speed: float = MOTION_SPEED,
                  half_window: DurationLike = HALF_WINDOW, min_still: DurationLike = MIN_STILL,
                  min_calibration: DurationLike = MIN_CALIBRATION,
-                 noise_cutoff_hz: float | None = None) -> None:
+                 noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> None:
         from .kinematics import body_height
         from .roles import resolve_roles
 
@@ -522,7 +523,8 @@ def segments_of(events: Iterable[SegmentEvent]) -> list[Segment]:
 
 
 def detect_segments(motion: Motion, *, role_mapping: dict[str, str] | None = None,
-                    noise_cutoff_hz: float | None = None, **params: Any) -> list[Segment]:
+                    noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ, **params: Any
+                    ) -> list[Segment]:
     """The session segments of a whole motion (its captured frames, file numbering, times
     frame / fps): the same segments as `SegmentDetector` fed every frame then flushed, with
     the same sensor-noise front end (`noise_cutoff_hz`, as `features.compute_features`).

@@ -10,6 +10,7 @@ import numpy as np
 
 from . import playable_online
 from .errors import UsageError
+from .filters import DEFAULT_NOISE_CUTOFF_HZ
 from .keyframes import KeyframeEvent, Keyframes, Segment, SegmentEvent
 from .methods import online_class
 from .methods.params import to_method_units
@@ -18,8 +19,8 @@ from .online import OnlineKeyframer, Pipeline
 from .playable import parse_min_interval
 from .units import DurationLike
 
-__all__ = ["make_keyframers", "run_online", "run_online_with_segments", "check_online_params",
-           "common_params", "MinIntervalLike"]
+__all__ = ["make_keyframers", "noise_cutoff", "run_online", "run_online_with_segments",
+           "check_online_params", "common_params", "MinIntervalLike"]
 
 # `min_interval`: seconds for every method, {method or "*": seconds}, or the CLI's text
 MinIntervalLike = float | Mapping[str, float] | str | None
@@ -72,6 +73,13 @@ def _bridge_frames(common: dict[str, Any], fps: float) -> int | None:
     return None
 
 
+def noise_cutoff(params: dict[str, dict[str, Any]] | None) -> float | None:
+    """The sensor-noise cut-off `params["*"]["noise_cutoff_hz"]` asks for (None or 0: off);
+    not given: the library default, `filters.DEFAULT_NOISE_CUTOFF_HZ`."""
+    common = (params or {}).get("*", {})
+    return common.get("noise_cutoff_hz", DEFAULT_NOISE_CUTOFF_HZ) or None
+
+
 def make_keyframers(motion: Motion, methods: list[str],
                     params: dict[str, dict[str, Any]] | None = None,
                     lookahead: DurationLike | None = None, stream: str = "default"
@@ -81,11 +89,13 @@ def make_keyframers(motion: Motion, methods: list[str],
     rate, as every duration parameter does); `params["*"]["max_gap"]` (seconds) wraps each in
     `optimal.MaxGap`, `params["*"]["max_bridge_frames"]` or `["max_bridge_seconds"]` sets the
     longest interpolated hole of every keyframer (and so of a `Pipeline` of them), and
-    `params["*"]["noise_cutoff_hz"]` the input low-pass of each (off when None)."""
+    `params["*"]["noise_cutoff_hz"]` the input low-pass of each (`noise_cutoff`: not given,
+    the library default; None or 0: off)."""
     params = params or {}
     common = params.get("*", {})
     max_gap = common.get("max_gap")
     bridge = _bridge_frames(common, motion.fps)
+    cutoff = noise_cutoff(params)
     check_online_params(methods, params)
     out = []
     for name in methods:
@@ -96,8 +106,8 @@ def make_keyframers(motion: Motion, methods: list[str],
         if bridge is not None:
             kwargs["max_bridge_frames"] = bridge
         kf = online_class(name)(motion.skeleton, motion.fps, stream=stream, **kwargs)
-        if common.get("noise_cutoff_hz") is not None:
-            kf.features.configure(common["noise_cutoff_hz"])
+        if cutoff != kf.features.noise_cutoff_hz:
+            kf.features.configure(cutoff)
         if max_gap is not None:
             from .methods.optimal import MaxGap
 

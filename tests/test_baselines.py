@@ -91,11 +91,28 @@ def test_decimation_beats_uniform_on_its_own_objective_at_the_largest_count_on_e
     # Greedy decimation is not optimal: at small K uniform spacing sometimes wins on periodic
     # walks (e.g. 02_01 at K = 8, 16, 32; measured 15 of 194 (clip, K) pairs); from the largest
     # power of two <= n/2 it wins on every shared clip.
+    # On the raw curve (the noise filter off).
+    _decimation_beats_uniform_at_the_largest_count(None)
+
+
+@pytest.mark.xfail(strict=True, reason="measured: behind the default 6 Hz noise filter the "
+                   "smoother 02_01 walk curve at K = 128 gives decimation SSE 1.74e-5 against "
+                   "uniform's 1.36e-5")
+def test_decimation_beats_uniform_at_the_largest_count_behind_the_noise_filter():
+    from streamkey.filters import DEFAULT_NOISE_CUTOFF_HZ
+
+    _decimation_beats_uniform_at_the_largest_count(DEFAULT_NOISE_CUTOFF_HZ)
+
+
+def _decimation_beats_uniform_at_the_largest_count(cutoff: float | None) -> None:
+    from streamkey.features import compute_features
+
     for name in CLIPS:
         m = load(name)
-        x = simplify.curve(m)
+        feats = compute_features(m, noise_cutoff_hz=cutoff)
+        x = simplify.curve(m, features=feats)
         k = 2 ** int(np.log2(len(x) // 2))
-        dec = baselines.decimate(m, k).frames - m.first_frame
+        dec = baselines.decimate(m, k, features=feats).frames - m.first_frame
         uni = baselines.uniform(m, k).frames - m.first_frame
         assert baselines.reconstruction_sse(x, dec) < baselines.reconstruction_sse(x, uni), name
 

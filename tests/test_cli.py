@@ -86,6 +86,7 @@ def test_offline_demo_prints_every_method(capsys):
 
 def test_decimate_and_simplify_take_the_space_switch_positions_by_default(tmp_path):
     from streamkey.amc import read_motion
+    from streamkey.features import compute_features
     from streamkey.methods import baselines, simplify
 
     m = read_motion(DATA / "06_15.bvh")
@@ -96,7 +97,10 @@ def test_decimate_and_simplify_take_the_space_switch_positions_by_default(tmp_pa
         assert main(args) == 0
         methods = json.loads(out.read_text())["files"][0]["methods"]
         want = space or "positions"
-        for name, fn in (("decimate", baselines.decimate),
+        # the CLI's decimate runs on the features extract shares (behind the noise filter)
+        feats = compute_features(m)
+        for name, fn in (("decimate", lambda mo, k, space, f=feats: baselines.decimate(
+                             mo, k, space=space, features=f)),
                          ("simplify", lambda mo, k, space: simplify.extract(mo, count=k,
                                                                            space=space))):
             assert methods[name]["params"]["space"] == want

@@ -135,7 +135,7 @@ def test_one_frame_fk_and_features_equal_the_whole_clip_bit_for_bit_on_every_cli
         feats = compute_features(motion, noise_cutoff_hz=None)  # as the bare stage: raw
         first = motion.first_frame  # the stream starts at the first captured frame
         rotations = unwrap_degrees(motion.channels[first:, motion.skeleton.rotation_columns()])
-        stage = FeatureStage(motion.skeleton, motion.fps)
+        stage = FeatureStage(motion.skeleton, motion.fps, noise_cutoff_hz=None)  # raw
         for j, frame in enumerate(motion.frames()):
             block = stage.compute([frame])
             np.testing.assert_array_equal(block.rotations[0], rotations[j], err_msg=name)
@@ -273,7 +273,7 @@ def test_warm_up_compiles_the_feature_kernels():
     feats = compute_features(motion)
     feats.pelvis_positions  # noqa: B018
     feats.role_positions(("head", "left_ankle"))
-    stage = FeatureStage(motion.skeleton, motion.fps)
+    stage = FeatureStage(motion.skeleton, motion.fps, noise_cutoff_hz=None)  # raw
     for frames in (motion.frames()[:1], motion.frames()[1:5]):
         block = stage.compute(frames)
         block.foot_heights  # noqa: B018
@@ -293,7 +293,7 @@ def test_feature_block_composes_only_what_the_stream_reads():
     frames = motion.frames()
     full = compute_features(motion, noise_cutoff_hz=None)  # as the bare stage: raw
     first = motion.first_frame
-    stage = FeatureStage(motion.skeleton, motion.fps)
+    stage = FeatureStage(motion.skeleton, motion.fps, noise_cutoff_hz=None)  # raw
     block = stage.compute(frames[:3])
     assert block.rotations.shape == (3, len(stage.rotation_columns)) and block._fk is None
     np.testing.assert_array_equal(block.foot_heights, full.foot_heights[first : first + 3])

@@ -222,6 +222,54 @@ def test_online_equals_offline_with_the_filter_at_unbounded_lookahead(method: st
     assert (plain.frames.tolist(), plain.scores.tolist()) != (off.tolist(), keys.scores.tolist())
 
 
+@pytest.mark.parametrize("method", ["saliency", "speed", "simplify", "optimal"])
+def test_the_default_is_the_filter_and_online_equals_offline_through_it(method: str) -> None:
+    """Nothing asked: the library, `make_keyframers`, a `Pipeline` and the CLI's parameters
+    all filter at the default cut-off, and the online keys at unbounded lookahead are the
+    offline keys, each event's latency bound counting the filter's delay."""
+    import argparse
+
+    from streamkey.batch import extract_motion
+    from streamkey.cli.options import method_params
+    from streamkey.filters import DEFAULT_NOISE_CUTOFF_HZ
+    from streamkey.streaming import make_keyframers
+
+    assert DEFAULT_NOISE_CUTOFF_HZ == FC
+    m = motion("07_01.bvh")
+    n = m.n_frames + 1
+    own = {"saliency": {"preset": "low"}} if method == "saliency" else {}
+    cli = method_params(argparse.Namespace(method=method), online=True)
+    assert cli["*"]["noise_cutoff_hz"] == FC
+    off = extract_motion(m, [method], own)[method]
+    assert off.frames.tolist() == _offline(method, m).frames.tolist()
+    for params in (own, {**cli, **own}):
+        kfs = make_keyframers(m, [method], params, lookahead=n)
+        pipe = Pipeline(kfs)
+        assert pipe.delay == 12 and kfs[0].features.noise_cutoff_hz == FC
+        events = _events(pipe, m.frames())
+        assert [e.frame for e in events] == off.frames.tolist() and len(events) > 1
+        assert all(e.lookahead == kfs[0].lookahead + 12 for e in events)
+        assert all(0 <= e.latency_frames <= e.lookahead for e in events)
+
+
+def test_zero_turns_the_filter_off_everywhere() -> None:
+    import argparse
+
+    from streamkey.batch import extract_motion
+    from streamkey.cli.options import method_params
+    from streamkey.streaming import make_keyframers
+
+    m = motion("07_01.bvh")
+    cli = method_params(argparse.Namespace(method="speed", noise_cutoff=0.0), online=True)
+    assert cli["*"]["noise_cutoff_hz"] is None
+    off = extract_motion(m, ["speed"], cli)["speed"]
+    assert off.frames.tolist() == speed.extract(m, noise_cutoff_hz=None).frames.tolist()
+    for params in (cli, {"*": {"noise_cutoff_hz": 0}}):
+        pipe = Pipeline(make_keyframers(m, ["speed"], params, lookahead=m.n_frames + 1))
+        assert pipe.delay == 0 and pipe.features.noise_cutoff_hz is None
+        assert [e.frame for e in _events(pipe, m.frames())] == off.frames.tolist()
+
+
 def test_decisions_are_dated_by_the_arrival_that_made_them() -> None:
     m = motion("07_01.bvh")
     kf = _filtered(speed.Online(m.skeleton, m.fps))
@@ -344,31 +392,37 @@ def test_with_the_filter_0_3_degrees_of_noise_keeps_the_keys(method: str) -> Non
     assert np.mean(f1) >= 0.9 and min(f1) >= 0.75, f1
 
 
-def test_the_cli_and_the_library_filter_alike_and_off_is_the_default(tmp_path: Path) -> None:
-    """`extract --noise-cutoff 6` (offline and --online) gives the library's filtered keys;
-    without it the keys are the unfiltered ones."""
+def test_the_cli_and_the_library_filter_alike_and_on_is_the_default(tmp_path: Path) -> None:
+    """`extract` (offline and --online) gives the library's filtered keys and the segments
+    found behind the same filter; `--noise-cutoff 0` the unfiltered ones; `--noise-cutoff 3`
+    another cut-off; a negative one is a usage error."""
     import json
 
     from streamkey.batch import extract_motion
     from streamkey.cli import main
+    from streamkey.segments import detect_segments
     from streamkey.streaming import run_online
 
     m = motion("07_01.bvh")
     path = str(DATA / "07_01.bvh")
-    filtered = extract_motion(m, ["speed"], {"*": {"noise_cutoff_hz": FC}})["speed"]
+    filtered = extract_motion(m, ["speed"])["speed"]
     assert filtered.frames.tolist() == speed.extract(m, noise_cutoff_hz=FC).frames.tolist()
-    assert extract_motion(m, ["speed"])["speed"].frames.tolist() == speed.extract(
-        m, noise_cutoff_hz=None).frames.tolist()
-    for online in (False, True):
-        out = tmp_path / f"keys{online}.json"
-        argv = ["extract", path, "--method", "speed", "--noise-cutoff", "6", "-o", str(out)]
-        assert main(argv + (["--online"] if online else [])) == 0
-        doc = json.loads(out.read_text())
-        keys = doc["files"][0]["methods"]["speed"]["keyframes"]
-        if online:
-            want = run_online(m, ["speed"], {"*": {"noise_cutoff_hz": FC}})["speed"]
-            want = want.frames.tolist()
-        else:
-            want = filtered.frames.tolist()
-        assert keys == want, online
+    raw = extract_motion(m, ["speed"], {"*": {"noise_cutoff_hz": None}})["speed"]
+    assert raw.frames.tolist() == speed.extract(m, noise_cutoff_hz=None).frames.tolist()
+    assert raw.frames.tolist() != filtered.frames.tolist()
+    for cutoff in (None, 0.0, 3.0):
+        given = [] if cutoff is None else ["--noise-cutoff", f"{cutoff:g}"]
+        hz = FC if cutoff is None else cutoff or None
+        params = {"*": {"noise_cutoff_hz": hz}}
+        for online in (False, True):
+            out = tmp_path / f"keys{online}{cutoff}.json"
+            argv = ["extract", path, "--method", "speed", *given, "-o", str(out)]
+            assert main(argv + (["--online"] if online else [])) == 0
+            doc = json.loads(out.read_text())["files"][0]
+            keys = doc["methods"]["speed"]["keyframes"]
+            run = run_online if online else extract_motion
+            assert keys == run(m, ["speed"], params)["speed"].frames.tolist(), (online, cutoff)
+            if not online:
+                want = detect_segments(m, noise_cutoff_hz=hz)
+                assert doc["segments"] == [s.to_dict() for s in want], cutoff
     assert main(["extract", path, "--noise-cutoff", "-1", "-o", str(tmp_path / "x")]) == 2

@@ -66,8 +66,11 @@ def test_damaged_streams_never_raise_and_report_the_missing_frames(method, motio
     assert set(missing) <= covered
     c = kf.guard.counters
     assert c.duplicates > 0 and c.out_of_order > 0 and c.invalid == 1 and c.gaps >= len(gaps)
-    lookahead = kf.lookahead
-    assert all(0 <= e.latency_frames <= lookahead for e in events
+    # the latency bound: the keyframer's lookahead plus the noise filter's delay (on by default)
+    bound = kf.lookahead + kf.features.delay
+    assert kf.features.delay > 0
+    assert all(e.lookahead == bound for e in events if isinstance(e, KeyframeEvent))
+    assert all(0 <= e.latency_frames <= bound for e in events
                if isinstance(e, KeyframeEvent) and e.decided_at < seqs[-1])
     assert keyframes(events)
 

@@ -83,6 +83,7 @@ def add_method_options(p: argparse.ArgumentParser, online: bool | None) -> None:
 
 
 def _add_shared_options(p: argparse.ArgumentParser, online: bool | None) -> None:
+    from ..filters import DEFAULT_NOISE_CUTOFF_HZ
     from ..methods.params import SHARED_PARAMS
 
     g = p.add_argument_group(
@@ -106,10 +107,10 @@ def _add_shared_options(p: argparse.ArgumentParser, online: bool | None) -> None
                            help="insert a key (best frame by the optimal segment cost) in every "
                                 "stretch longer than SECONDS without one")
     g.add_argument("--noise-cutoff", type=float, metavar="HZ",
-                   help="low-pass the input before the features (zero-phase Gaussian, 50 %% "
-                        "gain at HZ; 6 suits sensor noise of inertial suits and webcam "
-                        "trackers); online it adds about 0.55/HZ s to every latency "
-                        "(default off)")
+                   help="the sensor-noise low-pass before the features (zero-phase Gaussian, "
+                        "50 %% gain at HZ), offline and online alike; online it adds about "
+                        "0.55/HZ s to every latency (default "
+                        f"{DEFAULT_NOISE_CUTOFF_HZ:g}; 0: off)")
     g.add_argument("--max-bridge", metavar="FRAMES|SECONDSs",
                    help=f"{where}interpolate over at most this many missing frames (or "
                         f"seconds: 0.1s); a longer gap restarts the windows (default "
@@ -283,12 +284,23 @@ def method_params(args: argparse.Namespace, online: bool = False) -> dict[str, d
     bridge = _max_bridge(getattr(args, "max_bridge", None))
     if bridge and not online:
         raise UsageError("--max-bridge: online only; add --online")
-    cutoff = getattr(args, "noise_cutoff", None)
-    if cutoff is not None and not (0 < cutoff < 1e4):
-        raise UsageError(f"--noise-cutoff: a positive number of Hz, got {cutoff:g}")
     params["*"] = {"max_gap": getattr(args, "max_gap", None), **bridge,
-                   "noise_cutoff_hz": cutoff, **_playable_params(args)}
+                   "noise_cutoff_hz": _noise_cutoff(getattr(args, "noise_cutoff", None)),
+                   **_playable_params(args)}
     return params
+
+
+def _noise_cutoff(hz: float | None) -> float | None:
+    """`--noise-cutoff HZ`: the front end's cut-off; not given: the library default; 0: off
+    (None)."""
+    from ..filters import DEFAULT_NOISE_CUTOFF_HZ
+
+    if hz is None:
+        return DEFAULT_NOISE_CUTOFF_HZ
+    if not (0 <= hz < 1e4):
+        raise UsageError(f"--noise-cutoff: a positive number of Hz, or 0 to turn the noise "
+                         f"filter off, got {hz:g}")
+    return float(hz) if hz > 0 else None
 
 
 def roles_of(args: argparse.Namespace) -> dict[str, str] | None:

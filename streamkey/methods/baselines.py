@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import UsageError
-from ..features import Features
+from ..features import Features, compute_features, filtered_motion
 from ..jit import kernel, prefetch, warmer
 from ..keyframes import Keyframes
 from ..kinematics import body_height, forward_kinematics
@@ -225,12 +225,16 @@ def decimation_order(x: np.ndarray, count: int = 2) -> tuple[np.ndarray, np.ndar
 
 def _curve(motion: Motion, space: str, features: Features | None,
            chunk: int = 1024) -> np.ndarray:
-    """`simplify.curve`; in positions space without `features`, FK alone on the captured
-    frames (the same rows: FK frames are independent, and the unwrapped rotations and the
-    pelvis frame of `compute_features` are not needed), `chunk` frames at a time written into
-    the curve (the same bits; the FK points and root-relative temporaries of a block stay in
-    cache instead of three more curve-sized arrays)."""
+    """`simplify.curve` behind the default noise filter when no `features` are given (the
+    curve `extract` gives decimate); in positions space without `features`, FK alone on the captured
+    (noise-filtered) frames (the same rows: FK frames are independent, and the unwrapped
+    rotations and the pelvis frame of `compute_features` are not needed), `chunk` frames at
+    a time written into the curve (the same bits; the FK points and root-relative
+    temporaries of a block stay in cache instead of three more curve-sized arrays)."""
+    if space == "channels" and features is None:  # the filtered channels, as extract's
+        features = compute_features(motion)
     if space == "positions" and features is None:
+        motion = filtered_motion(motion)[0]  # behind the default noise filter, as `curve`
         channels = motion.channels[motion.first_frame :]
         skeleton = motion.skeleton
         nj, height = skeleton.n_joints, body_height(skeleton)
