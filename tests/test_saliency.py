@@ -189,7 +189,7 @@ def test_saliency_returns_sorted_captured_frames_on_every_shared_clip(name: str)
     assert keys.frames[0] >= m.first_frame and keys.frames[-1] < m.n_frames
     assert np.all(np.isfinite(keys.scores)) and np.all(keys.scores > 0)
     assert keys.params["preset"] in ("low", "high")
-    assert keys.info["preset_requested"] == "auto" and keys.info["mean_speed"] > 0
+    assert keys.info["preset_requested"] == "auto" and keys.info["auto_speed"] > 0
 
 
 def test_auto_preset_picks_high_dynamic_for_a_run_and_low_for_a_walk() -> None:
@@ -197,7 +197,7 @@ def test_auto_preset_picks_high_dynamic_for_a_run_and_low_for_a_walk() -> None:
     walk = saliency.extract(motion("07_05.bvh"))
     assert (run.params["preset"], run.params["sigma"], run.params["k"]) == ("high", 3.0, 10)
     assert (walk.params["preset"], walk.params["sigma"], walk.params["k"]) == ("low", 10.0, 7)
-    assert run.info["mean_speed"] >= saliency.AUTO_SPEED_THRESHOLD > walk.info["mean_speed"]
+    assert run.info["auto_speed"] >= saliency.AUTO_SPEED_THRESHOLD > walk.info["auto_speed"]
 
 
 def test_variance_rule_keeps_at_least_7_components_and_90_percent() -> None:

@@ -1,6 +1,6 @@
 """Online saliency with the offline default preset "auto" (the registry's online saliency).
 
-Offline `saliency.extract` picks its preset from the mean body speed over the first
+Offline `saliency.extract` picks its preset from the body speed (90th percentile) over the first
 `AUTO_SECONDS` (2 s) of motion (`saliency.choose_preset`: from the first moving frame step on,
 still steps left out). Online, `AutoOnline` runs the "low" and the "high" keyframer side by
 side until those 2 s have passed (240 frames at 120 Hz after the motion starts), then takes
