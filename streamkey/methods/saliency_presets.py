@@ -23,9 +23,9 @@ METHOD = "saliency"
 # sigma in frames of 120 Hz (`REFERENCE_FPS`): 1/12 s and 1/40 s of motion at any rate
 PRESETS: dict[str, tuple[float, int]] = {"low": (10.0, 7), "high": (3.0, 10)}
 UPDATE_EVERY = Duration.seconds(10.0)  # online: the basis is recomputed at least this often
-AUTO_SPEED_THRESHOLD = 1.07  # body heights per second, the 90th percentile of the steps
+AUTO_SPEED_THRESHOLD = 1.03  # body heights per second, the 90th percentile of the steps
 AUTO_QUANTILE = 90.0  # percent: "auto" looks at the fast steps, not at the slow ones
-AUTO_SECONDS = 2.0  # "auto" decides on the first 2 s of motion (offline and online alike)
+AUTO_SECONDS = 1.0  # "auto" decides on the first 1 s of motion (offline and online alike)
 STILL_SPEED = 0.005  # body heights per second: slower steps are not motion for "auto"
 HISTORY_SECONDS = 10.0  # online: past kept for recomputation when the basis changes
 
