@@ -37,6 +37,15 @@ Offline: `extract(motion)`. Definitions this module settles (where they differ f
   the lookahead stay). Its delay (~0.1 s) is the same at every rate; the keys mostly stay on
   the 2 sigma cluster grid, so they are not shifted back: on 7 shared clips at 120 Hz, F1
   against the unfiltered keys is 0.67 as they are, 0.45-0.63 shifted back 2-12 frames.
+  Re-measured with the 6 Hz noise front end on (29 BVH clips, saliency's 24 goal cells;
+  agreement on 35 clips and 7 sessions): without this low-pass 3 fewer cells are met
+  (offline 30 Hz key ratio 0.86-1.11 -> 0.67-1.60, 60 Hz F1 0.951 / 0.868 -> 0.907 /
+  0.728);
+  at 5 Hz 3 fewer (agreement worst 0.697 -> 0.545, key ratio up to 1.50); at 3 Hz one more
+  (online 30 Hz key ratio 0.79 -> 0.81) but agreement falls (median 0.828 -> 0.821,
+  sessions after 10 s 0.771 -> 0.753) with the key ratio at its 1.25 edge. The front end's
+  Gaussian passes 1.3 % at 15 Hz, which the second derivative weighs 25 times more than
+  3 Hz: it does not replace this filter, so 3.5 Hz stays.
 - Curvature (eq. 3.4 with D' in the denominator): D' is the central difference
   (one-sided at the two ends), D'' the second difference D(f+1) - 2 D(f) + D(f-1), copied from
   the neighbour at the two ends, both per 1/120 s (`REFERENCE_FPS`): divided by h and h^2,
