@@ -1,17 +1,17 @@
 """Online saliency with the offline default preset "auto" (the registry's online saliency).
 
-Offline `saliency.extract` picks its preset from the mean body speed over the first
-`AUTO_SECONDS` (2 s) of motion (`saliency.choose_preset`: from the first moving frame step on,
-still steps left out). Online, `AutoOnline` runs the "low" and the "high" keyframer side by
-side until those 2 s have passed (240 frames at 120 Hz after the motion starts), then takes
-the same decision from the same frames and keeps one:
+Offline `saliency.extract` picks its preset from the body speed (90th percentile) over the
+first `AUTO_SECONDS` (1 s) of motion (`saliency.choose_preset`: from the first moving frame
+step on, still steps left out). Online, `AutoOnline` runs the "low" and the "high" keyframer
+side by side until that second has passed (120 frames at 120 Hz after the motion starts),
+then takes the same decision from the same frames and keeps one:
 
 - Before the decision, events come from "low" (its lookahead, 121 frames by default, is the
   longer one and bounds every latency); the events of "high" are held back.
 - Decision "low": "low" simply goes on. Decision "high": of the held-back "high" events, those
   after the last one sent and within the lookahead of the decision frame are sent, decided at
   that frame; from then on "high" goes on, its events after the last one sent passed on.
-- A stream whose motion lasts less than 2 s is decided at `flush()` from all its frames (as
+- A stream whose motion lasts less than 1 s is decided at `flush()` from all its frames (as
   offline).
 
 Hence with a lookahead of at least the stream's length (nothing decided before `flush()`) the

@@ -1,6 +1,7 @@
 """Parameters of multiscale motion saliency: the presets, their check, and the "auto" rule
-(the mean body speed over the first seconds of motion), shared by the offline `extract`, the
-online `Online` and `AutoOnline` (`streamkey.methods.saliency` states the method).
+(a high percentile of the body speed over the first seconds of motion), shared by the
+offline `extract`, the online `Online` and `AutoOnline` (`streamkey.methods.saliency` states
+the method).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from ..units import Duration, DurationLike
 from .saliency_math import REFERENCE_FPS, frames_at
 
 __all__ = ["METHOD", "PRESETS", "UPDATE_EVERY", "AUTO_SPEED_THRESHOLD", "AUTO_SECONDS",
+           "AUTO_QUANTILE",
            "STILL_SPEED", "HISTORY_SECONDS", "auto_frames", "step_speeds", "moving",
            "auto_preset", "choose_preset", "preset_sigma", "resolve_params"]
 
@@ -21,8 +23,9 @@ METHOD = "saliency"
 # sigma in frames of 120 Hz (`REFERENCE_FPS`): 1/12 s and 1/40 s of motion at any rate
 PRESETS: dict[str, tuple[float, int]] = {"low": (10.0, 7), "high": (3.0, 10)}
 UPDATE_EVERY = Duration.seconds(10.0)  # online: the basis is recomputed at least this often
-AUTO_SPEED_THRESHOLD = 0.85  # body heights per second
-AUTO_SECONDS = 2.0  # "auto" decides on the first 2 s of motion (offline and online alike)
+AUTO_SPEED_THRESHOLD = 1.03  # body heights per second, the 90th percentile of the steps
+AUTO_QUANTILE = 90.0  # percent: "auto" looks at the fast steps, not at the slow ones
+AUTO_SECONDS = 1.0  # "auto" decides on the first 1 s of motion (offline and online alike)
 STILL_SPEED = 0.005  # body heights per second: slower steps are not motion for "auto"
 HISTORY_SECONDS = 10.0  # online: past kept for recomputation when the basis changes
 
@@ -52,15 +55,17 @@ def moving(steps: np.ndarray, fps: float) -> np.ndarray:
 
 def auto_preset(steps: np.ndarray, fps: float) -> tuple[str, float]:
     """The "auto" rule on the moving steps of its window (rows of `step_speeds`):
-    ("high" | "low", mean speed in body heights/s)."""
+    ("high" | "low", the `AUTO_QUANTILE` percentile of the steps' mean part speed, body
+    heights/s). A high percentile, not the mean: slow steps that are not the take's own (a
+    blend out of a calibration pose, a stop into stillness after a short take) leave it."""
     if len(steps) == 0:
         return "low", 0.0
-    speed = float(steps.mean() * fps)
+    speed = float(np.percentile(steps.mean(axis=1), AUTO_QUANTILE) * fps)
     return ("high" if speed >= AUTO_SPEED_THRESHOLD else "low"), speed
 
 
 def choose_preset(features: Features, first: int) -> tuple[str, float]:
-    """The "auto" rule: ("high" | "low", mean speed in body heights per second) over the
+    """The "auto" rule: ("high" | "low", body speed in body heights per second) over the
     moving steps of the first `AUTO_SECONDS` from the first moving step on (a calibration
     hold or stillness counts for nothing), as the online keyframer decides it (causal)."""
     fps = features.motion.fps
