@@ -60,9 +60,10 @@ class Param:
 
 
 SALIENCY = (
-    Param("preset", "choice", "default auto: high (sigma 3, k 10) if the body moves >= 0.85 "
-          "body heights/s over the first 2 s of motion, else low (sigma 10, k 7); online "
-          "decides after those 2 s too", choices=("auto", "low", "high"), default="auto"),
+    Param("preset", "choice", "default auto: high (sigma 3, k 10) if the body's 90th-percentile "
+          "speed over the first 1 s of motion is >= 1.03 body heights/s, else low (sigma 10, "
+          "k 7); online decides after that second too", choices=("auto", "low", "high"),
+          default="auto"),
     Param("sigma", "duration", "base scale (default: the preset's, 1/12 s or 1/40 s; "
           "frames if a plain number)", unit="FRAMES"),
     Param("k", "number", "PCA curves (default: the preset's)", unit="N", integer=True),
