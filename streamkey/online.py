@@ -416,7 +416,11 @@ def _end_window(stage: FeatureStage, keyframers: Sequence[OnlineKeyframer],
         done.append(segment)
     for kf in keyframers:
         done.extend(kf.finish())
-    return events + stage.arrived(done)
+    out = events + stage.arrived(done)
+    # Every event here is decided at the last arrival (the held frames have no later one to
+    # wait for), where segment events go out before the keyframes decided with them.
+    return ([e for e in out if isinstance(e, SegmentEvent)]
+            + [e for e in out if not isinstance(e, SegmentEvent)])
 
 
 class Pipeline:
