@@ -47,10 +47,12 @@ def online_with_segments(m: Motion, lookahead: int) -> tuple[list[KeyframeEvent]
 
 
 def test_still_candidates_stay_out_of_the_cut_off_offline() -> None:
-    """05_18 holds still four times (0.9-1.7 s each): 86 of its 166 candidates lie there."""
+    """05_18 holds still three times behind the default noise filter (1.7-2.5 s each; its
+    0.17 s move at 1.6 s is filtered below the motion threshold, which joins the first two
+    holds): 43 of its 73 candidates lie there."""
     m = load("05_18.bvh")
     segments = detect_segments(m)
-    assert sum(s.kind == "still" for s in segments) == 4
+    assert sum(s.kind == "still" for s in segments) == 3
     plain, masked = speed.extract(m), speed.extract(m, segments=segments)
     assert np.array_equal(plain.info["candidates"], masked.info["candidates"])
     assert masked.info["threshold"] != plain.info["threshold"]
