@@ -263,9 +263,12 @@ async def test_due_decisions_of_every_stream_go_before_any_re_analysis():
                 source.frames.put(f, None, name)
         source.frames.put(None)
         source.start = lambda: asyncio.sleep(0, "preloaded")  # type: ignore[method-assign]
-        engine = Engine(source, lambda spec: [Traced(spec.skeleton, spec.fps,
-                                                     stream=spec.stream)], [],
-                        due_first=due_first)
+        def traced(spec):  # unfiltered: the calls are traced in the frames' own seq
+            kf = Traced(spec.skeleton, spec.fps, stream=spec.stream)
+            kf.features.configure(None)
+            return [kf]
+
+        engine = Engine(source, traced, [], due_first=due_first)
         await engine.run()
         return calls
 
