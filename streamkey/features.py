@@ -18,7 +18,7 @@ import numpy as np
 
 from .filters import DEFAULT_NOISE_CUTOFF_HZ, FrontEnd
 from .kinematics import FKResult, body_height, forward_kinematics, pelvis_frame
-from .motion import Motion
+from .motion import Motion, without_lead
 from .roles import resolve_roles
 from .signal import unwrap_columns
 
@@ -78,8 +78,10 @@ def filtered_motion(motion: Motion, noise_cutoff_hz: float | None = DEFAULT_NOIS
                     ) -> tuple[Motion, np.ndarray]:
     """`motion` through the front end, and its unwrapped rotation columns. The captured
     frames are one window, unwrapped from the first captured frame as a stream of them is
-    (filter on or off); a reference frame before them stays as it is. Off (None or 0):
-    `motion` itself."""
+    (filter on or off); a reference frame before them stays as it is, and so do lead frames
+    at `first_frame` (`motion.without_lead`: `first_frame` moves past them, as a stream drops
+    them). Off (None or 0): `motion` itself, or it past its lead frames."""
+    motion = without_lead(motion)
     skel = motion.skeleton
     cols = skel.rotation_columns()
     front = FrontEnd(skel, motion.fps, noise_cutoff_hz)
@@ -103,5 +105,5 @@ def compute_features(motion: Motion, role_mapping: dict[str, str] | None = None,
     skel = motion.skeleton
     filtered, rotations = filtered_motion(motion, noise_cutoff_hz)
     roles = resolve_roles(skel, role_mapping)
-    cutoff = noise_cutoff_hz if filtered is not motion else None
+    cutoff = noise_cutoff_hz if filtered.channels is not motion.channels else None  # filtered
     return Features(filtered, None, roles, body_height(skel), rotations, cutoff)

@@ -177,6 +177,27 @@ def detect_reference_frame(skeleton: Skeleton, channels: np.ndarray) -> int:
     return first + int(posed[0]) if len(posed) else first
 
 
+def reference_lead(skeleton: Skeleton, first: np.ndarray, second: np.ndarray) -> bool:
+    """Is `first`, followed by `second`, a lead frame, a reference T-pose or an all-zero
+    dropout (`detect_reference_frame`), rather than a captured one? A sender that streams a
+    whole cgspeed BVH starts with one: its one-frame jump into the take is no motion."""
+    return detect_reference_frame(skeleton, np.stack([first, second])) > 0
+
+
+def without_lead(motion: Motion) -> Motion:
+    """`motion` with `first_frame` past the lead frames at it, by the rule a stream applies
+    frame by frame (`reference_lead` on each first frame and its successor, as
+    `filters.FrontEnd` does): the same take with or without its reference frame streamed
+    first gets the same keys. `motion` itself when there is none."""
+    first, skeleton, channels = motion.first_frame, motion.skeleton, motion.channels
+    while motion.n_frames - first >= 2 and reference_lead(skeleton, channels[first],
+                                                          channels[first + 1]):
+        first += 1
+    if first == motion.first_frame:
+        return motion
+    return Motion(skeleton, channels, motion.fps, first, motion.name)
+
+
 def _reference_frame(skeleton: Skeleton, channels: np.ndarray) -> int:
     if channels.shape[0] < 2:
         return 0

@@ -20,7 +20,7 @@ The segment detector (`Pipeline(segments=True)`, the default; `streamkey.segment
 the session's calibration holds, still stretches and takes as they are found.
 
 The noise filter (`filters.FrontEnd`, on by default at `filters.DEFAULT_NOISE_CUTOFF_HZ`,
-6 Hz; `noise_cutoff_hz=None` or 0 turns it off) is the same offline
+5 Hz; `noise_cutoff_hz=None` or 0 turns it off) is the same offline
 (`features.compute_features`) and online, so the keyframers see the same numbers; it holds
 each frame `delay` frames (its half-width, from the cut-off and the rate).
 Keyframers decide on filtered frames as before; each event is then restated once, here: a

@@ -273,14 +273,14 @@ def test_online_with_unbounded_lookahead_equals_offline(name: str) -> None:
 
 
 def test_the_default_lookahead_is_120_frames_and_bounds_every_latency() -> None:
-    # The sensor-noise front end holds each frame `delay` frames (12 at 120 Hz); the events'
+    # The sensor-noise front end holds each frame `delay` frames (14 at 120 Hz); the events'
     # latency bound is the keyframer's lookahead plus that delay.
     for name in ("07_01.bvh", "05_06.bvh", "35_01.amc"):
         m = load(name)
         kf = speed.Online(m.skeleton, m.fps)
-        assert kf.lookahead == 120 and kf.features.delay == 12
+        assert kf.lookahead == 120 and kf.features.delay == 14
         events = online_default(name)
-        assert events and all(0 <= e.latency_frames <= 120 + 12 for e in events)
+        assert events and all(0 <= e.latency_frames <= 120 + 14 for e in events)
         assert {e.lookahead for e in events} == {120 + 12}
 
 
@@ -383,7 +383,7 @@ def test_the_analysis_hop_defaults_to_a_fifth_of_the_lookahead() -> None:
     assert speed.Online(m.skeleton, m.fps, lookahead=60).hop == 12
     assert speed.Online(m.skeleton, m.fps, lookahead=10).hop == 2
     events = run_online(load("05_06.bvh"), lookahead=60)
-    assert events and all(e.latency_frames <= 60 + 12 for e in events)  # + the front end's
+    assert events and all(e.latency_frames <= 60 + 14 for e in events)  # + the front end's
 
 
 def test_1d_ward_gives_scipys_levels_and_mojena_verdict() -> None:

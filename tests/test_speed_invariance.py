@@ -51,10 +51,6 @@ def test_keys_of_a_variant_are_the_clean_takes_keys_on_every_clip(which: str, mo
     check(clips(), which, mode)
 
 
-@pytest.mark.xfail(strict=True, reason="measured: with the sensor-noise front end on, the "
-                   "reference frame is filtered into the take's first frames before speed can "
-                   "leave it out; offline 3 of 4 clips' keys change (02_01: 4 -> 5 keys), "
-                   "online 4 of 4 (07_05: 6 -> 5)")
 @pytest.mark.parametrize("mode", ["offline", "online"])
 def test_a_reference_t_pose_streamed_first_changes_no_key(mode: str) -> None:
     """A sender of the whole cgspeed file starts with its reference T-pose: one frame whose

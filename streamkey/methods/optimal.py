@@ -104,7 +104,7 @@ import numpy as np
 from ..errors import UsageError
 from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import Event, KeyframeEvent, Keyframes, params_digest
-from ..motion import Motion, Skeleton
+from ..motion import Motion, Skeleton, without_lead
 from ..online import (
     DEFAULT_MAX_BRIDGE_FRAMES,
     FeatureBlock,
@@ -225,6 +225,7 @@ def extract(motion: Motion, *, count: int | None = None, rate: float | None = No
     """Optimal keys of `motion` (module docstring); default mode: `rate=DEFAULT_RATE`.
     `max_segment`: a `Duration`, or a plain number of seconds. `hold_keys`: rate mode may
     put keys inside calibration holds and still stretches."""
+    motion = without_lead(motion)  # a stream drops them too (`filters.FrontEnd`)
     mode = _mode(count, rate, tolerance, lam)
     max_len = _frames(max_segment, motion.fps, "max_segment")
     ticks = TICKS_PER_SECOND / motion.fps

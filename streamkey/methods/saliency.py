@@ -116,7 +116,7 @@ import numpy as np
 from ..errors import UsageError
 from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import Keyframes
-from ..motion import Motion
+from ..motion import Motion, without_lead
 from ..segments import detect_segments, motion_mask
 from ..units import DurationLike
 from .saliency_kernels import pick_keyframe
@@ -219,6 +219,7 @@ def extract(motion: Motion, *, sigma: DurationLike | None = None, k: int | None 
             noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> Keyframes:
     """Keyframes of `motion` by multiscale motion saliency (Halit & Capin);
     `sigma` a `Duration`, or frames as a plain number."""
+    motion = without_lead(motion)  # a stream drops them too (`filters.FrontEnd`)
     if preset not in ("auto", *PRESETS):
         raise UsageError(f"saliency: preset must be 'auto', 'low' or 'high', got {preset!r}")
     if features is None:

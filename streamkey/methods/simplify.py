@@ -109,7 +109,7 @@ from ..errors import UsageError
 from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import KeyframeEvent, Keyframes
 from ..kinematics import root_relative_joints
-from ..motion import Motion, Skeleton
+from ..motion import Motion, Skeleton, without_lead
 from ..online import DEFAULT_MAX_BRIDGE_FRAMES, FeatureBlock, OnlineKeyframer
 from ..signal import unwrap_degrees
 from ..units import Duration, DurationLike, whole_frames
@@ -298,6 +298,7 @@ def extract(motion: Motion, *, tolerance: float | None = None, ratio: float | No
 
     Frames before `motion.first_frame` are skipped; indices are in the file's numbering.
     """
+    motion = without_lead(motion)  # a stream drops them too (`filters.FrontEnd`)
     if space not in SPACES:
         raise UsageError(f"space must be one of {SPACES}, got {space!r}")
     tolerance, ratio, count = _rule(tolerance, ratio, count, space)

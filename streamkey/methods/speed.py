@@ -8,10 +8,10 @@ Offline: `extract(motion)`. Definitions this module settles (the paper leaves th
   v(n) = |p_F(n+1) - p_F(n)| / dt, the Euclidean norm over all 48 coordinates (eq. 3). v has
   one value fewer than the motion has captured frames and v(n) is reported at frame n (the
   first frame of the forward difference). A first frame that is a reference T-pose (or an
-  all-zero dropout) by `motion.detect_reference_frame` is not captured motion and is left
-  out, by `extract` and by a stream (`Online` holds a stream's first frame until its second
-  arrives): its one-frame jump would be the largest speed of all and leave one cluster above
-  Mojena's cut (07_05 streamed with its reference frame: 1 key instead of 6).
+  all-zero dropout, `motion.reference_lead`) is not captured motion and is left out, by
+  `extract` (`motion.without_lead`) and by a stream (the front end drops it,
+  `filters.FrontEnd`): its one-frame jump would be the largest speed of all and leave one
+  cluster above Mojena's cut (07_05 streamed with its reference frame: 1 key instead of 6).
 - Rest: candidates (local minima of v) and the minima of every scale's trend lie at speeds of
   at least `REST_SPEED` (0.02 body heights/s); below it an exact hold has only rounding noise
   and HP ringing, whose minima counted as candidates and moved Mojena's cut-off.
@@ -96,7 +96,7 @@ import numpy as np
 
 from ..features import DEFAULT_NOISE_CUTOFF_HZ, Features, compute_features
 from ..keyframes import Keyframes
-from ..motion import Motion
+from ..motion import Motion, without_lead
 from ..roles import MIURA_ROLES
 from ..segments import Segment, motion_mask
 from .speed_chains import (
@@ -121,7 +121,6 @@ from .speed_scales import (
     candidates_of,
     check_params,
     packed_factors,
-    reference_lead,
     scale_frequencies,
     scale_lambdas,
     scale_minima,
@@ -137,15 +136,6 @@ __all__ = ["extract", "scale_frequencies", "speed_signal", "HPBank", "scale_mini
            "speed_tail", "packed_factors", "REST_SPEED", "candidates_of", "LOOKAHEAD", "MAX_HOP",
            "HISTORY", "CUTOFF_HISTORY", "BAND_BUDGET", "quantile_threshold", "CUTS",
            "nearest_pairs"]
-
-
-def _first_captured(motion: Motion) -> int:
-    """`motion.first_frame`, past a reference frame there too (as `Online` skips it)."""
-    first = motion.first_frame
-    if motion.n_frames - first >= 2 and reference_lead(
-            motion.skeleton, motion.channels[first], motion.channels[first + 1]):
-        first += 1
-    return first
 
 
 def _positions(motion: Motion, features: Features | None, first: int | None = None
@@ -169,13 +159,14 @@ def extract(motion: Motion, *, features: Features | None = None, f_c: float = 10
     sample, so that a session state does not move the cut-off; they still get keys by it.
     `Online.note_segment` does the same with the segment events of a stream.
     """
+    motion = without_lead(motion)  # a stream drops them too (`filters.FrontEnd`)
     check_params(f_c, f_max, f_min, r, mojena_k)
     cut = check_cut(cut)
     features = features or compute_features(motion, noise_cutoff_hz=noise_cutoff_hz)
     params: dict[str, Any] = {"f_c": f_c, "f_max": f_max, "f_min": f_min, "r": r,
                               "mojena_k": mojena_k, "cut": cut}
     dt = motion.frame_time
-    off = _first_captured(features.motion)  # the frames online sees: filtered
+    off = motion.first_frame
     v = speed_signal(_positions(motion, features, off), dt, f_c)
     freqs = scale_frequencies(f_max, f_min, r)
     bank = HPBank(scale_lambdas(freqs, dt))

@@ -86,7 +86,6 @@ from .speed_state import (
     AnalysisInput,
     CutoffSample,
     Decisions,
-    LeadHold,
     PoseRows,
     QuietSpans,
     Spans,
@@ -210,7 +209,6 @@ class Online(OnlineKeyframer):
         self._decisions = Decisions()  # taken, not sent
         self._speeds = WindowSpeeds()  # of the window
         self._job: Analysis | None = None  # the running analysis
-        self._lead = LeadHold()  # the stream's first frame
         self._quiet = QuietSpans()  # calibration holds and still stretches
 
     def restart(self, keep_statistics: bool = True) -> None:
@@ -237,16 +235,6 @@ class Online(OnlineKeyframer):
         frames start the next one. The block's last frame leaves its share to `idle`."""
         rows = self._pose.of(block)
         seqs, times = np.asarray(block.seq), np.asarray(block.time)
-        if self._lead.pending:  # the stream's first frame waits for its second
-            admitted = self._lead.admit(self.skeleton, rows, seqs, times, block.channels)
-            if admitted is None:
-                return []
-            rows, seqs, times = admitted
-        return self._ingest(rows, seqs, times)
-
-    def _ingest(self, rows: np.ndarray, seqs: np.ndarray, times: np.ndarray
-                ) -> list[KeyframeEvent]:
-        """`process` on the rows kept (the stream's reference frame left out)."""
         if len(rows):
             self._cutoff.resume(int(seqs[0]))
         events: list[KeyframeEvent] = []
@@ -285,9 +273,6 @@ class Online(OnlineKeyframer):
         with the whole window, like everything else still pending; so is a running analysis.
         """
         events = self.idle()  # normally already run by the driver
-        held = self._lead.release()
-        if held is not None:  # a one-frame stream: its frame is all there is
-            events += self._ingest(*held) + self.idle()
         self._job = None
         if not len(self._ring):
             return events

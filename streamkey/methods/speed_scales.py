@@ -13,7 +13,7 @@ import numpy as np
 from scipy.linalg import get_blas_funcs, get_lapack_funcs
 
 from ..errors import UsageError
-from ..motion import Skeleton, detect_reference_frame
+from ..motion import reference_lead
 from ..signal import HP_SETTLE, hp_factor, hp_filter, hp_lambda, hp_prefix, hp_settle, local_minima
 
 __all__ = ["METHOD", "check_params", "scale_frequencies", "speed_signal", "WorkRows",
@@ -192,13 +192,3 @@ def candidates_of(v: np.ndarray) -> np.ndarray:
 def settle_frames(lams: np.ndarray) -> np.ndarray:
     """Frames after which an HP filter forgets a boundary to ~1e-6 (`signal.hp_settle`)."""
     return hp_settle(lams)
-
-
-
-def reference_lead(skeleton: Skeleton, first: np.ndarray, second: np.ndarray) -> bool:
-    """Is `first`, followed by `second`, a reference T-pose (or an all-zero dropout) frame
-    rather than a captured one (`motion.detect_reference_frame`)? A sender that streams a
-    whole cgspeed BVH starts with it: its one-frame jump into the take would be the largest
-    speed of the stream and leave a single cluster above Mojena's cut."""
-    return detect_reference_frame(skeleton, np.stack([first, second])) > 0
-

@@ -1,10 +1,10 @@
 """The named parts of the online speed keyframer's state (`speed_online.Online`).
 
 Each part owns one invariant: the spans of the running analysis (`Spans`), the rows of a
-block (`PoseRows`), the held first frame (`LeadHold`), the window's speeds (`WindowSpeeds`),
-the HP forward passes carried between analyses (`TrendCarry`), the Ward + Mojena cut-off
-sample (`CutoffSample`), the decisions not yet sent (`Decisions`), and one running analysis
-with its four stages' results (`Analysis`). Plain attributes: pickled with the keyframer.
+block (`PoseRows`), the window's speeds (`WindowSpeeds`), the HP forward passes carried
+between analyses (`TrendCarry`), the Ward + Mojena cut-off sample (`CutoffSample`), the
+decisions not yet sent (`Decisions`), and one running analysis with its four stages'
+results (`Analysis`). Plain attributes: pickled with the keyframer.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..motion import Skeleton
 from ..online import FeatureBlock
 from .speed_chains import (
     MojenaResult,
@@ -23,9 +22,9 @@ from .speed_chains import (
     two_cluster_threshold,
 )
 from .speed_kernels import hp_advance, hp_tail_part
-from .speed_scales import HPBank, WorkRows, packed_factors, reference_lead
+from .speed_scales import HPBank, WorkRows, packed_factors
 
-__all__ = ["Spans", "PoseRows", "LeadHold", "WindowSpeeds", "TrendCarry", "CutoffSample",
+__all__ = ["Spans", "PoseRows", "WindowSpeeds", "TrendCarry", "CutoffSample",
            "TrendRows", "QuietSpans", "Decisions", "AnalysisInput", "StageSpeeds",
            "StageMinima", "Analysis"]
 
@@ -50,42 +49,6 @@ class PoseRows:
         """One 48-vector per frame of `block`."""
         rows: np.ndarray = block.pelvis_points(self.joints).reshape(len(block), -1) / self.height
         return rows
-
-
-Frames = tuple[np.ndarray, np.ndarray, np.ndarray]  # rows, sequence numbers, times
-
-
-class LeadHold:
-    """The stream's first frame, held until its second arrives: a reference T-pose (or an
-    all-zero dropout) first frame is not captured motion and is left out."""
-
-    def __init__(self) -> None:
-        self.pending = True  # the first frame is not yet known to be captured
-        self.held: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # it
-
-    def admit(self, skeleton: Skeleton, rows: np.ndarray, seqs: np.ndarray, times: np.ndarray,
-              channels: np.ndarray) -> Frames | None:
-        """The frames to analyse of a block while the first frame is pending (None: none)."""
-        if self.held is None and len(rows):
-            self.held = (rows[:1].copy(), seqs[:1].copy(), times[:1].copy(),
-                         np.array(channels[0], dtype=np.float64))
-            rows, seqs, times = rows[1:], seqs[1:], times[1:]
-            channels = channels[1:]
-        if not len(rows):
-            return None
-        lead, self.held, self.pending = self.held, None, False
-        assert lead is not None
-        if not reference_lead(skeleton, lead[3], channels[0]):
-            rows = np.concatenate([lead[0], rows])
-            seqs, times = np.concatenate([lead[1], seqs]), np.concatenate([lead[2], times])
-        return rows, seqs, times
-
-    def release(self) -> Frames | None:
-        """End of a one-frame stream: its held frame is all there is (None: nothing held)."""
-        if self.held is None:
-            return None
-        lead, self.held, self.pending = self.held, None, False
-        return lead[0], lead[1], lead[2]
 
 
 class WindowSpeeds:
