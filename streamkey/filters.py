@@ -413,7 +413,7 @@ class FrontEnd:
         self.unwrap_offset: np.ndarray | None = None
         self.quat_prev = np.full((len(self.joint_columns), 4), 2.0)  # w = 2: none yet
         self.last_seq: int | None = None
-        self.leads = 0  # lead frames dropped at the start of a window
+        self.leads = 0  # lead frames dropped at the start of a window (all windows)
         self._fresh = True
 
     def push(self, seq: np.ndarray, time: np.ndarray, channels: np.ndarray) -> Rows:
@@ -495,7 +495,6 @@ class FrontEnd:
         self.unwrap_offset = None
         self.quat_prev[:] = 2.0
         self.last_seq = None
-        self.leads = 0
 
     def run(self, channels: np.ndarray) -> Rows:
         """A whole clip as one window (the offline path): push, then drain."""

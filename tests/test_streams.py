@@ -366,8 +366,12 @@ async def test_the_sockets_are_read_between_turns_while_a_backlog_is_computed():
             out.sendto(encode_frame(f0.seq, f0.time, f0.channels, stream_address("frame", "b")),
                        ("127.0.0.1", port))
 
-    engine = Engine(source, lambda spec: [Dear(spec.skeleton, spec.fps, stream=spec.stream)],
-                    [], on_frame=on_frame)
+    def dear(spec):  # type: ignore[no-untyped-def]  # unfiltered: every push is dear at once
+        kf = Dear(spec.skeleton, spec.fps, stream=spec.stream)
+        kf.features.configure(None)
+        return [kf]
+
+    engine = Engine(source, dear, [], on_frame=on_frame)
     try:
         summary = await engine.run()
     finally:

@@ -180,7 +180,7 @@ def test_extract_online_simplify_count_is_refused_by_the_real_cli():
                           "instead; counts are offline (extract without --online)\n")
 
 
-AUTO_KEEPS_LOW = pytest.mark.xfail(strict=True, reason="measured: behind the default 6 Hz "
+AUTO_KEEPS_LOW = pytest.mark.xfail(strict=True, reason="measured: behind the default 5 Hz "
                                    "noise filter saliency's auto preset keeps low on 05_06 "
                                    "(offline and online; high without the filter)")
 

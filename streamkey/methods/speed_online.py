@@ -46,8 +46,8 @@ sent yet. Windowed replacements of the offline global steps:
 
 The state is kept in named parts (`speed_state`): the window of position rows
 (`ring.RingWindow`), the window's speeds, the carried HP passes, the cut-off sample, the
-decisions not yet sent, the held first frame and the running analysis with its stages'
-results.
+decisions not yet sent and the running analysis with its stages' results. A stream's lead
+frame (a reference T-pose) never reaches it: the front end drops it (`filters.FrontEnd`).
 """
 
 from __future__ import annotations
