@@ -240,5 +240,3 @@ class FeatureStage:
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         self._requests = {}
-        if "skeleton" not in vars(self.front):  # a front end pickled before it kept one
-            self.front.skeleton = self.skeleton

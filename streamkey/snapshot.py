@@ -9,7 +9,8 @@ The payload is the pickle compressed with zlib at level 1 (deterministic for the
 bytes). Big float arrays are pickled byte-shuffled (every element's first byte, then every
 element's second, ...: the shuffle filter of Blosc and HDF5), which puts the slowly changing
 sign, exponent and high mantissa bytes of smooth signals side by side, where zlib finds them
-(format 6). Formats 5 (no shuffle) and 4 (no shuffle, uncompressed) are still read.
+(format 6; format 7 is the same encoding of a reshaped state: the front end's lead-frame
+check, speed without its own first-frame hold).
 
 The header names the kind (`keyframer` or `pipeline`), the class, the stream, the params
 digest (a pipeline's digest covers every keyframer's, in order), the last accepted `seq`
@@ -52,8 +53,8 @@ __all__ = ["SnapshotError", "SnapshotHeader", "snapshot", "restore", "read_heade
            "Pickled", "pickled", "seal", "SNAPSHOT_VERSION", "MAGIC", "unshuffled"]
 
 MAGIC = b"SKSNAP"
-SNAPSHOT_VERSION = 6  # 4: arrays without their all-zero slices; 5: compressed; 6: shuffled
-READABLE_VERSIONS = (4, 5, 6)  # all three decode the same way once decompressed
+SNAPSHOT_VERSION = 7  # 4: arrays without zero slices; 5: compressed; 6: shuffled; 7: state
+READABLE_VERSIONS = (7,)  # 4-6 hold the front end and speed in their earlier shape
 ZLIB_LEVEL = 1  # the fastest level: higher ones save 1-2 % more at twice the time
 MIN_TRIMMED_BYTES = 4096  # arrays this big or bigger are stored without their zero slices
 _PREFIX = struct.Struct(">6sBI")
@@ -267,7 +268,7 @@ def restore(data: bytes, expected: type | None = None, params: str | None = None
     if hashlib.sha256(payload).hexdigest() != header.sha256:
         raise SnapshotError(f"damaged snapshot of stream {header.stream!r}: checksum mismatch")
     try:
-        pickled = zlib.decompress(payload) if header.version >= 5 else payload
+        pickled = zlib.decompress(payload)
         obj = _Unpickler(_Reader(pickled)).load()
     except SnapshotError:
         raise
