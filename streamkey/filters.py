@@ -382,9 +382,6 @@ class FrontEnd:
     by a keyframer. Offline, `motion.without_lead` applies the same rule.
     """
 
-    _lead: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # first frame, unchecked
-    _fresh = False  # no frame of the window passed on yet: lead frames are looked for
-
     def __init__(self, skeleton: Skeleton, fps: float,
                  noise_cutoff_hz: float | None = DEFAULT_NOISE_CUTOFF_HZ) -> None:
         c = self.n_channels = skeleton.n_channels
@@ -414,7 +411,8 @@ class FrontEnd:
         self.quat_prev = np.full((len(self.joint_columns), 4), 2.0)  # w = 2: none yet
         self.last_seq: int | None = None
         self.leads = 0  # lead frames dropped at the start of a window (all windows)
-        self._fresh = True
+        self._fresh = True  # no frame of the window passed on yet: lead frames looked for
+        self._lead: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # unchecked
 
     def push(self, seq: np.ndarray, time: np.ndarray, channels: np.ndarray) -> Rows:
         """Put consecutive frames in; returns the frames now complete (maybe none)."""

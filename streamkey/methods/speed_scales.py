@@ -13,13 +13,11 @@ import numpy as np
 from scipy.linalg import get_blas_funcs, get_lapack_funcs
 
 from ..errors import UsageError
-from ..motion import reference_lead
 from ..signal import HP_SETTLE, hp_factor, hp_filter, hp_lambda, hp_prefix, hp_settle, local_minima
 
 __all__ = ["METHOD", "check_params", "scale_frequencies", "speed_signal", "WorkRows",
            "packed_factors", "speed_tail", "HPBank", "scale_lambdas", "scale_minima",
-           "scale_minimum", "SETTLE", "REST_SPEED", "candidates_of", "settle_frames",
-           "reference_lead"]
+           "scale_minimum", "SETTLE", "REST_SPEED", "candidates_of", "settle_frames"]
 
 METHOD = "speed"
 _PBTRS = get_lapack_funcs("pbtrs", (np.empty(1),))
