@@ -11,6 +11,7 @@ import textwrap
 
 import numpy as np
 import pytest
+from cmu import DATA
 
 from streamkey import jit
 
@@ -114,3 +115,39 @@ def test_a_fresh_process_after_warm_up_finds_the_cache_warm(tmp_path):
 
     assert cold("warm") == "True"  # an empty cache
     assert cold("check") == "False"  # a fresh process after warm_up: nothing to compile
+
+
+_STREAM = '''
+import sys
+from streamkey import jit
+from streamkey.amc import read_motion
+from streamkey.online import Pipeline
+from streamkey.streaming import make_keyframers
+motion = read_motion(sys.argv[1])
+pipeline = Pipeline(make_keyframers(motion, ["saliency", "speed", "simplify", "optimal"]))
+jit.warm_up()
+def signatures():
+    return {k.__module__ + "." + k.__qualname__: len(k.compiled.signatures)
+            for k in jit._KERNELS if k.compiled is not None}
+before = signatures()
+for frame in motion.frames():
+    pipeline.push(frame)
+    pipeline.idle()
+pipeline.flush()
+after = signatures()
+print(sorted(name for name in after if after[name] != before.get(name, 0)))
+'''
+
+
+@pytest.mark.slow
+def test_no_push_of_a_real_stream_loads_a_kernel_after_warm_up():
+    """Loading one kernel signature from numba's cache costs ~7 ms: a live stream must find
+    every signature it calls already loaded by `warm_up()` (speed's staged HP trends and its
+    minima correspondence were missing: the first analysis' push took 7 ms). Every online
+    method on one pipeline over 01_06 (43 s: saliency's spread basis updates, speed's
+    analyses, optimal's chunks, the flush), in a fresh process."""
+    clip = DATA / "01_06.bvh"
+    done = subprocess.run([sys.executable, "-P", "-c", _STREAM, str(clip)], capture_output=True,
+                          text=True, timeout=1800)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split("\n")[-2] == "[]"

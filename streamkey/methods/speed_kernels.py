@@ -447,9 +447,11 @@ def _warm() -> None:
     v = np.linspace(0.0, 1.0, 7)
     done = hp_advance(v, 0, 0, 3, ys, pre, off, conv)
     trends = hp_tail(v, 0, 0, done, ys, pre, off, conv, lams, np.empty((9, 2)))
+    hp_tail_part(v, 0, 0, done, ys, pre, off, conv, lams, np.empty((9, 2)), 0, 1)  # stages
     m, u, c = tail_minima(trends, 1, 0, 1, 0.0)
     tail_minima(np.ascontiguousarray(trends), 1, 0, 1, 0.0)
     chain_totals(np.array([1, 3], dtype=np.int64), m, u, c)
+    mutual_nearest(np.array([1, 3], dtype=np.int64), np.array([2], dtype=np.int64))
     band_offsets(np.array([1, 2, 3], dtype=np.int64), np.array([2], dtype=np.int64))
     alpha, bounds = ward_levels(np.array([0.0, 1.0, 3.0]), 2.0)
     labels = ward_labels(np.array([2, 0, 1], dtype=np.int64), alpha, bounds, 2)
