@@ -383,6 +383,7 @@ PERF_ONLINE_GOALS = {"feature stage": (40.0, 1000.0), "saliency": (80.0, 1000.0)
                      "optimal": (80.0, 1000.0),
                      "saliency + speed + simplify (one pipeline)": (150.0, 1000.0),
                      "all four (one pipeline)": (150.0, 1000.0)}
+PERF_BURST_GOALS = (1000.0, 2000.0)  # µs a push, p99.9 and max: no push holds a loop turn up
 PIPELINE_OF_THREE = ("saliency", "speed", "simplify")  # the pipeline of three (no optimal)
 PERF_OFFLINE_GOALS = {"features": 0.5, "saliency": 0.5, "speed": 1.0, "simplify": 0.5,
                       "decimate": 2.0, "isodata": 1.0, "curvefit": 10.0}
@@ -390,7 +391,7 @@ PERF_OFFLINE_GOALS = {"features": 0.5, "saliency": 0.5, "speed": 1.0, "simplify"
 
 def _cpu_push_costs(make: Callable[[], Any], frames: list[Any], push: str = "push"
                     ) -> dict[str, float]:
-    """Per-push CPU time of the calling thread (µs): mean, p50, p99, max."""
+    """Per-push CPU time of the calling thread (µs): mean, p50, p99, p99.9, max."""
     from ..jit import warm_up
 
     target = make()
@@ -405,7 +406,8 @@ def _cpu_push_costs(make: Callable[[], Any], frames: list[Any], push: str = "pus
         costs[i] = clock() - t0
     us = costs / 1000.0
     return {"mean_us": float(us.mean()), "p50_us": float(np.percentile(us, 50)),
-            "p99_us": float(np.percentile(us, 99)), "max_us": float(us.max())}
+            "p99_us": float(np.percentile(us, 99)), "p999_us": float(np.percentile(us, 99.9)),
+            "max_us": float(us.max())}
 
 
 def bench_perf_online(frames: int, data: Path | None, methods: list[str] | None = None,
@@ -428,8 +430,12 @@ def bench_perf_online(frames: int, data: Path | None, methods: list[str] | None 
     def add(target: str, costs: dict[str, float]) -> None:
         mean_goal, p99_goal = PERF_ONLINE_GOALS[target]
         out.append({"target": target, **costs, "streams_per_core": 1e6 / motion.fps
-                    / costs["mean_us"], "goal": f"mean <= {mean_goal:g}, p99 <= {p99_goal:g}",
-                    "met": costs["mean_us"] <= mean_goal and costs["p99_us"] <= p99_goal,
+                    / costs["mean_us"],
+                    "goal": f"mean <= {mean_goal:g}, p99 <= {p99_goal:g}, p99.9 <= "
+                            f"{PERF_BURST_GOALS[0]:g}, max <= {PERF_BURST_GOALS[1]:g}",
+                    "met": costs["mean_us"] <= mean_goal and costs["p99_us"] <= p99_goal
+                    and costs["p999_us"] <= PERF_BURST_GOALS[0]
+                    and costs["max_us"] <= PERF_BURST_GOALS[1],
                     "load_average": round(os.getloadavg()[0], 2)})
 
     def pipeline_of(group: Iterable[str]) -> Pipeline:
