@@ -85,22 +85,27 @@ def summary(clips: list[str], kind: str, mode: str) -> str:
 # stillness, and online they lose fewer held-back keys (FEW online stillness after F1
 # 0.907 / 0.686 -> 0.967 / 0.941). The noise front end at 5 Hz rather than 6 Hz: FEW offline
 # calibration before F1 met at 6 Hz, 0.873 / 0.738 at 5 Hz; ALL offline stillness after met
-# (0.946 / 0.788); the tables below are measured at 5 Hz.
+# (0.946 / 0.788). The noise floor of the standardisation (0.5 degrees, against columns of
+# pure sensor noise): FEW offline calibration before met (0.917 / 0.833), FEW offline 30 Hz
+# missed (0.888 / 0.737, was met), ALL offline calibration count 0.78 (07_12, was in range);
+# its gain is in the noise variants (tests/test_robustness.py). The tables below are
+# measured with both.
 XFAIL_F1: dict[tuple[str, str], str] = {
-    ("offline", "calibration before"): "F1 mean 0.873 worst 0.738 (16_11)",
-    ("online", "30 Hz"): "F1 mean 0.843 worst 0.759 (16_11)",
-    ("online", "calibration before"): "F1 mean 0.828 worst 0.706 (07_01)",
+    ("offline", "30 Hz"): "F1 mean 0.888 worst 0.737 (16_11)",
+    ("online", "30 Hz"): "F1 mean 0.827 worst 0.723 (05_02)",
+    ("online", "calibration before"): "F1 mean 0.830 worst 0.686 (07_01)",
 }
 XFAIL_COUNT: dict[tuple[str, str], str] = {}
 XFAIL_F1_ALL: dict[tuple[str, str], str] = {
-    ("offline", "30 Hz"): "F1 mean 0.876 worst 0.585 (49_18.amc; 35 clips)",
-    ("offline", "calibration before"): "F1 mean 0.873 worst 0.738 (16_11; 35 clips)",
-    ("online", "30 Hz"): "F1 mean 0.854 worst 0.667 (07_12; 35 clips)",
-    ("online", "calibration before"): "F1 mean 0.836 worst 0.682 (49_18.amc; 35 clips)",
+    ("offline", "30 Hz"): "F1 mean 0.881 worst 0.524 (49_18.amc; 35 clips)",
+    ("offline", "calibration before"): "F1 mean 0.877 worst 0.636 (49_18.amc; 35 clips)",
+    ("online", "30 Hz"): "F1 mean 0.847 worst 0.686 (07_12; 35 clips)",
+    ("online", "calibration before"): "F1 mean 0.827 worst 0.652 (49_18.amc; 35 clips)",
 }
 XFAIL_COUNT_ALL: dict[tuple[str, str], str] = {
-    ("online", "30 Hz"): "count ratio 0.78-1.00 (05_11; 35 clips)",
-    ("online", "calibration before"): "count ratio 0.70-1.08 (07_12; 35 clips)",
+    ("offline", "calibration before"): "count ratio 0.78-1.17 (07_12; 35 clips)",
+    ("online", "30 Hz"): "count ratio 0.75-1.06 (07_12; 35 clips)",
+    ("online", "calibration before"): "count ratio 0.75-1.21 (07_12; 35 clips)",
 }
 
 def _cases(table: dict[tuple[str, str], str]) -> list[object]:

@@ -52,6 +52,9 @@ VARIANCE_SHARE = 0.9
 CURVE_CUTOFF_HZ = 3.5
 CURVE_ORDER = 6
 _MIN_VAR = 1e-10
+# RMS degrees of motion below visibility: its variance is added to every column's before
+# standardising (`saliency` module docstring, Input).
+NOISE_FLOOR_DEG = 0.5
 _TIE = 1e-9
 
 
@@ -138,13 +141,14 @@ def pca_basis(mo: Moments, k: int, variance_rule: bool) -> Basis:
 
 
 def correlation(mo: Moments) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """First half of `pca_basis`: (mean, sd, kept columns, their correlation matrix)."""
+    """First half of `pca_basis`: (mean, sd, kept columns, their correlation matrix); sd
+    includes the noise floor (`NOISE_FLOOR_DEG`), so a column of sensor noise weighs little."""
     n = max(mo.n, 1)
     mean = mo.sx / n
     cov = mo.sxx / n - np.outer(mean, mean)
     var = np.maximum(np.diag(cov).copy(), 0.0)
     keep = np.flatnonzero(var > _MIN_VAR)
-    sd = np.sqrt(np.where(var > _MIN_VAR, var, 1.0))
+    sd = np.sqrt(np.where(var > _MIN_VAR, var + NOISE_FLOOR_DEG**2, 1.0))
     return mean, sd, keep, cov[np.ix_(keep, keep)] / np.outer(sd[keep], sd[keep])
 
 
