@@ -214,16 +214,19 @@ def bench_streams(data: Path | None, quick: bool = False,
 def readme_table(result: dict[str, Any]) -> str:
     """The README's tables of a `bench_streams` result: the capacity measured outside the
     run, then the scheduling model (due-first against the old order)."""
-    lines = ["| streams | workers | due p50 / p99 / max (ms, external receiver) | frames lost "
-             "| kernel drops | load before / after |", "|---|---|---|---|---|---|"]
+    lines = ["| phases | streams | workers | due p50 / p99 / max (ms, external receiver) "
+             "| frames lost | kernel drops | load before / after |",
+             "|---|---|---|---|---|---|---|"]
     for r in result.get("external_rows", []):
-        lines.append(f"| {r['streams']} | {r['workers']} | {r['p50_ms']} / {r['p99_ms']} / "
-                     f"{r['max_ms']} | {r['frames_lost']} | {r['kernel_drops']} | "
-                     f"{r['load_1min_before']} / {r['load_1min_after']} |")
+        lines.append(f"| {r.get('phases', 'spread')} | {r['streams']} | {r['workers']} | "
+                     f"{r['p50_ms']} / {r['p99_ms']} / {r['max_ms']} | {r['frames_lost']} | "
+                     f"{r['kernel_drops']} | {r['load_1min_before']} / "
+                     f"{r['load_1min_after']} |")
+    lines.append("")
     for c in result.get("capacity", []):
-        lines.append(f"\n{c['workers']} worker(s): {c['streams']} streams at due p99 <= "
-                     f"{TARGET_P99_MS:g} ms with no frame lost ({c['streams_per_core']} per "
-                     "core)")
+        lines.append(f"- phases {c.get('phases', 'spread')}, {c['workers']} worker(s): "
+                     f"{c['streams']} stream(s) at due p99 <= {TARGET_P99_MS:g} ms, max <= "
+                     f"{TARGET_MAX_MS:g} ms, no frame lost ({c['streams_per_core']} per core)")
     return "\n".join(lines) + "\n\n" + _model_table(result)
 
 
