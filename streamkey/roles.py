@@ -145,11 +145,32 @@ def detect_rig(skeleton: Skeleton) -> str:
     return max(ROLE_TABLES, key=lambda t: score(ROLE_TABLES[t]))
 
 
+_RESOLVED: dict[tuple[object, ...], dict[str, int]] = {}
+_MAX_RESOLVED = 64  # distinct (rig, mapping, roles) remembered; a process serves a few rigs
+
+
 def resolve_roles(skeleton: Skeleton, mapping: dict[str, str] | None = None,
                   needed: tuple[str, ...] = ROLES) -> dict[str, int]:
     """Map each role in `needed` to an FK point index; raise `RoleError` listing what is
-    missing. `mapping` (default: the skeleton's own `roles`) overrides the built-in tables."""
+    missing. `mapping` (default: the skeleton's own `roles`) overrides the built-in tables.
+
+    Remembered by the rig's structure (joint names, parents, end sites), the mapping and
+    `needed`: every keyframer of a new stream asks for the same rig (ten times for the four
+    methods, 4 ms of a stream's 6-8 ms start-up otherwise)."""
     mapping = mapping if mapping is not None else skeleton.roles
+    key = (tuple(skeleton.names), tuple(skeleton.parents), tuple(sorted(skeleton.end_sites)),
+           tuple(sorted((mapping or {}).items())), tuple(needed))
+    known = _RESOLVED.get(key)
+    if known is None:
+        known = _resolve_roles(skeleton, mapping, needed)
+        if len(_RESOLVED) >= _MAX_RESOLVED:
+            _RESOLVED.clear()
+        _RESOLVED[key] = known
+    return dict(known)
+
+
+def _resolve_roles(skeleton: Skeleton, mapping: dict[str, str] | None,
+                   needed: tuple[str, ...]) -> dict[str, int]:
     lookup = _lookup(skeleton)
     joints = ", ".join(skeleton.names)
     for role, name in (mapping or {}).items():

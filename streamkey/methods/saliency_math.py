@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.linalg import eigh
@@ -201,7 +202,14 @@ def lowpass(fps: float, cutoff_hz: float | None = CURVE_CUTOFF_HZ, order: int = 
         one = np.zeros(order + 1)
         one[0] = 1.0
         return one, one.copy()
-    b, a = butter(order, cutoff_hz, fs=float(fps))
+    b, a = _butter(order, float(cutoff_hz), float(fps))
+    return b.copy(), a.copy()
+
+
+@lru_cache(maxsize=32)
+def _butter(order: int, cutoff_hz: float, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """scipy's design, remembered: every new stream's keyframers ask for the same filter."""
+    b, a = butter(order, cutoff_hz, fs=fps)
     return np.asarray(b, dtype=np.float64), np.asarray(a, dtype=np.float64)
 
 
