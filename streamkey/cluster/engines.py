@@ -109,9 +109,11 @@ def _dask(paths: list[Path], args: tuple[Any, ...], address: str | None,
     if address:
         client = Client(address)
     else:
+        # Its logs stay quiet below CRITICAL: a file's error comes back in its result, and
+        # on exit a worker's heartbeat can meet the closing scheduler and log a traceback.
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.CRITICAL)
         client = Client(cluster)
     try:
         cwd = os.getcwd()
