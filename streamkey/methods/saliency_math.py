@@ -16,6 +16,7 @@ from scipy.linalg import eigh
 from scipy.ndimage import correlate1d
 from scipy.signal import butter
 
+from ..jit import warmer
 from ..units import Duration, DurationLike, frames_of
 from .saliency_kernels import (
     Clusterer,
@@ -510,3 +511,12 @@ def remap_stats(st: MapStats, perm: np.ndarray) -> MapStats:
 
     return MapStats(st.n, col(st.total), col(st.top), col(st.lm_n), col(st.lm_sum),
                     col(st.lm_top))
+
+
+@warmer
+def _warm() -> None:
+    """A first basis and its maps on a tiny sample: LAPACK's eigensolver and the Gaussian
+    correlations load their code on first use (2-4 ms), in a live stream's first basis push."""
+    xs = np.random.default_rng(0).normal(size=(16, 4))
+    basis = pca_basis(moments(xs), 2, True)
+    maps_of(np.abs(basis.project(xs)), 2.0, False, 1.0)
