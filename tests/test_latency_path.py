@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import gc
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 from cmu import DATA
 from live_helpers import MS, keyframes_of, read_jsonl, streamkey
@@ -21,7 +23,7 @@ from streamkey.adapters.osc import OscSource, encode_frame, encode_skeleton, ske
 from streamkey.adapters.zmq import ZmqSource
 from streamkey.bvh import parse_bvh, read_bvh
 from streamkey.framequeue import SkeletonAnnounced
-from streamkey.live import build_engine
+from streamkey.live import PM_QOS_DEVICE, build_engine
 from streamkey.replay.source import MotionSource
 
 CLIP = DATA / "07_01.bvh"
@@ -167,6 +169,43 @@ def test_realtime_priority_is_inherited_by_threads_started_later():
     assert done.returncode == 0, done.stderr
     assert done.stdout.split()[-1] == "True"
 
+
+
+def test_realtime_holds_a_cpu_wakeup_latency_request_while_the_process_lives():
+    """PM QoS: the kernel reports the aggregate request when the device is read; the run's
+    request is 0 us while its process lives and gone when it exits. Where the device cannot
+    be opened, the line says so and why."""
+    device = Path(PM_QOS_DEVICE)
+    code = ("import sys; from streamkey.live import raise_priority; print(raise_priority(), "
+            "flush=True); sys.stdin.readline()")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        said = proc.stdout.readline()
+        held = os.access(device, os.W_OK)
+        if held:
+            assert "CPU wake-up latency 0 us (PM QoS)" in said, said
+            assert int.from_bytes(device.read_bytes()[:4], sys.byteorder) == 0
+        else:
+            assert f"CPU wake-up latency not held ({device}: " in said, said
+    finally:
+        proc.communicate("\n", timeout=60 * MS)
+    assert proc.returncode == 0
+    if held:  # the kernel dropped the request with the process (unless another holds one)
+        if not _holders(device):
+            assert int.from_bytes(device.read_bytes()[:4], sys.byteorder) > 0
+
+
+def _holders(device: Path) -> list[str]:
+    """Processes with `device` open (/proc/*/fd)."""
+    out = []
+    for fd in Path("/proc").glob("[0-9]*/fd/*"):
+        try:
+            if os.readlink(fd) == str(device):
+                out.append(fd.parts[2])
+        except OSError:
+            pass
+    return out
 
 
 async def test_keyframes_of_a_streams_end_are_stamped_but_not_timed():
