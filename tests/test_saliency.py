@@ -19,6 +19,8 @@ from streamkey.features import Features, compute_features
 from streamkey.keyframes import Event, GapEvent, KeyframeEvent, Keyframes
 from streamkey.methods import saliency, saliency_math
 from streamkey.motion import Frame, Motion
+from streamkey.units import Duration
+from streamkey.variants import resample
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "cmu"
@@ -294,11 +296,33 @@ def test_a_periodic_basis_update_is_spread_and_applies_spread_frames_later() -> 
             switches.append(i)
         basis = kf.basis
     events += kf.flush()
-    assert len(starts) >= 4 and switches == [u + saliency.SPREAD for u in starts]
+    assert len(starts) >= 4 and switches == [u + kf.setup.spread for u in starts]
     block = saliency.Online(m.skeleton, m.fps, **kw)  # type: ignore[arg-type]
     frames = m.frames()
     split = block.push_block(frames[:1000]) + block.push_block(frames[1000:2013])
     assert split + block.push_block(frames[2013:]) + block.flush() == events
+
+
+@pytest.mark.parametrize(("fps", "spread"), [(30.0, 10), (60.0, 12), (120.0, 24), (240.0, 48)])
+def test_a_periodic_basis_update_applies_a_fifth_of_a_second_later_at_any_rate(
+        fps: float, spread: int) -> None:
+    """The spread is a duration (0.2 s, at least 10 frames for its pieces): at 30 Hz a new
+    basis used to apply 24 frames (0.8 s) after it was due."""
+    m = resample(motion("01_01.bvh"), fps).motion
+    kw = {"sigma": Duration.seconds(1 / 12), "k": 7, "history": Duration.seconds(2.5),
+          "update_every": Duration.seconds(10 / 3)}
+    kf = saliency.Online(m.skeleton, m.fps, **kw)  # type: ignore[arg-type]
+    assert kf.setup.spread == spread
+    starts, switches, basis = [], [], None
+    for i, frame in enumerate(m.frames()):
+        spreading = kf.spread is not None
+        kf.push(frame)
+        if kf.spread is not None and not spreading:
+            starts.append(i)
+        if kf.basis is not basis and basis is not None and spreading:
+            switches.append(i)
+        basis = kf.basis
+    assert len(starts) >= 4 and switches == [u + spread for u in starts]
 
 
 @cache

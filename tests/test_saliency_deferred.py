@@ -127,7 +127,7 @@ def test_no_push_but_the_first_waits_for_a_basis_update_and_each_switches_spread
     # stream start, then periodic (the keyframer's frames; the pipeline's are `delay` later:
     # the noise filter holds each frame that long)
     assert starts[:3] == [u + pipe.delay for u in (243, 487, 975)] and len(starts) >= 5
-    assert switches == [u + saliency.SPREAD for u in starts]
+    assert switches == [u + kf.setup.spread for u in starts]
     assert any(isinstance(e, KeyframeEvent) for e in events)
 
 

@@ -20,13 +20,17 @@ makes the online result equal the offline one when every decision waits for `flu
   once frame 2 radius + 2 has arrived (the stream-start rows' support), is spread: due at
   frame u, it takes the moments of the window at u, and its work (moments, correlation,
   eigen-decomposition, matching, curves, curvatures, blocks of maps, the switch: one piece a
-  frame, in `idle()`) runs over the next `SPREAD` (24) frames; the new basis decides from
-  frame u + 24 on, the frames in between are classified with the previous one (at once,
+  frame, in `idle()`) runs over the next `SPREAD` (0.2 s: 24 frames at 120 Hz, at least
+  `MIN_SPREAD_FRAMES` = 10 for its pieces); the new basis decides from frame u + 24 on (at
+  120 Hz), the frames in between are classified with the previous one (at once,
   the stream-start updates cost 1.5-6.5 ms in a deciding push). Measured on the shared clips
   (sigma = 10), mean F1 against offline (lowest clip): 0.801 (0.500) at lookahead 30, 0.852
   (0.615) at 60, 0.895 (0.773) at 121, 0.931 (0.811) at 240; with the stream-start updates
   made at once 0.804, 0.851, 0.897 (0.773), 0.932 (0.822). Other timings of the same work
-  move these by +-0.005.
+  move these by +-0.005. The spread was 24 frames at every rate, so a 30 Hz stream switched
+  bases 0.8 s after they were due: the same take's online keys at 30 / 60 / 240 Hz against
+  the 120 Hz take's (29 shared BVH clips, F1 mean, lowest) 0.844 (0.686) / 0.947 (0.865) /
+  0.976 (0.912) with 24 frames, 0.856 (0.686) / 0.950 (0.865) / 0.982 (0.955) with 0.2 s.
 - Itti maxima M_i and H, mean of the other local maxima, and the mean-saliency threshold ->
   per (curve, scale) running count, sum, maximum, and local-maximum count / sum / maximum of
   the raw maps of every frame so far. Whole-history statistics, not a short window (they
@@ -368,11 +372,11 @@ class Online(WindowAnalysis):
             self._fold_out(self.stats.folded_upto + FOLD_EVERY)  # the past in small pieces
 
     def _spreads(self, t: int) -> bool:
-        """Whether a basis update due at frame t is spread over `SPREAD` frames rather than
+        """Whether a basis update due at frame t is spread over `setup.spread` frames rather than
         made at once: every one but the first of a window (`lookahead`, or `resume_at`),
         once frame t holds the support of the stream-start rows' maps (frame 2 radius + 2)."""
         R = self.setup.radius
-        return self.setup.window > SPREAD + 2 * R + 2 and t >= 2 * R + 2
+        return self.setup.window > self.setup.spread + 2 * R + 2 and t >= 2 * R + 2
 
     def _peek(self, upto: int) -> None:
         """Curve rows up to `upto` for the provisional candidates only, without catching up

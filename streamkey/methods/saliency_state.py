@@ -17,10 +17,20 @@ from typing import Any
 
 import numpy as np
 
-from .saliency_math import Basis, MapStats, Moments, curve_weights, remap
+from ..units import Duration, whole_frames
+from .saliency_math import REFERENCE_FPS, Basis, MapStats, Moments, curve_weights, remap
 
 __all__ = ["OnlineSetup", "WindowBuffers", "RunningStatistics", "CurveBasis", "BasisUpdate",
-           "Preview"]
+           "Preview", "SPREAD", "MIN_SPREAD_FRAMES", "spread_frames"]
+
+SPREAD = Duration.seconds(0.2)  # a periodic basis update's work, spread before it applies
+MIN_SPREAD_FRAMES = 10  # its pieces: moments, correlation, eigenvectors, matching, curves in
+# two halves, curvatures, at least one block of maps, the switch
+
+
+def spread_frames(fps: float) -> int:
+    """`SPREAD` in frames at `fps` (24 at 120 Hz), at least `MIN_SPREAD_FRAMES`."""
+    return whole_frames(SPREAD, fps, MIN_SPREAD_FRAMES)
 
 
 @dataclass(frozen=True)
@@ -44,6 +54,11 @@ class OnlineSetup:
     diff_bank: np.ndarray  # normalised kernel differences G(s_i) - G(2 s_i), main then foot
     lp_b: np.ndarray  # the low-pass of the curves' inputs (`saliency_math.lowpass`): numerator
     lp_a: np.ndarray  # and denominator
+
+    @property
+    def spread(self) -> int:
+        """Frames a periodic basis update is spread over (`spread_frames`)."""
+        return spread_frames(REFERENCE_FPS / self.step)
 
     @property
     def h2(self) -> float:
@@ -171,8 +186,8 @@ class CurveBasis:
 @dataclass
 class BasisUpdate:
     """A basis update in progress, spread over frames: due at frame u, the moments of its
-    window w0..u (rows copied); the window at the switch (frame u + SPREAD - 1) starts at
-    frame lo, and the basis decides from frame u + SPREAD on."""
+    window w0..u (rows copied); the window at the switch (frame u + spread - 1) starts at
+    frame lo, and the basis decides from frame u + spread on (`OnlineSetup.spread`)."""
 
     u: int  # the frame it is due at
     w0: int  # first frame of its moments' window

@@ -30,6 +30,7 @@ from .saliency_math import (
     remap_stats,
 )
 from .saliency_state import (
+    SPREAD,
     BasisUpdate,
     CurveBasis,
     OnlineSetup,
@@ -37,7 +38,6 @@ from .saliency_state import (
     WindowBuffers,
 )
 
-SPREAD = 24  # frames over which a periodic basis update is computed before it applies
 FOLD_EVERY = 64  # frames that left the window folded into the totals at once
 
 __all__ = ["WindowAnalysis", "SPREAD", "FOLD_EVERY"]
@@ -47,7 +47,7 @@ class WindowAnalysis(OnlineKeyframer):
     """Rows and statistics of the online saliency keyframer (no decisions): frames enter the
     ring (`ring`), their curve, curvature and map rows are computed incrementally
     (`_catch_up`), the statistics run (`stats`), and the basis (`curves`) is recomputed at
-    once (`_update`) or spread over `SPREAD` frames (`spread`)."""
+    once (`_update`) or spread over `setup.spread` frames (`spread`)."""
 
     setup: OnlineSetup  # fixed by the parameters
 
@@ -255,7 +255,7 @@ class WindowAnalysis(OnlineKeyframer):
     def _spread_rows(self, sp: BasisUpdate, a: int, e: int
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Switch to the spread update's basis; curves, curvatures and maps of the window
-        (ring rows a..e-1, frames lo .. u + SPREAD - 1): the spread's rows, completed by the
+        (ring rows a..e-1, frames lo .. u + spread - 1): the spread's rows, completed by the
         frames after u and the maps that reach them."""
         assert sp.basis is not None and sp.d is not None and sp.c is not None
         assert sp.s is not None
@@ -328,12 +328,12 @@ class WindowAnalysis(OnlineKeyframer):
     def _spread_start(self, u: int) -> None:
         """A basis update due at frame u (after its decisions): fold the window's past out
         and keep a copy of the window's rows; the work follows one piece a frame
-        (`_spread_step`, in `idle()`), the switch at frame u + `SPREAD` - 1, so that the
-        new basis decides from frame u + `SPREAD` on (`saliency_online` docstring)."""
+        (`_spread_step`, in `idle()`), the switch at frame u + spread - 1, so that the
+        new basis decides from frame u + spread on (`saliency_online` docstring)."""
         self._catch_up(u)
         ring = self.ring
         w0 = max(0, u - self.setup.window + 1, ring.base)  # (as `_update`'s)
-        lo = max(0, u + SPREAD - self.setup.window)  # the window's start at the switch
+        lo = max(0, u + self.setup.spread - self.setup.window)  # window start at the switch
         self._fold_out(w0)
         a, e = w0 - ring.base, u - ring.base + 1
         self.spread = BasisUpdate(u, w0, lo, self.stats.folded_moments,
@@ -347,7 +347,7 @@ class WindowAnalysis(OnlineKeyframer):
         block of maps), or the switch at its last frame."""
         sp, su = self.spread, self.setup
         assert sp is not None
-        v = sp.u + SPREAD - 1  # the switch, staged for the next frame
+        v = sp.u + su.spread - 1  # the switch, staged for the next frame
         if t >= v:
             self._stage(sp)
             return
@@ -398,7 +398,7 @@ class WindowAnalysis(OnlineKeyframer):
 
     def _stage(self, sp: BasisUpdate) -> None:
         """The switch of a spread update (`_update`), made on a copy of the state at frame
-        u + `SPREAD` - 1 (in `idle()`) and swapped in by the next frame, before its
+        u + spread - 1 (in `idle()`) and swapped in by the next frame, before its
         decisions: no decision reads it earlier, and the basis changes with that frame."""
         new = copy.copy(self)
         new.ring = self.ring.with_own_curves()
