@@ -68,7 +68,9 @@ def add_parser(sub: Any) -> None:
                         "process hop costs one stream about 1 ms of latency)")
     p.add_argument("--realtime", action="store_true",
                    help="run ahead of ordinary processes (SCHED_RR 10 where allowed, else "
-                        "nice -10), so frames do not wait for a busy machine's other work")
+                        "nice -10) and keep idle CPUs quick to wake (a 0 us PM QoS request "
+                        "where allowed), so frames do not wait for a busy machine's other "
+                        "work or for a sleeping core")
     add_playable_options(p)
     add_dashboard_options(p)
     add_roles_option(p)
