@@ -64,18 +64,16 @@ def hold_cpu_wakeup_latency(device: str = PM_QOS_DEVICE) -> str:
     and 29 µs with the request held. Costs power on an idle machine, so only with
     `--realtime`; writing the device needs root (or a udev rule). Returns what was granted."""
     global _pm_qos_request
-    if _pm_qos_request is not None:
-        return "CPU wake-up latency 0 us (PM QoS)"
-    try:
-        fd = os.open(device, os.O_WRONLY | os.O_CLOEXEC)
-    except OSError as exc:
-        return f"CPU wake-up latency not held ({device}: {_reason(exc)})"
-    try:
-        os.write(fd, (0).to_bytes(4, sys.byteorder))
-    except OSError as exc:
-        os.close(fd)
-        return f"CPU wake-up latency not held ({device}: {_reason(exc)})"
-    _pm_qos_request = fd
+    if _pm_qos_request is None:
+        fd = None
+        try:
+            fd = os.open(device, os.O_WRONLY | os.O_CLOEXEC)
+            os.write(fd, (0).to_bytes(4, sys.byteorder))
+        except OSError as exc:
+            if fd is not None:
+                os.close(fd)
+            return f"CPU wake-up latency not held ({device}: {_reason(exc)})"
+        _pm_qos_request = fd
     return "CPU wake-up latency 0 us (PM QoS)"
 
 
